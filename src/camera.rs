@@ -1,0 +1,136 @@
+//! A pinhole camera: eye, look-at point, up vector and vertical field of view, with
+//! the aspect ratio taken from the image size. Rays go through pixel centres; pixel
+//! row 0 is the top row of the image.
+
+use glam::Vec3;
+
+use crate::error::{Error, Result};
+use crate::geometry::Ray;
+
+#[derive(Clone, Copy, Debug)]
+pub struct Camera {
+    pub eye: Vec3,
+    /// Direction to the centre of the top-left pixel corner of the image plane at distance 1.
+    corner: Vec3,
+    /// One pixel step to the right on the image plane.
+    step_x: Vec3,
+    /// One pixel step down on the image plane.
+    step_y: Vec3,
+}
+
+impl Camera {
+    /// `fov_deg` is the vertical field of view in degrees, in (0, 180).
+    /// Errors name the flag a user would have set: `--eye`/`--look` when they
+    /// coincide, `--up` when it is parallel to the view direction.
+    pub fn new(
+        eye: Vec3,
+        look: Vec3,
+        up: Vec3,
+        fov_deg: f32,
+        width: u32,
+        height: u32,
+    ) -> Result<Camera> {
+        if !(eye.is_finite() && look.is_finite() && up.is_finite()) {
+            return Err(Error::usage("--eye/--look/--up", "values must be finite"));
+        }
+        if !(fov_deg > 0.0 && fov_deg < 180.0) {
+            return Err(Error::usage(
+                "--fov",
+                format!("{fov_deg} is outside (0, 180) degrees"),
+            ));
+        }
+        if width == 0 || height == 0 {
+            return Err(Error::usage("--size", "width and height must be at least 1"));
+        }
+        let forward = (look - eye).normalize_or_zero();
+        if forward == Vec3::ZERO {
+            return Err(Error::usage("--look", "look-at point equals the eye"));
+        }
+        let right = forward.cross(up).normalize_or_zero();
+        if right == Vec3::ZERO {
+            return Err(Error::usage("--up", "up vector is zero or parallel to the view direction"));
+        }
+        let true_up = right.cross(forward);
+        let half_h = (fov_deg.to_radians() * 0.5).tan();
+        let half_w = half_h * width as f32 / height as f32;
+        let step_x = right * (2.0 * half_w / width as f32);
+        let step_y = -true_up * (2.0 * half_h / height as f32);
+        let corner = forward - right * half_w + true_up * half_h;
+        Ok(Camera {
+            eye,
+            corner,
+            step_x,
+            step_y,
+        })
+    }
+
+    /// The primary ray through the centre of pixel (`x`, `y`), `y = 0` at the top.
+    /// Its direction is normalised, so `t` is a distance.
+    #[inline]
+    pub fn ray(&self, x: u32, y: u32) -> Ray {
+        let d = self.corner + self.step_x * (x as f32 + 0.5) + self.step_y * (y as f32 + 0.5);
+        Ray::new(self.eye, d.normalize())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn study_camera(w: u32, h: u32) -> Camera {
+        Camera::new(Vec3::new(0.0, 1.0, 3.0), Vec3::new(0.0, 1.0, 0.0), Vec3::Y, 60.0, w, h)
+            .unwrap()
+    }
+
+    #[test]
+    fn centre_pixel_looks_at_the_target() {
+        // Odd size so a pixel centre lies on the optical axis.
+        let c = study_camera(101, 51);
+        let r = c.ray(50, 25);
+        assert!((r.dir - Vec3::new(0.0, 0.0, -1.0)).length() < 1e-6);
+        assert_eq!(r.origin, Vec3::new(0.0, 1.0, 3.0));
+    }
+
+    #[test]
+    fn top_row_looks_up_and_left_column_looks_left() {
+        let c = study_camera(64, 48);
+        let top = c.ray(32, 0);
+        assert!(top.dir.y > 0.0);
+        // The top pixel centre is half a pixel inside the 30-degree half angle.
+        let angle = top.dir.y.atan2(-top.dir.z).to_degrees();
+        let expected = ((30f32.to_radians().tan()) * (1.0 - 1.0 / 48.0)).atan().to_degrees();
+        assert!((angle - expected).abs() < 1e-3, "{angle} vs {expected}");
+        assert!(c.ray(0, 24).dir.x < 0.0);
+        assert!(c.ray(63, 24).dir.x > 0.0);
+    }
+
+    #[test]
+    fn aspect_comes_from_the_image_size() {
+        let c = study_camera(200, 100);
+        let right = c.ray(199, 50).dir;
+        let half_w = 2.0 * 30f32.to_radians().tan() * (1.0 - 1.0 / 200.0);
+        assert!((right.x / -right.z - half_w).abs() < 1e-3);
+    }
+
+    #[test]
+    fn bad_parameters_name_their_flag() {
+        let e = Vec3::new(0.0, 1.0, 3.0);
+        let l = Vec3::new(0.0, 1.0, 0.0);
+        for fov in [0.0, 180.0, -5.0, f32::NAN] {
+            let err = Camera::new(e, l, Vec3::Y, fov, 10, 10).unwrap_err();
+            assert!(err.to_string().starts_with("--fov"), "{err}");
+        }
+        assert!(Camera::new(e, e, Vec3::Y, 60.0, 10, 10)
+            .unwrap_err()
+            .to_string()
+            .starts_with("--look"));
+        assert!(Camera::new(e, l, Vec3::Z, 60.0, 10, 10)
+            .unwrap_err()
+            .to_string()
+            .starts_with("--up"));
+        assert!(Camera::new(e, l, Vec3::Y, 60.0, 0, 10)
+            .unwrap_err()
+            .to_string()
+            .starts_with("--size"));
+    }
+}

@@ -1,0 +1,358 @@
+//! The command line: parses flags with clap, runs the library, prints a readable
+//! summary on stderr and (with `--json`) one JSON object on stdout. Every error is
+//! one line on stderr and a non-zero exit status.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use clap::{Args, Parser, Subcommand};
+use glam::Vec3;
+use serde::Serialize;
+
+use crate::accel::{build_backend, BackendKind};
+use crate::camera::Camera;
+use crate::error::{Error, Result};
+use crate::progress::Progress;
+use crate::render::{self, output, AoMode, RenderSettings, Schedule};
+use crate::scene::builtin::{builtin, BUILTIN_SCENES};
+use crate::scene::obj::load_obj;
+use crate::scene::Scene;
+
+#[derive(Parser, Debug)]
+#[command(name = "raylab", version, about = "Compare ray-tracing acceleration structures on the CPU")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Render a scene with one backend and schedule, write a PNG and print timings.
+    Render(RenderArgs),
+    /// List the built-in scenes.
+    Scenes,
+}
+
+/// Camera and shading flags shared by commands that render.
+#[derive(Args, Debug, Clone)]
+pub struct ViewArgs {
+    /// Eye position.
+    #[arg(long, value_name = "X,Y,Z", default_value = "0,1,3", value_parser = parse_vec3)]
+    pub eye: Vec3,
+    /// Point looked at.
+    #[arg(long, value_name = "X,Y,Z", default_value = "0,1,0", value_parser = parse_vec3)]
+    pub look: Vec3,
+    /// Up vector.
+    #[arg(long, value_name = "X,Y,Z", default_value = "0,1,0", value_parser = parse_vec3)]
+    pub up: Vec3,
+    /// Vertical field of view in degrees, in (0, 180).
+    #[arg(long, value_name = "DEG", default_value_t = 60.0, value_parser = parse_fov)]
+    pub fov: f32,
+    /// Image size.
+    #[arg(long, value_name = "WxH", default_value = "1024x768", value_parser = parse_size)]
+    pub size: (u32, u32),
+    /// Ambient occlusion: off, paper (the study's 14 fixed directions) or cosine:N.
+    #[arg(long, value_name = "MODE", default_value = "paper")]
+    pub ao: AoMode,
+    /// Length of AO rays in scene units.
+    #[arg(long, value_name = "D", default_value_t = 0.2)]
+    pub ao_dist: f32,
+    /// Shadow rays per pixel towards the emissive triangles.
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub light_samples: u32,
+    /// Seed of the per-pixel random streams.
+    #[arg(long, value_name = "S", default_value_t = 1)]
+    pub seed: u64,
+}
+
+impl ViewArgs {
+    pub fn settings(&self) -> Result<RenderSettings> {
+        let (width, height) = self.size;
+        let camera = Camera::new(self.eye, self.look, self.up, self.fov, width, height)?;
+        let settings = RenderSettings {
+            width,
+            height,
+            camera,
+            ao: self.ao,
+            ao_dist: self.ao_dist,
+            light_samples: self.light_samples,
+            seed: self.seed,
+        };
+        settings.validate()?;
+        Ok(settings)
+    }
+}
+
+#[derive(Args, Debug)]
+struct RenderArgs {
+    /// An .obj file or a built-in scene name (see `raylab scenes`).
+    #[arg(default_value = "cornell-original")]
+    scene: String,
+    /// Acceleration structure.
+    #[arg(long, value_enum, default_value_t = BackendKind::Naive)]
+    backend: BackendKind,
+    /// How the image is divided between threads.
+    #[arg(long, value_enum, default_value_t = Schedule::Tiles)]
+    schedule: Schedule,
+    /// Worker threads for the tiles and rayon schedules [default: all hardware threads].
+    #[arg(long, value_name = "N", value_parser = parse_threads)]
+    threads: Option<usize>,
+    #[command(flatten)]
+    view: ViewArgs,
+    /// Output PNG.
+    #[arg(short = 'o', long = "output", value_name = "PNG", default_value = "out.png")]
+    output: PathBuf,
+    /// Print one JSON object with the results on stdout.
+    #[arg(long)]
+    json: bool,
+    /// No progress bar and no summary on stderr.
+    #[arg(long, short = 'q')]
+    quiet: bool,
+}
+
+fn parse_vec3(s: &str) -> std::result::Result<Vec3, String> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    if parts.len() != 3 {
+        return Err(format!("expected three comma-separated numbers X,Y,Z, got {}", parts.len()));
+    }
+    let mut v = [0.0f32; 3];
+    for (slot, p) in v.iter_mut().zip(&parts) {
+        *slot = p.parse().map_err(|_| format!("'{p}' is not a number"))?;
+        if !slot.is_finite() {
+            return Err(format!("'{p}' is not finite"));
+        }
+    }
+    Ok(Vec3::from_array(v))
+}
+
+fn parse_size(s: &str) -> std::result::Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| "expected WIDTHxHEIGHT, e.g. 1024x768".to_string())?;
+    let w: u32 = w.trim().parse().map_err(|_| format!("width '{w}' is not a whole number"))?;
+    let h: u32 = h.trim().parse().map_err(|_| format!("height '{h}' is not a whole number"))?;
+    if w == 0 || h == 0 {
+        return Err("width and height must be at least 1".into());
+    }
+    if w > 16384 || h > 16384 {
+        return Err("width and height must be at most 16384".into());
+    }
+    Ok((w, h))
+}
+
+fn parse_fov(s: &str) -> std::result::Result<f32, String> {
+    let f: f32 = s.parse().map_err(|_| format!("'{s}' is not a number"))?;
+    if !(f > 0.0 && f < 180.0) {
+        return Err(format!("{f} is outside (0, 180) degrees"));
+    }
+    Ok(f)
+}
+
+fn parse_threads(s: &str) -> std::result::Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if (1..=1024).contains(&n) => Ok(n),
+        _ => Err(format!("'{s}' must be a whole number in 1..=1024")),
+    }
+}
+
+/// All hardware threads, the default for `--threads`.
+pub fn default_threads() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// Loads `spec`: a path to an OBJ file, or else a built-in scene name.
+pub fn load_scene(spec: &str) -> Result<Scene> {
+    let path = Path::new(spec);
+    let looks_like_file = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("obj"))
+        || spec.contains(std::path::MAIN_SEPARATOR);
+    if looks_like_file || path.is_file() {
+        load_obj(path)
+    } else {
+        builtin(spec)
+    }
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+#[derive(Serialize)]
+struct RayCounts {
+    primary: u64,
+    shadow: u64,
+    ao: u64,
+}
+
+#[derive(Serialize)]
+struct RenderReport {
+    scene: String,
+    triangles: usize,
+    emissive_triangles: usize,
+    dropped_degenerate: usize,
+    backend: String,
+    schedule: Schedule,
+    threads: usize,
+    width: u32,
+    height: u32,
+    ao: String,
+    light_samples: u32,
+    seed: u64,
+    load_ms: f64,
+    build_ms: f64,
+    render_ms: f64,
+    rays: RayCounts,
+    /// All rays over render wall time.
+    mrays_per_s: f64,
+    output: String,
+    image_hash: String,
+    warnings: Vec<String>,
+}
+
+fn run_render(args: &RenderArgs) -> Result<()> {
+    let settings = args.view.settings()?;
+    output::check_writable(&args.output)?;
+    let threads = args.threads.unwrap_or_else(default_threads);
+    let say = |line: String| {
+        if !args.quiet {
+            eprintln!("{line}");
+        }
+    };
+
+    let start = Instant::now();
+    let scene = load_scene(&args.scene)?;
+    let load_time = start.elapsed();
+    for w in &scene.warnings {
+        say(format!("warning: {w}"));
+    }
+    if scene.lights.is_empty() {
+        say("warning: the scene has no emissive triangles; lighting it with a headlight at the eye".into());
+    }
+    say(format!(
+        "scene {}: {} triangles ({} emissive), loaded in {:.1} ms",
+        scene.name,
+        scene.triangle_count(),
+        scene.lights.triangles.len(),
+        ms(load_time)
+    ));
+
+    let backend = build_backend(args.backend, &scene);
+    say(format!("backend {}: built in {:.1} ms", backend.name(), ms(backend.build_time())));
+
+    let progress = Progress::new();
+    let total_pixels = settings.width as u64 * settings.height as u64;
+    let start = Instant::now();
+    let (frame, stats) = progress.watch("render", total_pixels, args.quiet, Duration::from_secs(1), || {
+        render::render(&scene, backend.as_ref(), &settings, args.schedule, threads, &progress)
+    })?;
+    let render_time = start.elapsed();
+
+    let rgb8 = output::to_srgb8(&frame);
+    let hash = output::image_hash(&rgb8);
+    output::write_png(&args.output, frame.width, frame.height, &rgb8)?;
+
+    let threads_used = args.schedule.threads_used(threads, settings.height);
+    let mrays = stats.total_rays() as f64 / render_time.as_secs_f64().max(1e-9) / 1e6;
+    let per_thread = |rays: u64, t: Duration| rays as f64 / t.as_secs_f64().max(1e-9) / 1e6;
+    say(format!(
+        "render {}x{} {} ({} thread{}), ao {}: {:.1} ms, {:.2} M rays, {:.2} Mrays/s",
+        settings.width,
+        settings.height,
+        args.schedule.name(),
+        threads_used,
+        if threads_used == 1 { "" } else { "s" },
+        settings.ao,
+        ms(render_time),
+        stats.total_rays() as f64 / 1e6,
+        mrays
+    ));
+    say(format!(
+        "  per thread: primary {} rays {:.2} Mrays/s | shadow {} rays {:.2} Mrays/s | ao {} rays {:.2} Mrays/s",
+        stats.primary_rays,
+        per_thread(stats.primary_rays, stats.primary_time),
+        stats.shadow_rays,
+        per_thread(stats.shadow_rays, stats.shadow_time),
+        stats.ao_rays,
+        per_thread(stats.ao_rays, stats.ao_time),
+    ));
+    say(format!("wrote {} (image hash {hash})", args.output.display()));
+
+    if args.json {
+        let report = RenderReport {
+            scene: scene.name.clone(),
+            triangles: scene.triangle_count(),
+            emissive_triangles: scene.lights.triangles.len(),
+            dropped_degenerate: scene.dropped_degenerate,
+            backend: backend.name(),
+            schedule: args.schedule,
+            threads: threads_used,
+            width: settings.width,
+            height: settings.height,
+            ao: settings.ao.to_string(),
+            light_samples: settings.light_samples,
+            seed: settings.seed,
+            load_ms: ms(load_time),
+            build_ms: ms(backend.build_time()),
+            render_ms: ms(render_time),
+            rays: RayCounts {
+                primary: stats.primary_rays,
+                shadow: stats.shadow_rays,
+                ao: stats.ao_rays,
+            },
+            mrays_per_s: mrays,
+            output: args.output.display().to_string(),
+            image_hash: hash,
+            warnings: scene.warnings.clone(),
+        };
+        let text = serde_json::to_string(&report).map_err(|e| Error::Other(e.to_string()))?;
+        println!("{text}");
+    }
+    Ok(())
+}
+
+/// Runs the command line and returns the process exit status.
+pub fn main() -> i32 {
+    // A bug must still end in one line, not a backtrace over the user's terminal.
+    std::panic::set_hook(Box::new(|info| {
+        let msg = info
+            .payload()
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| info.payload().downcast_ref::<String>().cloned())
+            .unwrap_or_default();
+        let place = info.location().map(|l| format!(" at {}:{}", l.file(), l.line())).unwrap_or_default();
+        eprintln!("raylab: internal error{place}: {msg} (please report this)");
+    }));
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            use clap::error::ErrorKind;
+            if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion)
+                || e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
+            {
+                let _ = e.print();
+                return if e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand { 2 } else { 0 };
+            }
+            // clap's message is several lines (usage, hint): keep the first.
+            let text = e.render().to_string();
+            let first = text.lines().next().unwrap_or("invalid arguments");
+            eprintln!("raylab: {}", first.trim_start_matches("error: "));
+            return 2;
+        }
+    };
+    let result = match &cli.command {
+        Command::Render(args) => run_render(args),
+        Command::Scenes => {
+            for (name, about) in BUILTIN_SCENES {
+                println!("{name:18} {about}");
+            }
+            Ok(())
+        }
+    };
+    match result {
+        Ok(()) => 0,
+        Err(e) => {
+            eprintln!("raylab: {e}");
+            1
+        }
+    }
+}

@@ -1,0 +1,382 @@
+//! Rays, hits, bounding boxes and the ray/triangle test every backend shares.
+//!
+//! All backends call [`intersect_triangle`] on the same gathered vertex data, so a
+//! hit found by two backends has a bit-identical `t`; ties between triangles at the
+//! same `t` are broken by the lowest triangle index ([`Hit::is_closer_than`]).
+
+use glam::Vec3;
+
+/// A ray segment `origin + t * dir` for `t` in the open interval `(tmin, tmax)`.
+///
+/// `dir` need not be normalised; `t` is measured in units of `dir`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ray {
+    pub origin: Vec3,
+    pub dir: Vec3,
+    pub tmin: f32,
+    pub tmax: f32,
+}
+
+impl Ray {
+    /// A ray from `origin` along `dir` with `tmin = 0` and `tmax = +inf`.
+    pub fn new(origin: Vec3, dir: Vec3) -> Self {
+        Ray {
+            origin,
+            dir,
+            tmin: 0.0,
+            tmax: f32::INFINITY,
+        }
+    }
+
+    /// A ray restricted to `(tmin, tmax)`.
+    pub fn segment(origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Self {
+        Ray {
+            origin,
+            dir,
+            tmin,
+            tmax,
+        }
+    }
+
+    /// Whether the ray can hit anything: finite origin, finite non-zero direction,
+    /// `tmin` finite and not above `tmax` (which may be `+inf`). Backends return
+    /// "no hit" for rays that fail this, so NaN input never produces a hit or a panic.
+    #[inline]
+    pub fn is_valid(&self) -> bool {
+        self.origin.is_finite()
+            && self.dir.is_finite()
+            && self.dir != Vec3::ZERO
+            && self.tmin.is_finite()
+            && self.tmin >= 0.0
+            && self.tmax >= self.tmin // false for NaN
+    }
+
+    /// The point at parameter `t`.
+    #[inline]
+    pub fn at(&self, t: f32) -> Vec3 {
+        self.origin + self.dir * t
+    }
+}
+
+/// The closest (or any) intersection of a ray with a triangle.
+///
+/// `u` and `v` are the barycentric weights of vertices 1 and 2 (vertex 0 has
+/// `1 - u - v`); `tri` is the triangle's index in the scene.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    pub t: f32,
+    pub u: f32,
+    pub v: f32,
+    pub tri: u32,
+}
+
+impl Hit {
+    /// The ordering every backend uses for closest hits: smaller `t` wins, and at
+    /// equal `t` the lower triangle index wins, so results never depend on the
+    /// order in which a backend happens to visit triangles.
+    #[inline]
+    pub fn is_closer_than(&self, other: &Hit) -> bool {
+        self.t < other.t || (self.t == other.t && self.tri < other.tri)
+    }
+}
+
+/// An axis-aligned bounding box. The empty box has `min = +inf`, `max = -inf`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Aabb {
+    pub min: Vec3,
+    pub max: Vec3,
+}
+
+impl Default for Aabb {
+    fn default() -> Self {
+        Self::EMPTY
+    }
+}
+
+impl Aabb {
+    pub const EMPTY: Aabb = Aabb {
+        min: Vec3::INFINITY,
+        max: Vec3::NEG_INFINITY,
+    };
+
+    pub fn from_points(points: &[Vec3]) -> Self {
+        points.iter().fold(Self::EMPTY, |b, &p| b.grown(p))
+    }
+
+    #[inline]
+    pub fn grown(self, p: Vec3) -> Self {
+        Aabb {
+            min: self.min.min(p),
+            max: self.max.max(p),
+        }
+    }
+
+    #[inline]
+    pub fn union(self, other: Aabb) -> Self {
+        Aabb {
+            min: self.min.min(other.min),
+            max: self.max.max(other.max),
+        }
+    }
+
+    #[inline]
+    pub fn is_empty(&self) -> bool {
+        !(self.min.cmple(self.max).all())
+    }
+
+    #[inline]
+    pub fn extent(&self) -> Vec3 {
+        if self.is_empty() {
+            Vec3::ZERO
+        } else {
+            self.max - self.min
+        }
+    }
+
+    #[inline]
+    pub fn center(&self) -> Vec3 {
+        (self.min + self.max) * 0.5
+    }
+
+    /// Surface area; 0 for the empty box.
+    #[inline]
+    pub fn surface_area(&self) -> f32 {
+        let e = self.extent();
+        2.0 * (e.x * e.y + e.y * e.z + e.z * e.x)
+    }
+
+    /// Whether `other` lies inside this box (boundaries included).
+    pub fn contains(&self, other: &Aabb) -> bool {
+        other.is_empty() || (self.min.cmple(other.min).all() && other.max.cmple(self.max).all())
+    }
+
+    /// Slab test against a ray whose reciprocal direction is `inv_dir` (see
+    /// [`safe_reciprocal`]). Returns the entry distance if the box overlaps
+    /// `(ray.tmin, tmax)`, with `tmax` the caller's current closest hit.
+    #[inline]
+    pub fn intersect(&self, origin: Vec3, inv_dir: Vec3, tmin: f32, tmax: f32) -> Option<f32> {
+        let t0 = (self.min - origin) * inv_dir;
+        let t1 = (self.max - origin) * inv_dir;
+        let near = t0.min(t1).max_element().max(tmin);
+        let far = t0.max(t1).min_element().min(tmax);
+        // `<=` keeps boxes touched at a single point (flat boxes of axis-aligned
+        // triangles); NaN from 0 * inf compares false and is handled by safe_reciprocal.
+        if near <= far {
+            Some(near)
+        } else {
+            None
+        }
+    }
+}
+
+/// `1 / d` per component, with zero components mapped to a huge finite value of the
+/// same sign instead of infinity, so the slab test never computes `0 * inf = NaN`
+/// for rays that lie in a slab's boundary plane.
+#[inline]
+pub fn safe_reciprocal(d: Vec3) -> Vec3 {
+    const BIG: f32 = 1e30;
+    let r = |c: f32| {
+        if c == 0.0 {
+            if c.is_sign_negative() {
+                -BIG
+            } else {
+                BIG
+            }
+        } else {
+            (1.0 / c).clamp(-BIG, BIG)
+        }
+    };
+    Vec3::new(r(d.x), r(d.y), r(d.z))
+}
+
+/// Moller-Trumbore ray/triangle test. Returns `(t, u, v)` for a hit with `t` in
+/// `(ray.tmin, ray.tmax)`, both sides of the triangle counting; edges and vertices
+/// are inclusive, so a ray through a shared edge hits both triangles (a tie).
+///
+/// Degenerate triangles and rays parallel to the plane (|det| below the smallest
+/// normal float) never hit; NaN anywhere yields `None` because every accept test
+/// is written so that NaN compares false.
+#[inline]
+pub fn intersect_triangle(ray: &Ray, tri: &[Vec3; 3]) -> Option<(f32, f32, f32)> {
+    let e1 = tri[1] - tri[0];
+    let e2 = tri[2] - tri[0];
+    let p = ray.dir.cross(e2);
+    let det = e1.dot(p);
+    if !(det.abs() >= f32::MIN_POSITIVE) {
+        return None;
+    }
+    let inv_det = 1.0 / det;
+    let s = ray.origin - tri[0];
+    let u = s.dot(p) * inv_det;
+    if !(0.0..=1.0).contains(&u) {
+        return None;
+    }
+    let q = s.cross(e1);
+    let v = ray.dir.dot(q) * inv_det;
+    if !(v >= 0.0 && u + v <= 1.0) {
+        return None;
+    }
+    let t = e2.dot(q) * inv_det;
+    if t > ray.tmin && t < ray.tmax {
+        Some((t, u, v))
+    } else {
+        None
+    }
+}
+
+/// The unnormalised geometric normal `(v1 - v0) x (v2 - v0)` (length = 2 * area).
+#[inline]
+pub fn triangle_normal(tri: &[Vec3; 3]) -> Vec3 {
+    (tri[1] - tri[0]).cross(tri[2] - tri[0])
+}
+
+/// Triangle area (0 for degenerate triangles, NaN for non-finite vertices).
+#[inline]
+pub fn triangle_area(tri: &[Vec3; 3]) -> f32 {
+    0.5 * triangle_normal(tri).length()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn unit_tri() -> [Vec3; 3] {
+        [
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+        ]
+    }
+
+    #[test]
+    fn front_hit_reports_t_and_barycentrics() {
+        let r = Ray::new(Vec3::new(0.25, 0.5, 1.0), Vec3::new(0.0, 0.0, -1.0));
+        let (t, u, v) = intersect_triangle(&r, &unit_tri()).unwrap();
+        assert!((t - 1.0).abs() < 1e-6);
+        assert!((u - 0.25).abs() < 1e-6 && (v - 0.5).abs() < 1e-6);
+    }
+
+    #[test]
+    fn back_side_hits_too() {
+        let r = Ray::new(Vec3::new(0.25, 0.25, -2.0), Vec3::new(0.0, 0.0, 1.0));
+        let (t, _, _) = intersect_triangle(&r, &unit_tri()).unwrap();
+        assert!((t - 2.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn edge_and_vertex_are_inclusive() {
+        let tri = unit_tri();
+        for p in [
+            Vec3::new(0.5, 0.0, 1.0),
+            Vec3::new(0.0, 0.5, 1.0),
+            Vec3::new(0.5, 0.5, 1.0),
+            Vec3::new(0.0, 0.0, 1.0),
+        ] {
+            let r = Ray::new(p, Vec3::new(0.0, 0.0, -1.0));
+            assert!(intersect_triangle(&r, &tri).is_some(), "{p}");
+        }
+    }
+
+    #[test]
+    fn outside_misses() {
+        let r = Ray::new(Vec3::new(0.6, 0.6, 1.0), Vec3::new(0.0, 0.0, -1.0));
+        assert!(intersect_triangle(&r, &unit_tri()).is_none());
+        let r = Ray::new(Vec3::new(-0.01, 0.5, 1.0), Vec3::new(0.0, 0.0, -1.0));
+        assert!(intersect_triangle(&r, &unit_tri()).is_none());
+    }
+
+    #[test]
+    fn parallel_ray_misses() {
+        let r = Ray::new(Vec3::new(-1.0, 0.25, 0.0), Vec3::new(1.0, 0.0, 0.0));
+        assert!(intersect_triangle(&r, &unit_tri()).is_none());
+        let r = Ray::new(Vec3::new(-1.0, 0.25, 0.5), Vec3::new(1.0, 0.0, 0.0));
+        assert!(intersect_triangle(&r, &unit_tri()).is_none());
+    }
+
+    #[test]
+    fn triangle_behind_origin_misses() {
+        let r = Ray::new(Vec3::new(0.25, 0.25, 1.0), Vec3::new(0.0, 0.0, 1.0));
+        assert!(intersect_triangle(&r, &unit_tri()).is_none());
+    }
+
+    #[test]
+    fn tmax_and_tmin_cut_off() {
+        let d = Vec3::new(0.0, 0.0, -1.0);
+        let o = Vec3::new(0.25, 0.25, 1.0);
+        assert!(intersect_triangle(&Ray::segment(o, d, 0.0, 0.999), &unit_tri()).is_none());
+        assert!(intersect_triangle(&Ray::segment(o, d, 0.0, 1.001), &unit_tri()).is_some());
+        assert!(intersect_triangle(&Ray::segment(o, d, 1.001, 5.0), &unit_tri()).is_none());
+    }
+
+    #[test]
+    fn nan_inputs_never_hit() {
+        let tri = unit_tri();
+        let nan = Vec3::new(f32::NAN, 0.0, 0.0);
+        let d = Vec3::new(0.0, 0.0, -1.0);
+        let o = Vec3::new(0.25, 0.25, 1.0);
+        assert!(intersect_triangle(&Ray::new(nan, d), &tri).is_none());
+        assert!(intersect_triangle(&Ray::new(o, nan), &tri).is_none());
+        assert!(intersect_triangle(&Ray::segment(o, d, 0.0, f32::NAN), &tri).is_none());
+        let bad = [nan, tri[1], tri[2]];
+        assert!(intersect_triangle(&Ray::new(o, d), &bad).is_none());
+        assert!(!Ray::new(o, Vec3::ZERO).is_valid());
+        assert!(!Ray::new(nan, d).is_valid());
+        assert!(!Ray::segment(o, d, 0.0, f32::NAN).is_valid());
+        assert!(Ray::new(o, d).is_valid());
+    }
+
+    #[test]
+    fn degenerate_triangle_never_hits() {
+        let tri = [Vec3::ZERO, Vec3::X, Vec3::X * 2.0];
+        let r = Ray::new(Vec3::new(0.5, 0.0, 1.0), Vec3::new(0.0, 0.0, -1.0));
+        assert!(intersect_triangle(&r, &tri).is_none());
+    }
+
+    #[test]
+    fn ties_break_to_lowest_index() {
+        let a = Hit {
+            t: 1.0,
+            u: 0.0,
+            v: 0.0,
+            tri: 3,
+        };
+        let b = Hit { tri: 7, ..a };
+        assert!(a.is_closer_than(&b));
+        assert!(!b.is_closer_than(&a));
+        let c = Hit { t: 0.5, ..b };
+        assert!(c.is_closer_than(&a));
+    }
+
+    #[test]
+    fn slab_test_handles_zero_direction_components() {
+        let b = Aabb {
+            min: Vec3::ZERO,
+            max: Vec3::ONE,
+        };
+        // Ray inside the slab x in [0,1] travelling along +z with dx = dy = 0.
+        let o = Vec3::new(0.5, 0.5, -1.0);
+        let d = Vec3::new(0.0, 0.0, 1.0);
+        let t = b.intersect(o, safe_reciprocal(d), 0.0, f32::INFINITY);
+        assert!((t.unwrap() - 1.0).abs() < 1e-6);
+        // Ray in the boundary plane x = 0 still counts (flat boxes must be hit).
+        let o = Vec3::new(0.0, 0.5, -1.0);
+        assert!(b.intersect(o, safe_reciprocal(d), 0.0, f32::INFINITY).is_some());
+        // Outside the slab: miss.
+        let o = Vec3::new(1.5, 0.5, -1.0);
+        assert!(b.intersect(o, safe_reciprocal(d), 0.0, f32::INFINITY).is_none());
+        // Beyond tmax: miss.
+        let o = Vec3::new(0.5, 0.5, -1.0);
+        assert!(b.intersect(o, safe_reciprocal(d), 0.0, 0.5).is_none());
+    }
+
+    #[test]
+    fn aabb_union_contains_and_area() {
+        let a = Aabb::from_points(&[Vec3::ZERO, Vec3::ONE]);
+        assert_eq!(a.surface_area(), 6.0);
+        assert_eq!(Aabb::EMPTY.surface_area(), 0.0);
+        assert!(Aabb::EMPTY.is_empty());
+        let b = a.union(Aabb::from_points(&[Vec3::splat(2.0)]));
+        assert!(b.contains(&a));
+        assert!(!a.contains(&b));
+    }
+}

@@ -1,0 +1,74 @@
+//! Progress on stderr for long work. The work only bumps an atomic counter; a
+//! monitor thread shows an `indicatif` bar once the work has run for about a second,
+//! so short renders print nothing and the hot loop never touches the terminal.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+/// A shared counter of finished work units.
+#[derive(Debug, Default)]
+pub struct Progress {
+    done: AtomicU64,
+}
+
+impl Progress {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    pub fn advance(&self, n: u64) {
+        self.done.fetch_add(n, Ordering::Relaxed);
+    }
+
+    pub fn done(&self) -> u64 {
+        self.done.load(Ordering::Relaxed)
+    }
+
+    /// Runs `f` while a monitor shows a bar for `progress` out of `total` units on
+    /// stderr after `delay`, unless `quiet` or stderr is not a terminal.
+    pub fn watch<T>(
+        &self,
+        label: &str,
+        total: u64,
+        quiet: bool,
+        delay: Duration,
+        f: impl FnOnce() -> T,
+    ) -> T {
+        let finished = AtomicBool::new(false);
+        std::thread::scope(|s| {
+            if !quiet {
+                s.spawn(|| self.monitor(label, total, delay, &finished));
+            }
+            let result = f();
+            finished.store(true, Ordering::Relaxed);
+            result
+        })
+    }
+
+    fn monitor(&self, label: &str, total: u64, delay: Duration, finished: &AtomicBool) {
+        let start = Instant::now();
+        let mut bar: Option<ProgressBar> = None;
+        while !finished.load(Ordering::Relaxed) {
+            std::thread::sleep(Duration::from_millis(50));
+            if bar.is_none() && start.elapsed() >= delay {
+                // Draws only when stderr is a terminal (indicatif checks).
+                let b = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr());
+                b.set_style(
+                    ProgressStyle::with_template("{msg} [{bar:40}] {percent:>3}% {elapsed} eta {eta}")
+                        .unwrap_or_else(|_| ProgressStyle::default_bar())
+                        .progress_chars("=> "),
+                );
+                b.set_message(label.to_string());
+                bar = Some(b);
+            }
+            if let Some(b) = &bar {
+                b.set_position(self.done().min(total));
+            }
+        }
+        if let Some(b) = bar {
+            b.finish_and_clear();
+        }
+    }
+}

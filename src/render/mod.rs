@@ -1,0 +1,159 @@
+//! The one shading and ambient-occlusion loop every backend renders through, the
+//! schedules that divide the image between threads, and image output.
+//!
+//! Data flows one way: a [`Scene`](crate::scene::Scene) and a
+//! [`Backend`](crate::accel::Backend) go in, a linear-radiance [`Frame`] and
+//! [`RenderStats`] come out, and [`output`] turns the frame into 8-bit sRGB.
+
+pub mod output;
+pub mod rng;
+pub mod schedule;
+pub mod shade;
+
+use std::ops::AddAssign;
+use std::str::FromStr;
+use std::time::Duration;
+
+use glam::Vec3;
+
+use crate::camera::Camera;
+use crate::error::Error;
+
+pub use schedule::{render, Schedule};
+
+/// Ambient occlusion: off, the study's 14 fixed directions, or N cosine samples.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AoMode {
+    Off,
+    /// The study's set: 6 axis directions and 8 normalised diagonals, of which those
+    /// in the surface's hemisphere are cast.
+    Paper,
+    /// N stratified cosine-weighted hemisphere directions per pixel.
+    Cosine(u32),
+}
+
+impl FromStr for AoMode {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "off" => Ok(AoMode::Off),
+            "paper" => Ok(AoMode::Paper),
+            _ => {
+                let n = s
+                    .strip_prefix("cosine:")
+                    .ok_or_else(|| format!("'{s}': expected off, paper or cosine:N"))?;
+                match n.parse::<u32>() {
+                    Ok(n) if (1..=4096).contains(&n) => Ok(AoMode::Cosine(n)),
+                    _ => Err(format!("'{s}': N in cosine:N must be an integer in 1..=4096")),
+                }
+            }
+        }
+    }
+}
+
+impl std::fmt::Display for AoMode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            AoMode::Off => write!(f, "off"),
+            AoMode::Paper => write!(f, "paper"),
+            AoMode::Cosine(n) => write!(f, "cosine:{n}"),
+        }
+    }
+}
+
+/// Everything that decides the image, apart from the scene and the backend.
+#[derive(Clone, Debug)]
+pub struct RenderSettings {
+    pub width: u32,
+    pub height: u32,
+    pub camera: Camera,
+    pub ao: AoMode,
+    /// Length of AO rays in scene units (the study used 0.2 in its 2-unit box).
+    pub ao_dist: f32,
+    /// Shadow rays per pixel towards points sampled by area on emissive triangles.
+    pub light_samples: u32,
+    /// Seeds every pixel's random stream together with the pixel index.
+    pub seed: u64,
+}
+
+impl RenderSettings {
+    /// Checks the values that are not the camera's: AO distance and light samples.
+    pub fn validate(&self) -> Result<(), Error> {
+        if !(self.ao_dist.is_finite() && self.ao_dist > 0.0) {
+            return Err(Error::usage("--ao-dist", format!("{} must be a positive number", self.ao_dist)));
+        }
+        if self.light_samples > 4096 {
+            return Err(Error::usage("--light-samples", "at most 4096"));
+        }
+        Ok(())
+    }
+}
+
+/// Linear radiance per pixel, row 0 at the top.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Frame {
+    pub width: u32,
+    pub height: u32,
+    pub pixels: Vec<Vec3>,
+}
+
+/// A rectangle of pixels `[x0, x1) x [y0, y1)`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Rect {
+    pub x0: u32,
+    pub y0: u32,
+    pub x1: u32,
+    pub y1: u32,
+}
+
+impl Rect {
+    pub fn pixel_count(&self) -> usize {
+        ((self.x1 - self.x0) * (self.y1 - self.y0)) as usize
+    }
+}
+
+/// Ray counts by kind and the time spent in each pass, summed over threads.
+///
+/// A pass's time includes its shading work (sampling, BRDF), not only tracing; it
+/// is thread time, so for parallel schedules it exceeds wall time.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RenderStats {
+    pub primary_rays: u64,
+    pub shadow_rays: u64,
+    pub ao_rays: u64,
+    pub primary_time: Duration,
+    pub shadow_time: Duration,
+    pub ao_time: Duration,
+}
+
+impl RenderStats {
+    pub fn total_rays(&self) -> u64 {
+        self.primary_rays + self.shadow_rays + self.ao_rays
+    }
+}
+
+impl AddAssign for RenderStats {
+    fn add_assign(&mut self, o: Self) {
+        self.primary_rays += o.primary_rays;
+        self.shadow_rays += o.shadow_rays;
+        self.ao_rays += o.ao_rays;
+        self.primary_time += o.primary_time;
+        self.shadow_time += o.shadow_time;
+        self.ao_time += o.ao_time;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ao_modes_parse_and_print() {
+        for s in ["off", "paper", "cosine:1", "cosine:64"] {
+            assert_eq!(s.parse::<AoMode>().unwrap().to_string(), s);
+        }
+        for bad in ["", "on", "cosine:", "cosine:0", "cosine:x", "cosine:99999"] {
+            assert!(bad.parse::<AoMode>().is_err(), "{bad}");
+        }
+    }
+}

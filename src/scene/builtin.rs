@@ -1,0 +1,276 @@
+//! Built-in scenes generated in code, in the frame of the McGuire Cornell-box OBJ
+//! files: the box spans x and z in [-1, 1] and y in [0, 2], open at z = +1, with an
+//! emissive quad just under the ceiling. Their triangle counts match the study's
+//! scenes (12, 36, 2188, 7088) so its numbers can be set beside ours without the
+//! OBJ files. Colours are the classic box's: red left wall, green right wall,
+//! white elsewhere.
+
+use std::f32::consts::PI;
+
+use glam::Vec3;
+
+use super::{Material, Scene};
+use crate::error::{Error, Result};
+
+/// Names accepted by [`builtin`], with a one-line description each.
+pub const BUILTIN_SCENES: &[(&str, &str)] = &[
+    ("cornell-empty", "walls, floor, ceiling and light (12 triangles)"),
+    ("cornell-original", "the classic box with a short and a tall block (36 triangles)"),
+    ("cornell-sphere", "two tessellated glossy spheres instead of blocks (2188 triangles)"),
+    ("cornell-water", "the spheres half under a wavy height-field water surface (7088 triangles)"),
+];
+
+/// The built-in scene called `name`.
+pub fn builtin(name: &str) -> Result<Scene> {
+    let mut b = Builder::default();
+    b.cornell_box();
+    match name {
+        "cornell-empty" => {}
+        "cornell-original" => {
+            let white = b.material(Material::diffuse("shortBox", WHITE));
+            // Footprints of the classic blocks (the Cornell data, as in the OBJ files).
+            b.block(
+                [[0.53, 0.75], [0.70, 0.17], [0.13, 0.00], [-0.05, 0.57]],
+                0.6,
+                white,
+            );
+            b.block(
+                [[-0.53, 0.09], [0.04, -0.09], [-0.14, -0.67], [-0.71, -0.49]],
+                1.2,
+                white,
+            );
+        }
+        "cornell-sphere" => b.spheres(),
+        "cornell-water" => {
+            b.spheres();
+            b.water();
+        }
+        _ => {
+            let names: Vec<&str> = BUILTIN_SCENES.iter().map(|(n, _)| *n).collect();
+            return Err(Error::usage(
+                "SCENE",
+                format!(
+                    "'{name}' is neither an .obj file nor a built-in scene ({})",
+                    names.join(", ")
+                ),
+            ));
+        }
+    }
+    Scene::new(
+        name,
+        b.positions,
+        Some(b.normals),
+        b.triangles,
+        b.material_ids,
+        b.materials,
+    )
+}
+
+const WHITE: Vec3 = Vec3::new(0.725, 0.71, 0.68);
+const RED: Vec3 = Vec3::new(0.63, 0.065, 0.05);
+const GREEN: Vec3 = Vec3::new(0.14, 0.45, 0.091);
+
+#[derive(Default)]
+struct Builder {
+    positions: Vec<Vec3>,
+    normals: Vec<Vec3>,
+    triangles: Vec<[u32; 3]>,
+    material_ids: Vec<u32>,
+    materials: Vec<Material>,
+}
+
+impl Builder {
+    fn material(&mut self, m: Material) -> u32 {
+        self.materials.push(m);
+        self.materials.len() as u32 - 1
+    }
+
+    /// Adds a vertex; a zero normal means "use the geometric normal".
+    fn vertex(&mut self, p: Vec3, n: Vec3) -> u32 {
+        self.positions.push(p);
+        self.normals.push(n);
+        self.positions.len() as u32 - 1
+    }
+
+    fn quad(&mut self, corners: [Vec3; 4], material: u32) {
+        let i = corners.map(|p| self.vertex(p, Vec3::ZERO));
+        self.triangles.push([i[0], i[1], i[2]]);
+        self.triangles.push([i[0], i[2], i[3]]);
+        self.material_ids.extend([material, material]);
+    }
+
+    fn cornell_box(&mut self) {
+        let white = self.material(Material::diffuse("white", WHITE));
+        let red = self.material(Material::diffuse("leftWall", RED));
+        let green = self.material(Material::diffuse("rightWall", GREEN));
+        let light = self.material(Material {
+            ke: Vec3::new(17.0, 12.0, 4.0),
+            ..Material::diffuse("light", Vec3::splat(0.78))
+        });
+        let v = |x, y, z| Vec3::new(x, y, z);
+        self.quad([v(-1., 0., 1.), v(1., 0., 1.), v(1., 0., -1.), v(-1., 0., -1.)], white);
+        self.quad([v(-1., 2., 1.), v(-1., 2., -1.), v(1., 2., -1.), v(1., 2., 1.)], white);
+        self.quad([v(-1., 0., -1.), v(1., 0., -1.), v(1., 2., -1.), v(-1., 2., -1.)], white);
+        self.quad([v(-1., 0., 1.), v(-1., 0., -1.), v(-1., 2., -1.), v(-1., 2., 1.)], red);
+        self.quad([v(1., 0., -1.), v(1., 0., 1.), v(1., 2., 1.), v(1., 2., -1.)], green);
+        let y = 1.98;
+        self.quad(
+            [v(-0.24, y, 0.16), v(-0.24, y, -0.22), v(0.23, y, -0.22), v(0.23, y, 0.16)],
+            light,
+        );
+    }
+
+    /// A block standing on the floor: 6 faces (12 triangles) over a 4-corner
+    /// footprint given as (x, z) pairs.
+    fn block(&mut self, footprint: [[f32; 2]; 4], height: f32, material: u32) {
+        let low = footprint.map(|[x, z]| Vec3::new(x, 0.0, z));
+        let high = footprint.map(|[x, z]| Vec3::new(x, height, z));
+        self.quad(high, material);
+        self.quad(low, material);
+        for i in 0..4 {
+            let j = (i + 1) % 4;
+            self.quad([low[i], low[j], high[j], high[i]], material);
+        }
+    }
+
+    /// A UV sphere with smooth normals: `2 * slices * (stacks - 1)` triangles.
+    fn sphere(&mut self, center: Vec3, radius: f32, slices: u32, stacks: u32, material: u32) {
+        let point = |stack: u32, slice: u32| {
+            let theta = PI * stack as f32 / stacks as f32;
+            let phi = 2.0 * PI * (slice % slices) as f32 / slices as f32;
+            Vec3::new(theta.sin() * phi.cos(), theta.cos(), theta.sin() * phi.sin())
+        };
+        let top = self.vertex(center + Vec3::Y * radius, Vec3::Y);
+        let bottom = self.vertex(center - Vec3::Y * radius, -Vec3::Y);
+        // Rings 1..stacks-1, `slices` vertices each.
+        let first = self.positions.len() as u32;
+        for stack in 1..stacks {
+            for slice in 0..slices {
+                let n = point(stack, slice);
+                self.vertex(center + n * radius, n);
+            }
+        }
+        let ring = |stack: u32, slice: u32| first + (stack - 1) * slices + slice % slices;
+        for slice in 0..slices {
+            self.triangles.push([top, ring(1, slice + 1), ring(1, slice)]);
+            self.triangles
+                .push([bottom, ring(stacks - 1, slice), ring(stacks - 1, slice + 1)]);
+            self.material_ids.extend([material, material]);
+            for stack in 1..stacks - 1 {
+                let (a, b) = (ring(stack, slice), ring(stack, slice + 1));
+                let (c, d) = (ring(stack + 1, slice + 1), ring(stack + 1, slice));
+                self.triangles.push([a, b, c]);
+                self.triangles.push([a, c, d]);
+                self.material_ids.extend([material, material]);
+            }
+        }
+    }
+
+    /// The two glossy spheres of the McGuire sphere scene (same places, sizes and
+    /// materials): 2 x 1088 triangles.
+    fn spheres(&mut self) {
+        let mirror = self.material(Material {
+            ks: Vec3::splat(0.95),
+            ns: 1000.0,
+            ..Material::diffuse("leftSphere", Vec3::splat(0.01))
+        });
+        let glossy = self.material(Material {
+            ks: Vec3::splat(0.3),
+            ns: 200.0,
+            ..Material::diffuse("rightSphere", Vec3::splat(0.01))
+        });
+        self.sphere(Vec3::new(-0.42, 0.33, -0.28), 0.32, 32, 18, mirror);
+        self.sphere(Vec3::new(0.45, 0.33, 0.38), 0.32, 32, 18, glossy);
+    }
+
+    /// A wavy height-field water surface over the whole floor: a 70 x 35 grid of
+    /// quads (4900 triangles) with analytic normals.
+    fn water(&mut self) {
+        let water = self.material(Material {
+            ks: Vec3::splat(0.3),
+            ns: 200.0,
+            ..Material::diffuse("water", Vec3::new(0.02, 0.04, 0.06))
+        });
+        let (nx, nz) = (70u32, 35u32);
+        // Height and its gradient: two sums of sines, about 0.2 +- 0.05.
+        let height = |x: f32, z: f32| {
+            0.2 + 0.03 * (6.0 * x + 1.0).sin() * (5.0 * z).cos() + 0.015 * (13.0 * x + 9.0 * z).sin()
+        };
+        let gradient = |x: f32, z: f32| {
+            let dx = 0.18 * (6.0 * x + 1.0).cos() * (5.0 * z).cos()
+                + 0.195 * (13.0 * x + 9.0 * z).cos();
+            let dz = -0.15 * (6.0 * x + 1.0).sin() * (5.0 * z).sin()
+                + 0.135 * (13.0 * x + 9.0 * z).cos();
+            (dx, dz)
+        };
+        let first = self.positions.len() as u32;
+        for iz in 0..=nz {
+            for ix in 0..=nx {
+                let x = -1.0 + 2.0 * ix as f32 / nx as f32;
+                let z = -1.0 + 2.0 * iz as f32 / nz as f32;
+                let (dx, dz) = gradient(x, z);
+                self.vertex(
+                    Vec3::new(x, height(x, z), z),
+                    Vec3::new(-dx, 1.0, -dz).normalize(),
+                );
+            }
+        }
+        let at = |ix: u32, iz: u32| first + iz * (nx + 1) + ix;
+        for iz in 0..nz {
+            for ix in 0..nx {
+                let (a, b) = (at(ix, iz), at(ix + 1, iz));
+                let (c, d) = (at(ix + 1, iz + 1), at(ix, iz + 1));
+                self.triangles.push([a, b, c]);
+                self.triangles.push([a, c, d]);
+                self.material_ids.extend([water, water]);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn builtin_triangle_counts_match_the_study() {
+        for (name, count) in [
+            ("cornell-empty", 12),
+            ("cornell-original", 36),
+            ("cornell-sphere", 2188),
+            ("cornell-water", 7088),
+        ] {
+            let s = builtin(name).unwrap();
+            assert_eq!(s.triangle_count(), count, "{name}");
+            assert_eq!(s.dropped_degenerate, 0, "{name}");
+            assert_eq!(s.lights.triangles.len(), 2, "{name}");
+        }
+    }
+
+    #[test]
+    fn builtins_stay_inside_the_box_frame() {
+        for (name, _) in BUILTIN_SCENES {
+            let b = builtin(name).unwrap().bounds();
+            assert!(b.min.cmpge(Vec3::new(-1.0, 0.0, -1.0)).all(), "{name} {b:?}");
+            assert!(b.max.cmple(Vec3::new(1.0, 2.0, 1.0)).all(), "{name} {b:?}");
+        }
+    }
+
+    #[test]
+    fn sphere_normals_point_outwards() {
+        let s = builtin("cornell-sphere").unwrap();
+        let normals = s.normals.as_ref().unwrap();
+        let c = Vec3::new(-0.42, 0.33, -0.28);
+        for (p, n) in s.positions.iter().zip(normals) {
+            if (*p - c).length() < 0.33 {
+                assert!((*p - c).normalize().dot(*n) > 0.99);
+            }
+        }
+    }
+
+    #[test]
+    fn unknown_name_lists_the_builtins() {
+        let e = builtin("cornell-nope").unwrap_err().to_string();
+        assert!(e.contains("cornell-water"), "{e}");
+    }
+}

@@ -1,0 +1,305 @@
+//! The minimal scene every backend and the renderer read: flat arrays of vertex
+//! positions, optional vertex normals, index triples, a material per triangle, the
+//! material table (only what MTL files give and the shader uses) and the emissive
+//! triangles with their areas for light sampling. No scene graph.
+
+pub mod builtin;
+pub mod obj;
+
+use glam::Vec3;
+
+use crate::error::{Error, Result};
+use crate::geometry::{triangle_area, triangle_normal, Aabb};
+
+/// The MTL values the shader uses; everything else in an MTL file is ignored.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Material {
+    pub name: String,
+    /// Ambient reflectance (MTL `Ka`), scaled by the ambient light and AO.
+    pub ka: Vec3,
+    /// Diffuse reflectance (MTL `Kd`).
+    pub kd: Vec3,
+    /// Specular reflectance (MTL `Ks`) of the Blinn-Phong lobe.
+    pub ks: Vec3,
+    /// Blinn-Phong exponent (MTL `Ns`).
+    pub ns: f32,
+    /// Emitted radiance (MTL `Ke`); a triangle is a light when any component is > 0.
+    pub ke: Vec3,
+}
+
+impl Material {
+    /// The grey used when an MTL file is missing or a face names no material.
+    pub fn default_grey() -> Self {
+        Material {
+            name: "default".into(),
+            ka: Vec3::splat(0.6),
+            kd: Vec3::splat(0.6),
+            ks: Vec3::ZERO,
+            ns: 10.0,
+            ke: Vec3::ZERO,
+        }
+    }
+
+    pub fn diffuse(name: &str, kd: Vec3) -> Self {
+        Material {
+            name: name.into(),
+            ka: kd,
+            kd,
+            ks: Vec3::ZERO,
+            ns: 10.0,
+            ke: Vec3::ZERO,
+        }
+    }
+
+    pub fn is_emissive(&self) -> bool {
+        self.ke.max_element() > 0.0
+    }
+}
+
+/// The emissive triangles and a cumulative distribution over their areas, so a
+/// light sample picks a triangle with probability proportional to its area.
+#[derive(Clone, Debug, Default)]
+pub struct Lights {
+    /// Indices of emissive triangles.
+    pub triangles: Vec<u32>,
+    /// `cdf[i]` = (area of lights 0..=i) / total area; the last entry is 1.
+    pub cdf: Vec<f32>,
+    /// Summed area of all emissive triangles.
+    pub total_area: f32,
+}
+
+impl Lights {
+    pub fn is_empty(&self) -> bool {
+        self.triangles.is_empty()
+    }
+
+    /// The light (an index into `triangles`) for a uniform `u` in [0, 1).
+    pub fn pick(&self, u: f32) -> usize {
+        let i = self.cdf.partition_point(|&c| c <= u);
+        i.min(self.triangles.len() - 1)
+    }
+}
+
+/// A triangle scene in flat arrays.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// A name for reports: the built-in name or the file path.
+    pub name: String,
+    pub positions: Vec<Vec3>,
+    /// Per-vertex normals, indexed like `positions`; a zero vector means "none for
+    /// this vertex" (then the shader uses the geometric normal).
+    pub normals: Option<Vec<Vec3>>,
+    pub triangles: Vec<[u32; 3]>,
+    /// Material index per triangle.
+    pub material_ids: Vec<u32>,
+    pub materials: Vec<Material>,
+    pub lights: Lights,
+    /// Zero-area triangles removed when the scene was made.
+    pub dropped_degenerate: usize,
+    /// Non-fatal problems met while loading, one line each (shown to the user).
+    pub warnings: Vec<String>,
+}
+
+impl Scene {
+    /// Makes a scene from raw arrays: checks that indices and material ids are in
+    /// range and positions finite, drops zero-area triangles (counted in
+    /// `dropped_degenerate`) and finds the lights.
+    ///
+    /// Errors when no triangle is left, so every scene handed to a backend has at
+    /// least one triangle with non-zero area.
+    pub fn new(
+        name: impl Into<String>,
+        positions: Vec<Vec3>,
+        normals: Option<Vec<Vec3>>,
+        triangles: Vec<[u32; 3]>,
+        material_ids: Vec<u32>,
+        materials: Vec<Material>,
+    ) -> Result<Scene> {
+        let name = name.into();
+        let fail = |msg: String| Error::Scene {
+            name: name.clone(),
+            msg,
+        };
+        if material_ids.len() != triangles.len() {
+            return Err(fail("one material id per triangle expected".into()));
+        }
+        if let Some(n) = &normals {
+            if n.len() != positions.len() {
+                return Err(fail("one normal per vertex expected".into()));
+            }
+        }
+        if let Some(i) = positions.iter().position(|p| !p.is_finite()) {
+            return Err(fail(format!("vertex {i} is not finite")));
+        }
+        let mut kept_tris = Vec::with_capacity(triangles.len());
+        let mut kept_mats = Vec::with_capacity(triangles.len());
+        let mut dropped = 0;
+        for (i, (tri, &m)) in triangles.iter().zip(&material_ids).enumerate() {
+            if tri.iter().any(|&v| v as usize >= positions.len()) {
+                return Err(fail(format!("triangle {i} has a vertex index out of range")));
+            }
+            if m as usize >= materials.len() {
+                return Err(fail(format!("triangle {i} has a material id out of range")));
+            }
+            let verts = tri.map(|v| positions[v as usize]);
+            // Zero area, or so small that its normal underflows: no ray can hit it.
+            if !(triangle_normal(&verts).length_squared() > 0.0) {
+                dropped += 1;
+                continue;
+            }
+            kept_tris.push(*tri);
+            kept_mats.push(m);
+        }
+        if kept_tris.is_empty() {
+            let msg = if dropped > 0 {
+                format!("no triangles left ({dropped} degenerate ones dropped)")
+            } else {
+                "no triangles".to_string()
+            };
+            return Err(fail(msg));
+        }
+        let mut scene = Scene {
+            name,
+            positions,
+            normals,
+            triangles: kept_tris,
+            material_ids: kept_mats,
+            materials,
+            lights: Lights::default(),
+            dropped_degenerate: dropped,
+            warnings: Vec::new(),
+        };
+        scene.lights = scene.find_lights();
+        if dropped > 0 {
+            scene
+                .warnings
+                .push(format!("dropped {dropped} degenerate (zero-area) triangles"));
+        }
+        Ok(scene)
+    }
+
+    fn find_lights(&self) -> Lights {
+        let mut triangles = Vec::new();
+        let mut cumulative = Vec::new();
+        let mut total = 0.0f64;
+        for (i, &m) in self.material_ids.iter().enumerate() {
+            if self.materials[m as usize].is_emissive() {
+                total += triangle_area(&self.triangle(i)) as f64;
+                triangles.push(i as u32);
+                cumulative.push(total);
+            }
+        }
+        let cdf = cumulative.iter().map(|&c| (c / total) as f32).collect();
+        Lights {
+            triangles,
+            cdf,
+            total_area: total as f32,
+        }
+    }
+
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len()
+    }
+
+    /// The three vertex positions of triangle `i`.
+    #[inline]
+    pub fn triangle(&self, i: usize) -> [Vec3; 3] {
+        self.triangles[i].map(|v| self.positions[v as usize])
+    }
+
+    /// All triangles' vertices gathered in index order: what backends intersect.
+    pub fn triangle_vertices(&self) -> Vec<[Vec3; 3]> {
+        (0..self.triangles.len()).map(|i| self.triangle(i)).collect()
+    }
+
+    #[inline]
+    pub fn material_of(&self, tri: u32) -> &Material {
+        &self.materials[self.material_ids[tri as usize] as usize]
+    }
+
+    /// Bounds of all referenced vertices.
+    pub fn bounds(&self) -> Aabb {
+        self.triangles
+            .iter()
+            .flatten()
+            .fold(Aabb::EMPTY, |b, &v| b.grown(self.positions[v as usize]))
+    }
+
+    /// The interpolated vertex normal at barycentrics `(u, v)` of `tri`, if the
+    /// scene has usable normals there (non-zero, finite after interpolation).
+    pub fn shading_normal(&self, tri: u32, u: f32, v: f32) -> Option<Vec3> {
+        let normals = self.normals.as_ref()?;
+        let [a, b, c] = self.triangles[tri as usize].map(|i| normals[i as usize]);
+        let n = a * (1.0 - u - v) + b * u + c * v;
+        let n = n.normalize_or_zero();
+        (n != Vec3::ZERO).then_some(n)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn quad_scene(emissive: bool) -> Result<Scene> {
+        let mut light = Material::diffuse("light", Vec3::ONE);
+        if emissive {
+            light.ke = Vec3::splat(5.0);
+        }
+        Scene::new(
+            "t",
+            vec![
+                Vec3::ZERO,
+                Vec3::X,
+                Vec3::new(1.0, 1.0, 0.0),
+                Vec3::Y,
+                Vec3::X * 2.0,
+            ],
+            None,
+            vec![[0, 1, 2], [0, 2, 3], [0, 1, 4]],
+            vec![0, 1, 0],
+            vec![Material::default_grey(), light],
+        )
+    }
+
+    #[test]
+    fn degenerate_triangles_are_dropped_and_counted() {
+        let s = quad_scene(true).unwrap();
+        assert_eq!(s.triangle_count(), 2);
+        assert_eq!(s.dropped_degenerate, 1);
+        assert_eq!(s.warnings.len(), 1);
+    }
+
+    #[test]
+    fn lights_are_found_with_areas() {
+        let s = quad_scene(true).unwrap();
+        assert_eq!(s.lights.triangles, vec![1]);
+        assert!((s.lights.total_area - 0.5).abs() < 1e-6);
+        assert_eq!(s.lights.pick(0.0), 0);
+        assert_eq!(s.lights.pick(0.9999), 0);
+        assert!(quad_scene(false).unwrap().lights.is_empty());
+    }
+
+    #[test]
+    fn out_of_range_and_empty_input_is_an_error() {
+        let bad = Scene::new(
+            "t",
+            vec![Vec3::ZERO],
+            None,
+            vec![[0, 1, 2]],
+            vec![0],
+            vec![Material::default_grey()],
+        );
+        assert!(bad.unwrap_err().to_string().contains("out of range"));
+        let empty = Scene::new("t", vec![], None, vec![], vec![], vec![]);
+        assert!(empty.unwrap_err().to_string().contains("no triangles"));
+        let nan = Scene::new(
+            "t",
+            vec![Vec3::NAN, Vec3::X, Vec3::Y],
+            None,
+            vec![[0, 1, 2]],
+            vec![0],
+            vec![Material::default_grey()],
+        );
+        assert!(nan.unwrap_err().to_string().contains("not finite"));
+    }
+}
