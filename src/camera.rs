@@ -40,7 +40,10 @@ impl Camera {
             ));
         }
         if width == 0 || height == 0 {
-            return Err(Error::usage("--size", "width and height must be at least 1"));
+            return Err(Error::usage(
+                "--size",
+                "width and height must be at least 1",
+            ));
         }
         let forward = (look - eye).normalize_or_zero();
         if forward == Vec3::ZERO {
@@ -48,7 +51,10 @@ impl Camera {
         }
         let right = forward.cross(up).normalize_or_zero();
         if right == Vec3::ZERO {
-            return Err(Error::usage("--up", "up vector is zero or parallel to the view direction"));
+            return Err(Error::usage(
+                "--up",
+                "up vector is zero or parallel to the view direction",
+            ));
         }
         let true_up = right.cross(forward);
         let half_h = (fov_deg.to_radians() * 0.5).tan();
@@ -78,8 +84,15 @@ mod tests {
     use super::*;
 
     fn study_camera(w: u32, h: u32) -> Camera {
-        Camera::new(Vec3::new(0.0, 1.0, 3.0), Vec3::new(0.0, 1.0, 0.0), Vec3::Y, 60.0, w, h)
-            .unwrap()
+        Camera::new(
+            Vec3::new(0.0, 1.0, 3.0),
+            Vec3::new(0.0, 1.0, 0.0),
+            Vec3::Y,
+            60.0,
+            w,
+            h,
+        )
+        .unwrap()
     }
 
     #[test]
@@ -98,7 +111,9 @@ mod tests {
         assert!(top.dir.y > 0.0);
         // The top pixel centre is half a pixel inside the 30-degree half angle.
         let angle = top.dir.y.atan2(-top.dir.z).to_degrees();
-        let expected = ((30f32.to_radians().tan()) * (1.0 - 1.0 / 48.0)).atan().to_degrees();
+        let expected = ((30f32.to_radians().tan()) * (1.0 - 1.0 / 48.0))
+            .atan()
+            .to_degrees();
         assert!((angle - expected).abs() < 1e-3, "{angle} vs {expected}");
         assert!(c.ray(0, 24).dir.x < 0.0);
         assert!(c.ray(63, 24).dir.x > 0.0);

@@ -19,7 +19,11 @@ use crate::scene::obj::load_obj;
 use crate::scene::Scene;
 
 #[derive(Parser, Debug)]
-#[command(name = "raylab", version, about = "Compare ray-tracing acceleration structures on the CPU")]
+#[command(
+    name = "raylab",
+    version,
+    about = "Compare ray-tracing acceleration structures on the CPU"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -37,13 +41,13 @@ enum Command {
 #[derive(Args, Debug, Clone)]
 pub struct ViewArgs {
     /// Eye position.
-    #[arg(long, value_name = "X,Y,Z", default_value = "0,1,3", value_parser = parse_vec3)]
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, default_value = "0,1,3", value_parser = parse_vec3)]
     pub eye: Vec3,
     /// Point looked at.
-    #[arg(long, value_name = "X,Y,Z", default_value = "0,1,0", value_parser = parse_vec3)]
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, default_value = "0,1,0", value_parser = parse_vec3)]
     pub look: Vec3,
     /// Up vector.
-    #[arg(long, value_name = "X,Y,Z", default_value = "0,1,0", value_parser = parse_vec3)]
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, default_value = "0,1,0", value_parser = parse_vec3)]
     pub up: Vec3,
     /// Vertical field of view in degrees, in (0, 180).
     #[arg(long, value_name = "DEG", default_value_t = 60.0, value_parser = parse_fov)]
@@ -55,7 +59,12 @@ pub struct ViewArgs {
     #[arg(long, value_name = "MODE", default_value = "paper")]
     pub ao: AoMode,
     /// Length of AO rays in scene units.
-    #[arg(long, value_name = "D", default_value_t = 0.2)]
+    #[arg(
+        long,
+        value_name = "D",
+        default_value_t = 0.2,
+        allow_negative_numbers = true
+    )]
     pub ao_dist: f32,
     /// Shadow rays per pixel towards the emissive triangles.
     #[arg(long, value_name = "N", default_value_t = 1)]
@@ -100,7 +109,12 @@ struct RenderArgs {
     #[command(flatten)]
     view: ViewArgs,
     /// Output PNG.
-    #[arg(short = 'o', long = "output", value_name = "PNG", default_value = "out.png")]
+    #[arg(
+        short = 'o',
+        long = "output",
+        value_name = "PNG",
+        default_value = "out.png"
+    )]
     output: PathBuf,
     /// Print one JSON object with the results on stdout.
     #[arg(long)]
@@ -113,7 +127,10 @@ struct RenderArgs {
 fn parse_vec3(s: &str) -> std::result::Result<Vec3, String> {
     let parts: Vec<&str> = s.split(',').map(str::trim).collect();
     if parts.len() != 3 {
-        return Err(format!("expected three comma-separated numbers X,Y,Z, got {}", parts.len()));
+        return Err(format!(
+            "expected three comma-separated numbers X,Y,Z, got {}",
+            parts.len()
+        ));
     }
     let mut v = [0.0f32; 3];
     for (slot, p) in v.iter_mut().zip(&parts) {
@@ -129,8 +146,14 @@ fn parse_size(s: &str) -> std::result::Result<(u32, u32), String> {
     let (w, h) = s
         .split_once(['x', 'X'])
         .ok_or_else(|| "expected WIDTHxHEIGHT, e.g. 1024x768".to_string())?;
-    let w: u32 = w.trim().parse().map_err(|_| format!("width '{w}' is not a whole number"))?;
-    let h: u32 = h.trim().parse().map_err(|_| format!("height '{h}' is not a whole number"))?;
+    let w: u32 = w
+        .trim()
+        .parse()
+        .map_err(|_| format!("width '{w}' is not a whole number"))?;
+    let h: u32 = h
+        .trim()
+        .parse()
+        .map_err(|_| format!("height '{h}' is not a whole number"))?;
     if w == 0 || h == 0 {
         return Err("width and height must be at least 1".into());
     }
@@ -163,7 +186,9 @@ pub fn default_threads() -> usize {
 /// Loads `spec`: a path to an OBJ file, or else a built-in scene name.
 pub fn load_scene(spec: &str) -> Result<Scene> {
     let path = Path::new(spec);
-    let looks_like_file = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("obj"))
+    let looks_like_file = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("obj"))
         || spec.contains(std::path::MAIN_SEPARATOR);
     if looks_like_file || path.is_file() {
         load_obj(path)
@@ -225,7 +250,10 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         say(format!("warning: {w}"));
     }
     if scene.lights.is_empty() {
-        say("warning: the scene has no emissive triangles; lighting it with a headlight at the eye".into());
+        say(
+            "warning: the scene has no emissive triangles; lighting it with a headlight at the eye"
+                .into(),
+        );
     }
     say(format!(
         "scene {}: {} triangles ({} emissive), loaded in {:.1} ms",
@@ -236,14 +264,31 @@ fn run_render(args: &RenderArgs) -> Result<()> {
     ));
 
     let backend = build_backend(args.backend, &scene);
-    say(format!("backend {}: built in {:.1} ms", backend.name(), ms(backend.build_time())));
+    say(format!(
+        "backend {}: built in {:.1} ms",
+        backend.name(),
+        ms(backend.build_time())
+    ));
 
     let progress = Progress::new();
     let total_pixels = settings.width as u64 * settings.height as u64;
     let start = Instant::now();
-    let (frame, stats) = progress.watch("render", total_pixels, args.quiet, Duration::from_secs(1), || {
-        render::render(&scene, backend.as_ref(), &settings, args.schedule, threads, &progress)
-    })?;
+    let (frame, stats) = progress.watch(
+        "render",
+        total_pixels,
+        args.quiet,
+        Duration::from_secs(1),
+        || {
+            render::render(
+                &scene,
+                backend.as_ref(),
+                &settings,
+                args.schedule,
+                threads,
+                &progress,
+            )
+        },
+    )?;
     let render_time = start.elapsed();
 
     let rgb8 = output::to_srgb8(&frame);
@@ -274,7 +319,10 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         stats.ao_rays,
         per_thread(stats.ao_rays, stats.ao_time),
     ));
-    say(format!("wrote {} (image hash {hash})", args.output.display()));
+    say(format!(
+        "wrote {} (image hash {hash})",
+        args.output.display()
+    ));
 
     if args.json {
         let report = RenderReport {
@@ -319,7 +367,10 @@ pub fn main() -> i32 {
             .map(|s| s.to_string())
             .or_else(|| info.payload().downcast_ref::<String>().cloned())
             .unwrap_or_default();
-        let place = info.location().map(|l| format!(" at {}:{}", l.file(), l.line())).unwrap_or_default();
+        let place = info
+            .location()
+            .map(|l| format!(" at {}:{}", l.file(), l.line()))
+            .unwrap_or_default();
         eprintln!("raylab: internal error{place}: {msg} (please report this)");
     }));
     let cli = match Cli::try_parse() {
@@ -330,7 +381,11 @@ pub fn main() -> i32 {
                 || e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
             {
                 let _ = e.print();
-                return if e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand { 2 } else { 0 };
+                return if e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand {
+                    2
+                } else {
+                    0
+                };
             }
             // clap's message is several lines (usage, hint): keep the first.
             let text = e.render().to_string();

@@ -360,10 +360,14 @@ mod tests {
         assert!((t.unwrap() - 1.0).abs() < 1e-6);
         // Ray in the boundary plane x = 0 still counts (flat boxes must be hit).
         let o = Vec3::new(0.0, 0.5, -1.0);
-        assert!(b.intersect(o, safe_reciprocal(d), 0.0, f32::INFINITY).is_some());
+        assert!(b
+            .intersect(o, safe_reciprocal(d), 0.0, f32::INFINITY)
+            .is_some());
         // Outside the slab: miss.
         let o = Vec3::new(1.5, 0.5, -1.0);
-        assert!(b.intersect(o, safe_reciprocal(d), 0.0, f32::INFINITY).is_none());
+        assert!(b
+            .intersect(o, safe_reciprocal(d), 0.0, f32::INFINITY)
+            .is_none());
         // Beyond tmax: miss.
         let o = Vec3::new(0.5, 0.5, -1.0);
         assert!(b.intersect(o, safe_reciprocal(d), 0.0, 0.5).is_none());

@@ -56,9 +56,11 @@ impl Progress {
                 // Draws only when stderr is a terminal (indicatif checks).
                 let b = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr());
                 b.set_style(
-                    ProgressStyle::with_template("{msg} [{bar:40}] {percent:>3}% {elapsed} eta {eta}")
-                        .unwrap_or_else(|_| ProgressStyle::default_bar())
-                        .progress_chars("=> "),
+                    ProgressStyle::with_template(
+                        "{msg} [{bar:40}] {percent:>3}% {elapsed} eta {eta}",
+                    )
+                    .unwrap_or_else(|_| ProgressStyle::default_bar())
+                    .progress_chars("=> "),
                 );
                 b.set_message(label.to_string());
                 bar = Some(b);

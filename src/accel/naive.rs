@@ -65,6 +65,10 @@ impl Backend for Naive {
     }
 
     fn occluded(&self, ray: &Ray) -> bool {
-        ray.is_valid() && self.triangles.iter().any(|tri| intersect_triangle(ray, tri).is_some())
+        ray.is_valid()
+            && self
+                .triangles
+                .iter()
+                .any(|tri| intersect_triangle(ray, tri).is_some())
     }
 }

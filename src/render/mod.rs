@@ -44,7 +44,9 @@ impl FromStr for AoMode {
                     .ok_or_else(|| format!("'{s}': expected off, paper or cosine:N"))?;
                 match n.parse::<u32>() {
                     Ok(n) if (1..=4096).contains(&n) => Ok(AoMode::Cosine(n)),
-                    _ => Err(format!("'{s}': N in cosine:N must be an integer in 1..=4096")),
+                    _ => Err(format!(
+                        "'{s}': N in cosine:N must be an integer in 1..=4096"
+                    )),
                 }
             }
         }
@@ -80,7 +82,10 @@ impl RenderSettings {
     /// Checks the values that are not the camera's: AO distance and light samples.
     pub fn validate(&self) -> Result<(), Error> {
         if !(self.ao_dist.is_finite() && self.ao_dist > 0.0) {
-            return Err(Error::usage("--ao-dist", format!("{} must be a positive number", self.ao_dist)));
+            return Err(Error::usage(
+                "--ao-dist",
+                format!("{} must be a positive number", self.ao_dist),
+            ));
         }
         if self.light_samples > 4096 {
             return Err(Error::usage("--light-samples", "at most 4096"));

@@ -47,7 +47,10 @@ pub fn check_writable(path: &Path) -> Result<()> {
     if !is_png {
         return Err(Error::usage(
             "-o",
-            format!("{}: only PNG output is supported (use a .png name)", path.display()),
+            format!(
+                "{}: only PNG output is supported (use a .png name)",
+                path.display()
+            ),
         ));
     }
     let probe = temp_path(path);
@@ -118,7 +121,10 @@ mod tests {
         write_png(&path, 2, 3, &px).unwrap();
         let img = image::open(&path).unwrap().to_rgb8();
         assert_eq!(img.as_raw(), &px);
-        assert!(std::fs::read_dir(&dir).unwrap().count() == 1, "no temp file left");
+        assert!(
+            std::fs::read_dir(&dir).unwrap().count() == 1,
+            "no temp file left"
+        );
         assert!(check_writable(&dir.join("x.jpg")).is_err());
         assert!(check_writable(Path::new("/nonexistent-dir/x.png")).is_err());
         std::fs::remove_dir_all(&dir).ok();

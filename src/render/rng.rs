@@ -43,7 +43,9 @@ mod tests {
 
     #[test]
     fn streams_are_reproducible_and_distinct() {
-        let a: Vec<u64> = (0..4).map(|_| Rng::for_pixel(7, 1, STREAM_AO).next_u64()).collect();
+        let a: Vec<u64> = (0..4)
+            .map(|_| Rng::for_pixel(7, 1, STREAM_AO).next_u64())
+            .collect();
         assert!(a.windows(2).all(|w| w[0] == w[1]));
         let mut x = Rng::for_pixel(7, 1, STREAM_AO);
         let mut y = Rng::for_pixel(8, 1, STREAM_AO);

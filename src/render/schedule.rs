@@ -32,7 +32,12 @@ pub enum Schedule {
 }
 
 impl Schedule {
-    pub const ALL: [Schedule; 4] = [Schedule::Serial, Schedule::Rows, Schedule::Tiles, Schedule::Rayon];
+    pub const ALL: [Schedule; 4] = [
+        Schedule::Serial,
+        Schedule::Rows,
+        Schedule::Tiles,
+        Schedule::Rayon,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {

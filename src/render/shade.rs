@@ -209,7 +209,10 @@ fn direct_light<B: Backend + ?Sized>(
         sum += le * brdf * (cos_s * cos_l / dist2);
     }
     // Monte Carlo estimate with pdf = 1 / total light area.
-    (sum * (lights.total_area / settings.light_samples as f32), rays)
+    (
+        sum * (lights.total_area / settings.light_samples as f32),
+        rays,
+    )
 }
 
 /// The unoccluded fraction of AO directions at `s` and the number of AO rays cast.
@@ -271,7 +274,12 @@ mod tests {
 
     #[test]
     fn basis_is_orthonormal() {
-        for n in [Vec3::Z, -Vec3::Z, Vec3::X, Vec3::new(0.3, -0.4, 0.5).normalize()] {
+        for n in [
+            Vec3::Z,
+            -Vec3::Z,
+            Vec3::X,
+            Vec3::new(0.3, -0.4, 0.5).normalize(),
+        ] {
             let (t, b) = basis(n);
             assert!(t.dot(b).abs() < 1e-5 && t.dot(n).abs() < 1e-5 && b.dot(n).abs() < 1e-5);
             assert!((t.length() - 1.0).abs() < 1e-5 && (b.length() - 1.0).abs() < 1e-5);

@@ -14,10 +14,22 @@ use crate::error::{Error, Result};
 
 /// Names accepted by [`builtin`], with a one-line description each.
 pub const BUILTIN_SCENES: &[(&str, &str)] = &[
-    ("cornell-empty", "walls, floor, ceiling and light (12 triangles)"),
-    ("cornell-original", "the classic box with a short and a tall block (36 triangles)"),
-    ("cornell-sphere", "two tessellated glossy spheres instead of blocks (2188 triangles)"),
-    ("cornell-water", "the spheres half under a wavy height-field water surface (7088 triangles)"),
+    (
+        "cornell-empty",
+        "walls, floor, ceiling and light (12 triangles)",
+    ),
+    (
+        "cornell-original",
+        "the classic box with a short and a tall block (36 triangles)",
+    ),
+    (
+        "cornell-sphere",
+        "two tessellated glossy spheres instead of blocks (2188 triangles)",
+    ),
+    (
+        "cornell-water",
+        "the spheres half under a wavy height-field water surface (7088 triangles)",
+    ),
 ];
 
 /// The built-in scene called `name`.
@@ -108,14 +120,54 @@ impl Builder {
             ..Material::diffuse("light", Vec3::splat(0.78))
         });
         let v = |x, y, z| Vec3::new(x, y, z);
-        self.quad([v(-1., 0., 1.), v(1., 0., 1.), v(1., 0., -1.), v(-1., 0., -1.)], white);
-        self.quad([v(-1., 2., 1.), v(-1., 2., -1.), v(1., 2., -1.), v(1., 2., 1.)], white);
-        self.quad([v(-1., 0., -1.), v(1., 0., -1.), v(1., 2., -1.), v(-1., 2., -1.)], white);
-        self.quad([v(-1., 0., 1.), v(-1., 0., -1.), v(-1., 2., -1.), v(-1., 2., 1.)], red);
-        self.quad([v(1., 0., -1.), v(1., 0., 1.), v(1., 2., 1.), v(1., 2., -1.)], green);
+        self.quad(
+            [
+                v(-1., 0., 1.),
+                v(1., 0., 1.),
+                v(1., 0., -1.),
+                v(-1., 0., -1.),
+            ],
+            white,
+        );
+        self.quad(
+            [
+                v(-1., 2., 1.),
+                v(-1., 2., -1.),
+                v(1., 2., -1.),
+                v(1., 2., 1.),
+            ],
+            white,
+        );
+        self.quad(
+            [
+                v(-1., 0., -1.),
+                v(1., 0., -1.),
+                v(1., 2., -1.),
+                v(-1., 2., -1.),
+            ],
+            white,
+        );
+        self.quad(
+            [
+                v(-1., 0., 1.),
+                v(-1., 0., -1.),
+                v(-1., 2., -1.),
+                v(-1., 2., 1.),
+            ],
+            red,
+        );
+        self.quad(
+            [v(1., 0., -1.), v(1., 0., 1.), v(1., 2., 1.), v(1., 2., -1.)],
+            green,
+        );
         let y = 1.98;
         self.quad(
-            [v(-0.24, y, 0.16), v(-0.24, y, -0.22), v(0.23, y, -0.22), v(0.23, y, 0.16)],
+            [
+                v(-0.24, y, 0.16),
+                v(-0.24, y, -0.22),
+                v(0.23, y, -0.22),
+                v(0.23, y, 0.16),
+            ],
             light,
         );
     }
@@ -138,7 +190,11 @@ impl Builder {
         let point = |stack: u32, slice: u32| {
             let theta = PI * stack as f32 / stacks as f32;
             let phi = 2.0 * PI * (slice % slices) as f32 / slices as f32;
-            Vec3::new(theta.sin() * phi.cos(), theta.cos(), theta.sin() * phi.sin())
+            Vec3::new(
+                theta.sin() * phi.cos(),
+                theta.cos(),
+                theta.sin() * phi.sin(),
+            )
         };
         let top = self.vertex(center + Vec3::Y * radius, Vec3::Y);
         let bottom = self.vertex(center - Vec3::Y * radius, -Vec3::Y);
@@ -152,7 +208,8 @@ impl Builder {
         }
         let ring = |stack: u32, slice: u32| first + (stack - 1) * slices + slice % slices;
         for slice in 0..slices {
-            self.triangles.push([top, ring(1, slice + 1), ring(1, slice)]);
+            self.triangles
+                .push([top, ring(1, slice + 1), ring(1, slice)]);
             self.triangles
                 .push([bottom, ring(stacks - 1, slice), ring(stacks - 1, slice + 1)]);
             self.material_ids.extend([material, material]);
@@ -194,11 +251,12 @@ impl Builder {
         let (nx, nz) = (70u32, 35u32);
         // Height and its gradient: two sums of sines, about 0.2 +- 0.05.
         let height = |x: f32, z: f32| {
-            0.2 + 0.03 * (6.0 * x + 1.0).sin() * (5.0 * z).cos() + 0.015 * (13.0 * x + 9.0 * z).sin()
+            0.2 + 0.03 * (6.0 * x + 1.0).sin() * (5.0 * z).cos()
+                + 0.015 * (13.0 * x + 9.0 * z).sin()
         };
         let gradient = |x: f32, z: f32| {
-            let dx = 0.18 * (6.0 * x + 1.0).cos() * (5.0 * z).cos()
-                + 0.195 * (13.0 * x + 9.0 * z).cos();
+            let dx =
+                0.18 * (6.0 * x + 1.0).cos() * (5.0 * z).cos() + 0.195 * (13.0 * x + 9.0 * z).cos();
             let dz = -0.15 * (6.0 * x + 1.0).sin() * (5.0 * z).sin()
                 + 0.135 * (13.0 * x + 9.0 * z).cos();
             (dx, dz)
@@ -251,7 +309,10 @@ mod tests {
     fn builtins_stay_inside_the_box_frame() {
         for (name, _) in BUILTIN_SCENES {
             let b = builtin(name).unwrap().bounds();
-            assert!(b.min.cmpge(Vec3::new(-1.0, 0.0, -1.0)).all(), "{name} {b:?}");
+            assert!(
+                b.min.cmpge(Vec3::new(-1.0, 0.0, -1.0)).all(),
+                "{name} {b:?}"
+            );
             assert!(b.max.cmple(Vec3::new(1.0, 2.0, 1.0)).all(), "{name} {b:?}");
         }
     }

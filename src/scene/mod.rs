@@ -136,7 +136,9 @@ impl Scene {
         let mut dropped = 0;
         for (i, (tri, &m)) in triangles.iter().zip(&material_ids).enumerate() {
             if tri.iter().any(|&v| v as usize >= positions.len()) {
-                return Err(fail(format!("triangle {i} has a vertex index out of range")));
+                return Err(fail(format!(
+                    "triangle {i} has a vertex index out of range"
+                )));
             }
             if m as usize >= materials.len() {
                 return Err(fail(format!("triangle {i} has a material id out of range")));
@@ -171,9 +173,9 @@ impl Scene {
         };
         scene.lights = scene.find_lights();
         if dropped > 0 {
-            scene
-                .warnings
-                .push(format!("dropped {dropped} degenerate (zero-area) triangles"));
+            scene.warnings.push(format!(
+                "dropped {dropped} degenerate (zero-area) triangles"
+            ));
         }
         Ok(scene)
     }
@@ -209,7 +211,9 @@ impl Scene {
 
     /// All triangles' vertices gathered in index order: what backends intersect.
     pub fn triangle_vertices(&self) -> Vec<[Vec3; 3]> {
-        (0..self.triangles.len()).map(|i| self.triangle(i)).collect()
+        (0..self.triangles.len())
+            .map(|i| self.triangle(i))
+            .collect()
     }
 
     #[inline]

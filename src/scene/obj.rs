@@ -194,7 +194,10 @@ fn check_obj_lines(text: &str, path: &Path) -> Result<()> {
                         })?;
                         let name = ["vertex", "texture", "normal"][kind];
                         if i == 0 {
-                            return Err(err(line_no, format!("{name} index 0 (OBJ counts from 1)")));
+                            return Err(err(
+                                line_no,
+                                format!("{name} index 0 (OBJ counts from 1)"),
+                            ));
                         }
                         if i < 0 && -i > counts[kind] {
                             return Err(err(
@@ -217,9 +220,9 @@ fn check_obj_lines(text: &str, path: &Path) -> Result<()> {
         };
         let mut numbers = 0;
         for w in words.by_ref().take(need) {
-            let x: f32 = w.parse().map_err(|_| {
-                err(line_no, format!("'{key}' record: '{w}' is not a number"))
-            })?;
+            let x: f32 = w
+                .parse()
+                .map_err(|_| err(line_no, format!("'{key}' record: '{w}' is not a number")))?;
             if !x.is_finite() {
                 return Err(err(
                     line_no,
@@ -361,9 +364,13 @@ mod tests {
 
     #[test]
     fn missing_mtl_warns_and_uses_grey() {
-        let s = load("mtllib nothere.mtl\nusemtl red\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
-            .unwrap();
-        assert!(s.warnings.iter().any(|w| w.contains("nothere.mtl")), "{:?}", s.warnings);
+        let s =
+            load("mtllib nothere.mtl\nusemtl red\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+        assert!(
+            s.warnings.iter().any(|w| w.contains("nothere.mtl")),
+            "{:?}",
+            s.warnings
+        );
         assert_eq!(*s.material_of(0), Material::default_grey());
     }
 
@@ -418,7 +425,9 @@ mod tests {
 
     #[test]
     fn unreadable_file_is_an_io_error_naming_it() {
-        let e = load_obj(Path::new("/nonexistent/scene.obj")).unwrap_err().to_string();
+        let e = load_obj(Path::new("/nonexistent/scene.obj"))
+            .unwrap_err()
+            .to_string();
         assert!(e.starts_with("/nonexistent/scene.obj:"), "{e}");
     }
 

@@ -1,0 +1,196 @@
+//! The `raylab` binary as a user runs it: results on stdout, one-line errors on
+//! stderr, non-zero exit status on bad input, never a panic.
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+fn raylab(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_raylab"))
+        .args(args)
+        .output()
+        .expect("run raylab")
+}
+
+fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("raylab-cli-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Asserts a failed run with exactly one line on stderr containing `needle`.
+fn assert_one_line_error(args: &[&str], needle: &str) {
+    let out = raylab(args);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{args:?} succeeded");
+    assert_eq!(
+        err.trim_end().lines().count(),
+        1,
+        "{args:?}: stderr was:\n{err}"
+    );
+    assert!(!err.contains("panicked"), "{args:?}: {err}");
+    assert!(
+        err.contains(needle),
+        "{args:?}: expected '{needle}' in: {err}"
+    );
+}
+
+#[test]
+fn bad_flags_fail_with_one_line_naming_the_flag() {
+    let d = temp_dir("flags");
+    let o = d.join("x.png");
+    let o = o.to_str().unwrap();
+    assert_one_line_error(&["render", "--size", "0x10", "-o", o], "--size");
+    assert_one_line_error(&["render", "--size", "big", "-o", o], "--size");
+    assert_one_line_error(&["render", "--fov", "0", "-o", o], "--fov");
+    assert_one_line_error(&["render", "--fov", "180", "-o", o], "--fov");
+    assert_one_line_error(&["render", "--eye", "1,2", "-o", o], "--eye");
+    assert_one_line_error(&["render", "--eye", "0,1,nan", "-o", o], "--eye");
+    assert_one_line_error(&["render", "--eye", "-1,2", "-o", o], "--eye");
+    assert_one_line_error(&["render", "--threads", "0", "-o", o], "--threads");
+    assert_one_line_error(&["render", "--ao", "sometimes", "-o", o], "--ao");
+    assert_one_line_error(&["render", "--ao-dist", "-1", "-o", o], "--ao-dist");
+    assert_one_line_error(&["render", "--look", "0,1,3", "-o", o], "--look");
+    assert_one_line_error(&["render", "--backend", "magic", "-o", o], "--backend");
+    assert_one_line_error(&["render", "--schedule", "chaos", "-o", o], "--schedule");
+    assert!(!std::path::Path::new(o).exists());
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn bad_scenes_fail_with_one_line_naming_the_file() {
+    let d = temp_dir("scenes");
+    let o = d.join("x.png");
+    let o = o.to_str().unwrap();
+    assert_one_line_error(
+        &["render", "/no/such/scene.obj", "-o", o],
+        "/no/such/scene.obj",
+    );
+    assert_one_line_error(&["render", "cornell-nope", "-o", o], "cornell-nope");
+    let bad = d.join("bad.obj");
+    std::fs::write(&bad, "v 0 0 0\nv 1 0 0\nv 0 nan 0\nf 1 2 3\n").unwrap();
+    assert_one_line_error(&["render", bad.to_str().unwrap(), "-o", o], "bad.obj:3:");
+    let empty = d.join("empty.obj");
+    std::fs::write(&empty, "# nothing\n").unwrap();
+    assert_one_line_error(&["render", empty.to_str().unwrap(), "-o", o], "no faces");
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn unwritable_output_fails_before_rendering() {
+    assert_one_line_error(
+        &["render", "-o", "/no/such/dir/out.png"],
+        "/no/such/dir/out.png",
+    );
+    assert_one_line_error(&["render", "-o", "out.jpg"], "PNG");
+}
+
+#[test]
+fn json_report_has_the_stable_keys_and_matches_the_png() {
+    let d = temp_dir("json");
+    let o = d.join("cornell.png");
+    let out = raylab(&[
+        "render",
+        "cornell-original",
+        "--size",
+        "40x30",
+        "--schedule",
+        "rayon",
+        "--threads",
+        "2",
+        "--json",
+        "-o",
+        o.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value =
+        serde_json::from_slice(&out.stdout).expect("one JSON object on stdout");
+    for key in [
+        "scene",
+        "triangles",
+        "backend",
+        "schedule",
+        "threads",
+        "width",
+        "height",
+        "load_ms",
+        "build_ms",
+        "render_ms",
+        "rays",
+        "output",
+        "image_hash",
+    ] {
+        assert!(v.get(key).is_some(), "missing key {key} in {v}");
+    }
+    assert_eq!(v["triangles"], 36);
+    assert_eq!(v["backend"], "naive");
+    assert_eq!(v["schedule"], "rayon");
+    assert_eq!(v["width"], 40);
+    assert_eq!(v["rays"]["primary"], 1200);
+    assert!(v["rays"]["shadow"].as_u64().unwrap() > 0);
+    assert!(v["rays"]["ao"].as_u64().unwrap() > 0);
+    let png = image::open(&o).unwrap().to_rgb8();
+    assert_eq!(png.dimensions(), (40, 30));
+    assert_eq!(
+        v["image_hash"],
+        raylab::render::output::image_hash(png.as_raw())
+    );
+
+    // Negative coordinates are values, not flags.
+    let out3 = raylab(&[
+        "render",
+        "cornell-empty",
+        "--size",
+        "8x6",
+        "--eye",
+        "-0.5,1,3",
+        "-q",
+        "-o",
+        o.to_str().unwrap(),
+    ]);
+    assert!(
+        out3.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out3.stderr)
+    );
+
+    // The same image from another schedule: same hash.
+    let out2 = raylab(&[
+        "render",
+        "cornell-original",
+        "--size",
+        "40x30",
+        "--schedule",
+        "rows",
+        "--json",
+        "-q",
+        "-o",
+        o.to_str().unwrap(),
+    ]);
+    let v2: serde_json::Value = serde_json::from_slice(&out2.stdout).unwrap();
+    assert_eq!(v["image_hash"], v2["image_hash"]);
+    assert!(
+        out2.stderr.is_empty(),
+        "--quiet printed: {}",
+        String::from_utf8_lossy(&out2.stderr)
+    );
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn scenes_lists_the_builtins() {
+    let out = raylab(&["scenes"]);
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    for name in [
+        "cornell-empty",
+        "cornell-original",
+        "cornell-sphere",
+        "cornell-water",
+    ] {
+        assert!(text.contains(name));
+    }
+}

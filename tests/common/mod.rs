@@ -1,0 +1,74 @@
+//! Fixtures shared by the integration tests.
+#![allow(dead_code)]
+
+use glam::Vec3;
+use raylab::camera::Camera;
+use raylab::render::{AoMode, RenderSettings};
+
+/// The study's default view at a small size.
+pub fn settings(width: u32, height: u32, ao: AoMode) -> RenderSettings {
+    RenderSettings {
+        width,
+        height,
+        camera: Camera::new(
+            Vec3::new(0.0, 1.0, 3.0),
+            Vec3::new(0.0, 1.0, 0.0),
+            Vec3::Y,
+            60.0,
+            width,
+            height,
+        )
+        .unwrap(),
+        ao,
+        ao_dist: 0.2,
+        light_samples: 1,
+        seed: 1,
+    }
+}
+
+/// The pixel a point projects to from the study's default view (eye (0,1,3),
+/// looking down -z, vertical FOV 60).
+pub fn project(p: Vec3, width: u32, height: u32) -> (u32, u32) {
+    let depth = 3.0 - p.z;
+    let scale = height as f32 * 0.5 / (30f32.to_radians().tan() * depth);
+    let x = width as f32 * 0.5 + p.x * scale;
+    let y = height as f32 * 0.5 - (p.y - 1.0) * scale;
+    (x as u32, y as u32)
+}
+
+/// A small deterministic generator for test data (SplitMix64).
+pub struct TestRng(pub u64);
+
+impl TestRng {
+    pub fn next_f32(&mut self) -> f32 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 40) as f32 / (1u64 << 24) as f32
+    }
+
+    /// Uniform in [lo, hi).
+    pub fn range(&mut self, lo: f32, hi: f32) -> f32 {
+        lo + (hi - lo) * self.next_f32()
+    }
+
+    pub fn vec_in(&mut self, lo: Vec3, hi: Vec3) -> Vec3 {
+        Vec3::new(
+            self.range(lo.x, hi.x),
+            self.range(lo.y, hi.y),
+            self.range(lo.z, hi.z),
+        )
+    }
+
+    /// A uniformly distributed unit vector.
+    pub fn unit(&mut self) -> Vec3 {
+        loop {
+            let v = self.vec_in(Vec3::splat(-1.0), Vec3::splat(1.0));
+            let l = v.length();
+            if l > 1e-3 && l <= 1.0 {
+                return v / l;
+            }
+        }
+    }
+}
