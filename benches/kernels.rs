@@ -4,6 +4,7 @@
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::Vec3;
+use raylab::accel::bvh::{BuildParams, Bvh};
 use raylab::accel::naive::Naive;
 use raylab::accel::Backend;
 use raylab::camera::Camera;
@@ -62,5 +63,52 @@ fn naive_queries(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, ray_triangle, naive_queries);
+/// Closest-hit and any-hit per BVH builder on the study's scenes, same ray set.
+fn bvh_queries(c: &mut Criterion) {
+    let rays = camera_rays();
+    let mut g = c.benchmark_group("bvh");
+    g.throughput(Throughput::Elements(rays.len() as u64));
+    for name in ["cornell-sphere", "cornell-water"] {
+        let tris = builtin(name).unwrap().triangle_vertices();
+        for params in [BuildParams::median(), BuildParams::sah()] {
+            let bvh = Bvh::build(&tris, &params);
+            let id = format!("{}/{name}", params.builder.name());
+            g.bench_with_input(BenchmarkId::new("intersect", &id), &rays, |b, rays| {
+                b.iter(|| rays.iter().filter_map(|r| bvh.intersect(r)).count())
+            });
+            g.bench_with_input(BenchmarkId::new("occluded", &id), &rays, |b, rays| {
+                b.iter(|| rays.iter().filter(|r| bvh.occluded(r)).count())
+            });
+        }
+    }
+    g.finish();
+}
+
+/// Build time against triangle count on the procedural meshes, serial and on 2 threads.
+fn bvh_builds(c: &mut Criterion) {
+    let mut g = c.benchmark_group("bvh_build");
+    g.sample_size(10);
+    for n in [1_000u64, 10_000, 100_000] {
+        let tris = builtin(&format!("mesh:{n}")).unwrap().triangle_vertices();
+        g.throughput(Throughput::Elements(tris.len() as u64));
+        for params in [BuildParams::median(), BuildParams::sah()] {
+            for threads in [1, 2] {
+                let p = params.with_threads(threads);
+                let id = format!("{}-{threads}t", params.builder.name());
+                g.bench_with_input(BenchmarkId::new(id, n), &tris, |b, tris| {
+                    b.iter(|| Bvh::build(tris, &p))
+                });
+            }
+        }
+    }
+    g.finish();
+}
+
+criterion_group!(
+    benches,
+    ray_triangle,
+    naive_queries,
+    bvh_queries,
+    bvh_builds
+);
 criterion_main!(benches);

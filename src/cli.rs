@@ -9,12 +9,13 @@ use clap::{Args, Parser, Subcommand};
 use glam::Vec3;
 use serde::Serialize;
 
-use crate::accel::{build_backend, BackendKind};
+use crate::accel::bvh::{BuildParams, BuilderKind};
+use crate::accel::{build_backend, BackendKind, BackendSpec};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::progress::Progress;
 use crate::render::{self, output, AoMode, RenderSettings, Schedule};
-use crate::scene::builtin::{builtin, BUILTIN_SCENES};
+use crate::scene::builtin::{builtin, BUILTIN_SCENES, PROCEDURAL_SCENES};
 use crate::scene::obj::load_obj;
 use crate::scene::Scene;
 
@@ -33,6 +34,9 @@ struct Cli {
 enum Command {
     /// Render a scene with one backend and schedule, write a PNG and print timings.
     Render(RenderArgs),
+    /// BVH quality per scene and builder: build times, shape, SAH cost, and
+    /// traversal work per ray measured over a render.
+    Stats(StatsArgs),
     /// List the built-in scenes.
     Scenes,
 }
@@ -100,6 +104,8 @@ struct RenderArgs {
     /// Acceleration structure.
     #[arg(long, value_enum, default_value_t = BackendKind::Naive)]
     backend: BackendKind,
+    #[command(flatten)]
+    bvh: BvhArgs,
     /// How the image is divided between threads.
     #[arg(long, value_enum, default_value_t = Schedule::Tiles)]
     schedule: Schedule,
@@ -122,6 +128,107 @@ struct RenderArgs {
     /// No progress bar and no summary on stderr.
     #[arg(long, short = 'q')]
     quiet: bool,
+}
+
+/// How a BVH is built (used with `--backend bvh`).
+#[derive(Args, Debug, Clone)]
+pub struct BvhArgs {
+    /// BVH builder: median (the study's) or sah (binned SAH).
+    #[arg(long, value_enum, default_value_t = BuilderKind::Sah)]
+    pub builder: BuilderKind,
+    /// Most triangles per BVH leaf [default: 1 for median, 4 for sah].
+    #[arg(long, value_name = "N", value_parser = parse_leaf_size)]
+    pub leaf_size: Option<usize>,
+    /// Threads for the BVH build [default: --threads].
+    #[arg(long, value_name = "N", value_parser = parse_threads)]
+    pub build_threads: Option<usize>,
+}
+
+impl BvhArgs {
+    pub fn params(&self, builder: BuilderKind, threads: usize) -> BuildParams {
+        let p =
+            BuildParams::for_builder(builder).with_threads(self.build_threads.unwrap_or(threads));
+        match self.leaf_size {
+            Some(n) => p.with_max_leaf_size(n),
+            None => p,
+        }
+    }
+}
+
+fn parse_leaf_size(s: &str) -> std::result::Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if (1..=255).contains(&n) => Ok(n),
+        _ => Err(format!("'{s}' must be a whole number in 1..=255")),
+    }
+}
+
+#[derive(Args, Debug)]
+struct StatsArgs {
+    /// .obj files or built-in names [default: the four built-in Cornell boxes].
+    scenes: Vec<String>,
+    /// Which builders to measure.
+    #[arg(long, value_name = "NAME", default_value = "all", value_parser = ["median", "sah", "all"])]
+    builder: String,
+    /// Most triangles per leaf for every builder [default: each builder's own].
+    #[arg(long, value_name = "N", value_parser = parse_leaf_size)]
+    leaf_size: Option<usize>,
+    /// Threads for the parallel build and the counting render [default: all hardware threads].
+    #[arg(long, value_name = "N", value_parser = parse_threads)]
+    threads: Option<usize>,
+    /// Timed builds per measurement (the median is reported).
+    #[arg(long, value_name = "N", default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=100))]
+    reps: u32,
+    #[command(flatten)]
+    view: ViewArgs,
+    /// Print the reports as one JSON array on stdout instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+fn run_stats(args: &StatsArgs) -> Result<()> {
+    let settings = args.view.settings()?;
+    let threads = args.threads.unwrap_or_else(default_threads);
+    let builders: Vec<BuilderKind> = match args.builder.as_str() {
+        "median" => vec![BuilderKind::Median],
+        "sah" => vec![BuilderKind::Sah],
+        _ => vec![BuilderKind::Median, BuilderKind::Sah],
+    };
+    let names: Vec<String> = if args.scenes.is_empty() {
+        BUILTIN_SCENES.iter().map(|(n, _)| n.to_string()).collect()
+    } else {
+        args.scenes.clone()
+    };
+    let mut reports = Vec::new();
+    for name in &names {
+        let scene = load_scene(name)?;
+        for &builder in &builders {
+            let mut params = BuildParams::for_builder(builder);
+            if let Some(n) = args.leaf_size {
+                params = params.with_max_leaf_size(n);
+            }
+            eprintln!("stats: {} with {} ...", scene.name, builder.name());
+            reports.push(crate::stats::builder_report(
+                &scene,
+                &params,
+                &settings,
+                threads,
+                args.reps as usize,
+            )?);
+        }
+    }
+    if args.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&reports).map_err(|e| Error::Other(e.to_string()))?
+        );
+    } else {
+        print!("{}", crate::stats::markdown_table(&reports));
+        println!(
+            "Render for work per ray: {}x{}, ao {}, {} light sample(s); builds on 1 and {} threads, median of {}.",
+            settings.width, settings.height, settings.ao, settings.light_samples, threads, args.reps
+        );
+    }
+    Ok(())
 }
 
 fn parse_vec3(s: &str) -> std::result::Result<Vec3, String> {
@@ -263,7 +370,11 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         ms(load_time)
     ));
 
-    let backend = build_backend(args.backend, &scene);
+    let spec = BackendSpec {
+        kind: args.backend,
+        bvh: args.bvh.params(args.bvh.builder, threads),
+    };
+    let backend = build_backend(&spec, &scene);
     say(format!(
         "backend {}: built in {:.1} ms",
         backend.name(),
@@ -396,8 +507,9 @@ pub fn main() -> i32 {
     };
     let result = match &cli.command {
         Command::Render(args) => run_render(args),
+        Command::Stats(args) => run_stats(args),
         Command::Scenes => {
-            for (name, about) in BUILTIN_SCENES {
+            for (name, about) in BUILTIN_SCENES.iter().chain(PROCEDURAL_SCENES) {
                 println!("{name:18} {about}");
             }
             Ok(())

@@ -152,15 +152,19 @@ impl Aabb {
 
     /// Slab test against a ray whose reciprocal direction is `inv_dir` (see
     /// [`safe_reciprocal`]). Returns the entry distance if the box overlaps
-    /// `(ray.tmin, tmax)`, with `tmax` the caller's current closest hit.
+    /// `(tmin, tmax)`, with `tmax` the caller's current closest hit.
+    ///
+    /// Conservative: the exit distance is enlarged by `1 + 2 gamma(3)` (pbrt-v4,
+    /// after Ize 2013), which bounds the rounding of the three operations per slab,
+    /// so a box that a ray touches in one point (a vertex, a flat box's face) is
+    /// never culled by rounding.
     #[inline]
     pub fn intersect(&self, origin: Vec3, inv_dir: Vec3, tmin: f32, tmax: f32) -> Option<f32> {
+        const GROW: f32 = 1.0 + 2.0 * GAMMA3;
         let t0 = (self.min - origin) * inv_dir;
         let t1 = (self.max - origin) * inv_dir;
         let near = t0.min(t1).max_element().max(tmin);
-        let far = t0.max(t1).min_element().min(tmax);
-        // `<=` keeps boxes touched at a single point (flat boxes of axis-aligned
-        // triangles); NaN from 0 * inf compares false and is handled by safe_reciprocal.
+        let far = (t0.max(t1).min_element() * GROW).min(tmax);
         if near <= far {
             Some(near)
         } else {
@@ -168,6 +172,10 @@ impl Aabb {
         }
     }
 }
+
+/// `gamma(3) = 3u / (1 - 3u)` with `u = 2^-24`: the relative error bound of three
+/// rounded f32 operations (pbrt's error analysis).
+pub const GAMMA3: f32 = 3.0 * (f32::EPSILON * 0.5) / (1.0 - 3.0 * (f32::EPSILON * 0.5));
 
 /// `1 / d` per component, with zero components mapped to a huge finite value of the
 /// same sign instead of infinity, so the slab test never computes `0 * inf = NaN`

@@ -16,5 +16,7 @@ pub mod geometry;
 pub mod progress;
 pub mod render;
 pub mod scene;
+pub mod stats;
+pub mod validate;
 
 pub use error::{Error, Result};

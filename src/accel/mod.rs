@@ -4,11 +4,13 @@
 //! with the same ray/triangle test and tie-break ([`crate::geometry::Hit::is_closer_than`]),
 //! so the renderer produces the same image whichever backend it is given.
 
+pub mod bvh;
 pub mod naive;
 
 use std::time::Duration;
 
 use crate::geometry::{Hit, Ray};
+use crate::scene::Scene;
 
 /// A ray-tracing backend over one scene.
 ///
@@ -20,7 +22,7 @@ pub trait Backend: Send + Sync {
     /// A short name for reports (`naive`, `bvh-sah`, ...).
     fn name(&self) -> String;
 
-    /// Wall time spent building the structure (zero for `naive`).
+    /// Wall time from the scene to a ready structure (zero-ish for `naive`).
     fn build_time(&self) -> Duration;
 
     /// The closest hit, ties broken by the lowest triangle index.
@@ -35,11 +37,21 @@ pub trait Backend: Send + Sync {
 pub enum BackendKind {
     /// Every triangle for every ray (the study's O(N) baseline).
     Naive,
+    /// A hand-built BVH (`--builder` chooses how).
+    Bvh,
+}
+
+/// A backend and, for BVHs, how to build it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BackendSpec {
+    pub kind: BackendKind,
+    pub bvh: bvh::BuildParams,
 }
 
 /// Builds the chosen backend over `scene`.
-pub fn build_backend(kind: BackendKind, scene: &crate::scene::Scene) -> Box<dyn Backend> {
-    match kind {
+pub fn build_backend(spec: &BackendSpec, scene: &Scene) -> Box<dyn Backend> {
+    match spec.kind {
         BackendKind::Naive => Box::new(naive::Naive::new(scene)),
+        BackendKind::Bvh => Box::new(bvh::BvhBackend::new(scene, &spec.bvh)),
     }
 }

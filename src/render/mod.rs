@@ -16,10 +16,37 @@ use std::time::Duration;
 
 use glam::Vec3;
 
+use crate::accel::Backend;
 use crate::camera::Camera;
 use crate::error::Error;
+use crate::geometry::{Hit, Ray};
 
 pub use schedule::{render, Schedule};
+
+/// The shading loop's three queries, by ray kind. Every [`Backend`] is a tracer
+/// (primary rays use `intersect`, shadow and AO rays `occluded`); instrumented
+/// tracers (counting traversal work, recording rays) implement it directly, so the
+/// loop that measures is the loop that renders.
+pub trait Tracer: Sync {
+    fn primary(&self, ray: &Ray) -> Option<Hit>;
+    fn shadow(&self, ray: &Ray) -> bool;
+    fn ao(&self, ray: &Ray) -> bool;
+}
+
+impl<B: Backend + ?Sized> Tracer for B {
+    #[inline]
+    fn primary(&self, ray: &Ray) -> Option<Hit> {
+        self.intersect(ray)
+    }
+    #[inline]
+    fn shadow(&self, ray: &Ray) -> bool {
+        self.occluded(ray)
+    }
+    #[inline]
+    fn ao(&self, ray: &Ray) -> bool {
+        self.occluded(ray)
+    }
+}
 
 /// Ambient occlusion: off, the study's 14 fixed directions, or N cosine samples.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

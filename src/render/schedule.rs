@@ -16,8 +16,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::shade::render_rect;
-use super::{Frame, Rect, RenderSettings, RenderStats};
-use crate::accel::Backend;
+use super::{Frame, Rect, RenderSettings, RenderStats, Tracer};
 use crate::error::{Error, Result};
 use crate::progress::Progress;
 use crate::scene::Scene;
@@ -84,9 +83,9 @@ pub fn tile_grid(width: u32, height: u32) -> Vec<Rect> {
 
 /// Renders the whole image with `schedule`. `threads` (at least 1) is used by
 /// `tiles` and `rayon`. `progress` is advanced by each finished rectangle's pixels.
-pub fn render<B: Backend + ?Sized>(
+pub fn render<T: Tracer + ?Sized>(
     scene: &Scene,
-    backend: &B,
+    tracer: &T,
     settings: &RenderSettings,
     schedule: Schedule,
     threads: usize,
@@ -98,7 +97,7 @@ pub fn render<B: Backend + ?Sized>(
     }
     let work = |rect: Rect| {
         let mut pixels = vec![Vec3::ZERO; rect.pixel_count()];
-        let stats = render_rect(scene, backend, settings, rect, &mut pixels);
+        let stats = render_rect(scene, tracer, settings, rect, &mut pixels);
         progress.advance(rect.pixel_count() as u64);
         (rect, pixels, stats)
     };

@@ -19,8 +19,7 @@ use std::time::Instant;
 use glam::Vec3;
 
 use super::rng::{Rng, STREAM_AO, STREAM_LIGHT};
-use super::{AoMode, Rect, RenderSettings, RenderStats};
-use crate::accel::Backend;
+use super::{AoMode, Rect, RenderSettings, RenderStats, Tracer};
 use crate::geometry::{triangle_normal, Ray};
 use crate::scene::Scene;
 
@@ -88,9 +87,9 @@ struct Surface {
 }
 
 /// Renders `rect` into `out` (row-major, `rect.pixel_count()` long, linear radiance).
-pub fn render_rect<B: Backend + ?Sized>(
+pub fn render_rect<T: Tracer + ?Sized>(
     scene: &Scene,
-    backend: &B,
+    tracer: &T,
     settings: &RenderSettings,
     rect: Rect,
     out: &mut [Vec3],
@@ -107,7 +106,7 @@ pub fn render_rect<B: Backend + ?Sized>(
             let slot = ((y - rect.y0) * width + (x - rect.x0)) as usize;
             let ray = settings.camera.ray(x, y);
             out[slot] = Vec3::ZERO;
-            let Some(hit) = backend.intersect(&ray) else {
+            let Some(hit) = tracer.primary(&ray) else {
                 continue;
             };
             let tri = scene.triangle(hit.tri as usize);
@@ -138,7 +137,7 @@ pub fn render_rect<B: Backend + ?Sized>(
     // Pass 2: direct light.
     let start = Instant::now();
     for s in &surfaces {
-        let (radiance, rays) = direct_light(scene, backend, settings, s);
+        let (radiance, rays) = direct_light(scene, tracer, settings, s);
         out[s.slot] += radiance;
         stats.shadow_rays += rays;
     }
@@ -147,7 +146,7 @@ pub fn render_rect<B: Backend + ?Sized>(
     // Pass 3: ambient term, darkened by AO.
     let start = Instant::now();
     for s in &surfaces {
-        let (visibility, rays) = ambient_visibility(backend, settings, s);
+        let (visibility, rays) = ambient_visibility(tracer, settings, s);
         out[s.slot] += AMBIENT * scene.material_of(s.tri).ka * visibility;
         stats.ao_rays += rays;
     }
@@ -156,9 +155,9 @@ pub fn render_rect<B: Backend + ?Sized>(
 }
 
 /// Reflected direct light at `s` and the number of shadow rays cast.
-fn direct_light<B: Backend + ?Sized>(
+fn direct_light<T: Tracer + ?Sized>(
     scene: &Scene,
-    backend: &B,
+    tracer: &T,
     settings: &RenderSettings,
     s: &Surface,
 ) -> (Vec3, u64) {
@@ -199,7 +198,7 @@ fn direct_light<B: Backend + ?Sized>(
         }
         rays += 1;
         let shadow = Ray::segment(origin, wi, 0.0, dist * (1.0 - SHADOW_END));
-        if backend.occluded(&shadow) {
+        if tracer.shadow(&shadow) {
             continue;
         }
         let h = (wi + s.wo).normalize_or_zero();
@@ -216,8 +215,8 @@ fn direct_light<B: Backend + ?Sized>(
 }
 
 /// The unoccluded fraction of AO directions at `s` and the number of AO rays cast.
-fn ambient_visibility<B: Backend + ?Sized>(
-    backend: &B,
+fn ambient_visibility<T: Tracer + ?Sized>(
+    tracer: &T,
     settings: &RenderSettings,
     s: &Surface,
 ) -> (f32, u64) {
@@ -231,7 +230,7 @@ fn ambient_visibility<B: Backend + ?Sized>(
             for d in paper_ao_directions() {
                 if d.dot(s.ng) > 0.0 {
                     cast += 1;
-                    open += !backend.occluded(&Ray::segment(origin, d, 0.0, dist)) as u32;
+                    open += !tracer.ao(&Ray::segment(origin, d, 0.0, dist)) as u32;
                 }
             }
             // At least one of the 14 directions lies in any open hemisphere.
@@ -251,7 +250,7 @@ fn ambient_visibility<B: Backend + ?Sized>(
                 let phi = 2.0 * PI * u2;
                 let local = Vec3::new(r * phi.cos(), r * phi.sin(), (1.0 - u1).max(0.0).sqrt());
                 let d = t * local.x + b * local.y + s.ng * local.z;
-                open += !backend.occluded(&Ray::segment(origin, d, 0.0, dist)) as u32;
+                open += !tracer.ao(&Ray::segment(origin, d, 0.0, dist)) as u32;
             }
             (open as f32 / n as f32, n as u64)
         }

@@ -32,6 +32,15 @@ pub const BUILTIN_SCENES: &[(&str, &str)] = &[
     ),
 ];
 
+/// Parameterised built-in scenes, listed by `raylab scenes` after the fixed ones.
+pub const PROCEDURAL_SCENES: &[(&str, &str)] = &[(
+    "mesh:N",
+    "a displaced UV sphere of about N triangles (1e2..=1e8) in the empty box, for scaling curves",
+)];
+
+/// Triangle budget of `mesh:N` scenes.
+pub const MESH_TRIANGLES: std::ops::RangeInclusive<u64> = 100..=100_000_000;
+
 /// The built-in scene called `name`.
 pub fn builtin(name: &str) -> Result<Scene> {
     let mut b = Builder::default();
@@ -57,6 +66,10 @@ pub fn builtin(name: &str) -> Result<Scene> {
             b.spheres();
             b.water();
         }
+        _ if name.starts_with("mesh:") => {
+            let n = parse_mesh_size(name)?;
+            b.displaced_sphere(n);
+        }
         _ => {
             let names: Vec<&str> = BUILTIN_SCENES.iter().map(|(n, _)| *n).collect();
             return Err(Error::usage(
@@ -76,6 +89,26 @@ pub fn builtin(name: &str) -> Result<Scene> {
         b.material_ids,
         b.materials,
     )
+}
+
+/// The `N` of `mesh:N` (accepts `1e5`-style exponents).
+fn parse_mesh_size(name: &str) -> Result<u64> {
+    let text = &name["mesh:".len()..];
+    let n = text.parse::<u64>().ok().or_else(|| {
+        let f: f64 = text.parse().ok()?;
+        (f.is_finite() && f.fract() == 0.0 && f >= 0.0 && f <= u64::MAX as f64).then_some(f as u64)
+    });
+    match n {
+        Some(n) if MESH_TRIANGLES.contains(&n) => Ok(n),
+        _ => Err(Error::usage(
+            "SCENE",
+            format!(
+                "'{name}': N in mesh:N must be a whole number in {}..={}",
+                MESH_TRIANGLES.start(),
+                MESH_TRIANGLES.end()
+            ),
+        )),
+    }
 }
 
 const WHITE: Vec3 = Vec3::new(0.725, 0.71, 0.68);
@@ -223,6 +256,25 @@ impl Builder {
         }
     }
 
+    /// A UV sphere of about `n` triangles (stacks ~ sqrt(n / 4), twice as many
+    /// slices) with its radius displaced by a sum of sines, standing in the box:
+    /// the procedural mesh for build-time and throughput curves.
+    fn displaced_sphere(&mut self, n: u64) {
+        let material = self.material(Material::diffuse("mesh", Vec3::new(0.8, 0.75, 0.6)));
+        let stacks = ((n as f64 / 4.0).sqrt().round() as u32).max(3);
+        let slices = ((n as f64 / (2.0 * (stacks - 1) as f64)).round() as u32).max(3);
+        let centre = Vec3::new(0.0, 0.75, -0.1);
+        let first = self.positions.len();
+        self.sphere(centre, 0.6, slices, stacks, material);
+        // Displace along the normal; normals are left as the sphere's (shading only).
+        for p in &mut self.positions[first..] {
+            let d = (*p - centre).normalize_or_zero();
+            let bump = 0.06 * (9.0 * d.x).sin() * (7.0 * d.y).cos() * (8.0 * d.z + 1.0).sin()
+                + 0.02 * (31.0 * d.x + 17.0 * d.y).sin();
+            *p = centre + d * (0.6 + bump);
+        }
+    }
+
     /// The two glossy spheres of the McGuire sphere scene (same places, sizes and
     /// materials): 2 x 1088 triangles.
     fn spheres(&mut self) {
@@ -326,6 +378,32 @@ mod tests {
             if (*p - c).length() < 0.33 {
                 assert!((*p - c).normalize().dot(*n) > 0.99);
             }
+        }
+    }
+
+    #[test]
+    fn mesh_scenes_have_about_n_triangles() {
+        for n in [100u64, 1000, 12345, 100_000] {
+            let s = builtin(&format!("mesh:{n}")).unwrap();
+            let tris = s.triangle_count() as f64 - 12.0;
+            assert!((tris / n as f64 - 1.0).abs() < 0.05, "mesh:{n} has {tris}");
+        }
+        assert_eq!(
+            builtin("mesh:1e3").unwrap().triangle_count(),
+            builtin("mesh:1000").unwrap().triangle_count()
+        );
+        for bad in [
+            "mesh:",
+            "mesh:0",
+            "mesh:x",
+            "mesh:1e20",
+            "mesh:-5",
+            "mesh:1.5",
+        ] {
+            assert!(
+                builtin(bad).unwrap_err().to_string().contains("mesh:N"),
+                "{bad}"
+            );
         }
     }
 

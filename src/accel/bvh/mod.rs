@@ -1,0 +1,119 @@
+//! Bounding volume hierarchies built by hand: one flat layout shared by every
+//! builder ([`build`]), one traversal ([`traverse`]) and the quality metrics that
+//! explain their speed ([`quality`]).
+//!
+//! Layout (pbrt-v4 style): nodes in a flat array in depth-first order, 32 bytes
+//! each. An interior node's left child is the next node and its right child is at
+//! `offset`; a leaf (`count > 0`) holds triangles `offset .. offset + count` of the
+//! leaf-ordered arrays. Triangle vertices are gathered in leaf order so a leaf's
+//! triangles are contiguous in memory; `tri_ids` maps them back to scene indices
+//! (an index may repeat when a builder splits triangles spatially).
+
+pub mod build;
+pub mod quality;
+pub mod traverse;
+
+use std::time::{Duration, Instant};
+
+use glam::Vec3;
+
+pub use build::{BuildParams, BuilderKind};
+
+use super::Backend;
+use crate::geometry::{Aabb, Hit, Ray};
+use crate::scene::Scene;
+
+/// A BVH node: bounds, and either two children or a range of leaf triangles.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Node {
+    pub min: Vec3,
+    /// Interior: index of the right child (the left child is `self + 1`).
+    /// Leaf: first triangle in the leaf-ordered arrays.
+    pub offset: u32,
+    pub max: Vec3,
+    /// Number of triangles; 0 marks an interior node.
+    pub count: u32,
+}
+
+impl Node {
+    #[inline]
+    pub fn is_leaf(&self) -> bool {
+        self.count > 0
+    }
+
+    #[inline]
+    pub fn bounds(&self) -> Aabb {
+        Aabb {
+            min: self.min,
+            max: self.max,
+        }
+    }
+}
+
+/// A built hierarchy over a triangle list.
+#[derive(Clone, Debug, Default)]
+pub struct Bvh {
+    /// Depth-first; `nodes[0]` is the root. Empty only for an empty triangle list.
+    pub nodes: Vec<Node>,
+    /// Scene triangle index of each leaf slot.
+    pub tri_ids: Vec<u32>,
+    /// Vertices of each leaf slot (gathered copy of the scene's triangles).
+    pub tris: Vec<[Vec3; 3]>,
+}
+
+impl Bvh {
+    /// Builds over `triangles` (indexed as in the scene) with `params`.
+    pub fn build(triangles: &[[Vec3; 3]], params: &BuildParams) -> Bvh {
+        build::build(triangles, params)
+    }
+
+    /// Bytes of nodes, index map and gathered triangles.
+    pub fn memory_bytes(&self) -> usize {
+        self.nodes.len() * std::mem::size_of::<Node>()
+            + self.tri_ids.len() * std::mem::size_of::<u32>()
+            + self.tris.len() * std::mem::size_of::<[Vec3; 3]>()
+    }
+}
+
+/// The BVH as a render [`Backend`].
+pub struct BvhBackend {
+    pub bvh: Bvh,
+    name: String,
+    build_time: Duration,
+}
+
+impl BvhBackend {
+    /// Builds a BVH over the scene's triangles; like every backend's, the build
+    /// time runs from the scene to a ready structure (vertex gather included).
+    pub fn new(scene: &Scene, params: &BuildParams) -> Self {
+        let start = Instant::now();
+        let triangles = scene.triangle_vertices();
+        let bvh = Bvh::build(&triangles, params);
+        BvhBackend {
+            bvh,
+            name: format!("bvh-{}", params.builder.name()),
+            build_time: start.elapsed(),
+        }
+    }
+}
+
+impl Backend for BvhBackend {
+    fn name(&self) -> String {
+        self.name.clone()
+    }
+
+    fn build_time(&self) -> Duration {
+        self.build_time
+    }
+
+    #[inline]
+    fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        self.bvh.intersect(ray)
+    }
+
+    #[inline]
+    fn occluded(&self, ray: &Ray) -> bool {
+        self.bvh.occluded(ray)
+    }
+}

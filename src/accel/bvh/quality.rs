@@ -1,0 +1,154 @@
+//! Quality metrics of a built tree, independent of any ray: size, depth, leaf
+//! fill, memory and the SAH cost. Measured traversal work per ray comes from
+//! rendering with a counting tracer (`raylab stats`).
+
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use serde::Serialize;
+
+use super::build::sah::{C_INTERSECT, C_TRAVERSAL};
+use super::traverse::Counts;
+use super::Bvh;
+use crate::geometry::{Hit, Ray};
+use crate::render::Tracer;
+
+/// What `raylab stats` reports of a tree's shape.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct TreeStats {
+    pub nodes: usize,
+    pub leaves: usize,
+    /// Depth of the deepest leaf (the root has depth 0).
+    pub max_depth: u32,
+    /// Mean depth of leaves.
+    pub mean_leaf_depth: f64,
+    pub mean_leaf_size: f64,
+    pub max_leaf_size: u32,
+    /// Leaf slots (equals the triangle count unless triangles were split).
+    pub leaf_references: usize,
+    pub memory_bytes: usize,
+    pub bytes_per_triangle: f64,
+    /// `sum over interior nodes of C_t * A(n) + sum over leaves of C_i * N * A(n)`,
+    /// divided by `A(root)`, with `C_t = C_i = 1`.
+    pub sah_cost: f64,
+}
+
+impl TreeStats {
+    /// Measures `bvh`; `triangles` is the scene's triangle count (for bytes per
+    /// triangle).
+    pub fn of(bvh: &Bvh, triangles: usize) -> TreeStats {
+        let mut s = TreeStats {
+            nodes: bvh.nodes.len(),
+            leaf_references: bvh.tri_ids.len(),
+            memory_bytes: bvh.memory_bytes(),
+            bytes_per_triangle: bvh.memory_bytes() as f64 / triangles.max(1) as f64,
+            ..TreeStats::default()
+        };
+        if bvh.nodes.is_empty() {
+            return s;
+        }
+        let root_area = bvh.nodes[0].bounds().surface_area().max(f32::MIN_POSITIVE) as f64;
+        let mut depth_sum = 0u64;
+        let mut cost = 0f64;
+        let mut stack = vec![(0u32, 0u32)];
+        while let Some((i, depth)) = stack.pop() {
+            let n = &bvh.nodes[i as usize];
+            let area = n.bounds().surface_area() as f64 / root_area;
+            if n.is_leaf() {
+                s.leaves += 1;
+                s.max_depth = s.max_depth.max(depth);
+                s.max_leaf_size = s.max_leaf_size.max(n.count);
+                depth_sum += depth as u64;
+                cost += C_INTERSECT as f64 * n.count as f64 * area;
+            } else {
+                cost += C_TRAVERSAL as f64 * area;
+                stack.push((i + 1, depth + 1));
+                stack.push((n.offset, depth + 1));
+            }
+        }
+        s.mean_leaf_depth = depth_sum as f64 / s.leaves as f64;
+        s.mean_leaf_size = s.leaf_references as f64 / s.leaves as f64;
+        s.sah_cost = cost;
+        s
+    }
+}
+
+/// Traversal work by ray kind, summed over a render.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct KindWork {
+    pub rays: u64,
+    pub nodes_per_ray: f64,
+    pub triangles_per_ray: f64,
+}
+
+#[derive(Default)]
+struct AtomicWork {
+    rays: AtomicU64,
+    nodes: AtomicU64,
+    triangles: AtomicU64,
+}
+
+impl AtomicWork {
+    fn add(&self, c: Counts) {
+        self.rays.fetch_add(1, Ordering::Relaxed);
+        self.nodes.fetch_add(c.nodes, Ordering::Relaxed);
+        self.triangles.fetch_add(c.triangles, Ordering::Relaxed);
+    }
+
+    fn get(&self) -> KindWork {
+        let rays = self.rays.load(Ordering::Relaxed);
+        let per = |x: &AtomicU64| x.load(Ordering::Relaxed) as f64 / rays.max(1) as f64;
+        KindWork {
+            rays,
+            nodes_per_ray: per(&self.nodes),
+            triangles_per_ray: per(&self.triangles),
+        }
+    }
+}
+
+/// A tracer that counts nodes visited and triangles tested per ray kind while
+/// rendering through the same shading loop.
+pub struct CountingTracer<'a> {
+    bvh: &'a Bvh,
+    primary: AtomicWork,
+    shadow: AtomicWork,
+    ao: AtomicWork,
+}
+
+impl<'a> CountingTracer<'a> {
+    pub fn new(bvh: &'a Bvh) -> Self {
+        CountingTracer {
+            bvh,
+            primary: AtomicWork::default(),
+            shadow: AtomicWork::default(),
+            ao: AtomicWork::default(),
+        }
+    }
+
+    /// (primary, shadow, ao) work so far.
+    pub fn work(&self) -> (KindWork, KindWork, KindWork) {
+        (self.primary.get(), self.shadow.get(), self.ao.get())
+    }
+}
+
+impl Tracer for CountingTracer<'_> {
+    fn primary(&self, ray: &Ray) -> Option<Hit> {
+        let mut c = Counts::default();
+        let hit = self.bvh.intersect_counted(ray, &mut c);
+        self.primary.add(c);
+        hit
+    }
+
+    fn shadow(&self, ray: &Ray) -> bool {
+        let mut c = Counts::default();
+        let hit = self.bvh.occluded_counted(ray, &mut c);
+        self.shadow.add(c);
+        hit
+    }
+
+    fn ao(&self, ray: &Ray) -> bool {
+        let mut c = Counts::default();
+        let hit = self.bvh.occluded_counted(ray, &mut c);
+        self.ao.add(c);
+        hit
+    }
+}

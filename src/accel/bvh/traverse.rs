@@ -1,0 +1,201 @@
+//! Iterative BVH traversal with a small fixed stack: closest hit (ordered: the
+//! nearer child first, nodes beyond the current closest hit skipped) and any hit
+//! (stops at the first hit within the segment).
+//!
+//! Both are generic over a [`Counter`]; the fast path uses [`NoCount`], whose
+//! empty methods compile away, and `raylab stats` uses [`Counts`].
+
+use super::Bvh;
+use crate::geometry::{intersect_triangle, safe_reciprocal, Hit, Ray};
+
+/// Depth bound of every builder's trees (see `build::MAX_SPLIT_DEPTH`).
+const STACK_SIZE: usize = 64;
+
+/// Slab intervals are widened by this relative amount so that f32 rounding in the
+/// slab test never culls a box that holds a hit the triangle test would report
+/// (the conservative slab test of Ize 2013 uses 1 + 2 gamma(3), about 7.2e-7).
+const SLAB_SLACK: f32 = 1e-6;
+
+/// Receives traversal events.
+pub trait Counter {
+    fn node(&mut self);
+    fn triangle(&mut self);
+}
+
+/// Counts nothing, at no cost.
+pub struct NoCount;
+
+impl Counter for NoCount {
+    #[inline(always)]
+    fn node(&mut self) {}
+    #[inline(always)]
+    fn triangle(&mut self) {}
+}
+
+/// Nodes visited and triangles tested.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Counts {
+    pub nodes: u64,
+    pub triangles: u64,
+}
+
+impl Counter for Counts {
+    #[inline]
+    fn node(&mut self) {
+        self.nodes += 1;
+    }
+    #[inline]
+    fn triangle(&mut self) {
+        self.triangles += 1;
+    }
+}
+
+impl Bvh {
+    /// Closest hit (ties: lowest triangle index), as [`crate::accel::Backend::intersect`].
+    #[inline]
+    pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        self.intersect_counted(ray, &mut NoCount)
+    }
+
+    /// Any hit within the segment, as [`crate::accel::Backend::occluded`].
+    #[inline]
+    pub fn occluded(&self, ray: &Ray) -> bool {
+        self.occluded_counted(ray, &mut NoCount)
+    }
+
+    /// The entry distance of node `i` if its box overlaps `(tmin, tmax)`.
+    #[inline(always)]
+    fn enter(&self, i: u32, ray: &Ray, inv_dir: glam::Vec3, tmax: f32) -> Option<f32> {
+        let n = &self.nodes[i as usize];
+        n.bounds().intersect(
+            ray.origin,
+            inv_dir,
+            ray.tmin * (1.0 - SLAB_SLACK),
+            tmax * (1.0 + SLAB_SLACK),
+        )
+    }
+
+    pub fn intersect_counted<C: Counter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
+        if self.nodes.is_empty() || !ray.is_valid() {
+            return None;
+        }
+        let inv_dir = safe_reciprocal(ray.dir);
+        let mut best: Option<Hit> = None;
+        // Triangle tests use `tmax` just above the best t so that a hit at the same
+        // t with a lower index is still found; `is_closer_than` decides.
+        let mut test_ray = *ray;
+        let mut stack = [(0u32, 0f32); STACK_SIZE];
+        let mut sp = 0usize;
+        let root_t = self.enter(0, ray, inv_dir, ray.tmax)?;
+        let mut current = Some((0u32, root_t));
+        loop {
+            let (index, near) = match current.take() {
+                Some(c) => c,
+                None => {
+                    if sp == 0 {
+                        break;
+                    }
+                    sp -= 1;
+                    stack[sp]
+                }
+            };
+            let best_t = best.map_or(ray.tmax, |h| h.t);
+            if near > best_t * (1.0 + SLAB_SLACK) {
+                continue;
+            }
+            counter.node();
+            let node = &self.nodes[index as usize];
+            if node.is_leaf() {
+                let first = node.offset as usize;
+                for slot in first..first + node.count as usize {
+                    counter.triangle();
+                    if let Some((t, u, v)) = intersect_triangle(&test_ray, &self.tris[slot]) {
+                        let hit = Hit {
+                            t,
+                            u,
+                            v,
+                            tri: self.tri_ids[slot],
+                        };
+                        if best.is_none_or(|b| hit.is_closer_than(&b)) {
+                            best = Some(hit);
+                            test_ray.tmax = t.next_up();
+                        }
+                    }
+                }
+                continue;
+            }
+            let best_t = best.map_or(ray.tmax, |h| h.t);
+            let (left, right) = (index + 1, node.offset);
+            let tl = self.enter(left, ray, inv_dir, best_t);
+            let tr = self.enter(right, ray, inv_dir, best_t);
+            match (tl, tr) {
+                (Some(a), Some(b)) => {
+                    let (first, second) = if a <= b {
+                        ((left, a), (right, b))
+                    } else {
+                        ((right, b), (left, a))
+                    };
+                    debug_assert!(sp < STACK_SIZE);
+                    stack[sp] = second;
+                    sp += 1;
+                    current = Some(first);
+                }
+                (Some(a), None) => current = Some((left, a)),
+                (None, Some(b)) => current = Some((right, b)),
+                (None, None) => {}
+            }
+        }
+        best
+    }
+
+    pub fn occluded_counted<C: Counter>(&self, ray: &Ray, counter: &mut C) -> bool {
+        if self.nodes.is_empty() || !ray.is_valid() {
+            return false;
+        }
+        let inv_dir = safe_reciprocal(ray.dir);
+        if self.enter(0, ray, inv_dir, ray.tmax).is_none() {
+            return false;
+        }
+        let mut stack = [0u32; STACK_SIZE];
+        let mut sp = 0usize;
+        let mut current = Some(0u32);
+        loop {
+            let index = match current.take() {
+                Some(i) => i,
+                None => {
+                    if sp == 0 {
+                        return false;
+                    }
+                    sp -= 1;
+                    stack[sp]
+                }
+            };
+            counter.node();
+            let node = &self.nodes[index as usize];
+            if node.is_leaf() {
+                let first = node.offset as usize;
+                for slot in first..first + node.count as usize {
+                    counter.triangle();
+                    if intersect_triangle(ray, &self.tris[slot]).is_some() {
+                        return true;
+                    }
+                }
+                continue;
+            }
+            let (left, right) = (index + 1, node.offset);
+            let hit_left = self.enter(left, ray, inv_dir, ray.tmax).is_some();
+            let hit_right = self.enter(right, ray, inv_dir, ray.tmax).is_some();
+            match (hit_left, hit_right) {
+                (true, true) => {
+                    debug_assert!(sp < STACK_SIZE);
+                    stack[sp] = right;
+                    sp += 1;
+                    current = Some(left);
+                }
+                (true, false) => current = Some(left),
+                (false, true) => current = Some(right),
+                (false, false) => {}
+            }
+        }
+    }
+}

@@ -1,0 +1,147 @@
+//! `raylab stats`: per scene and builder, build times (serial and parallel), the
+//! tree's shape and SAH cost, and the traversal work measured over an actual
+//! render through the shared shading loop.
+
+use std::time::{Duration, Instant};
+
+use serde::Serialize;
+
+use crate::accel::bvh::quality::{CountingTracer, KindWork, TreeStats};
+use crate::accel::bvh::{build::sah, BuildParams, Bvh};
+use crate::error::Result;
+use crate::progress::Progress;
+use crate::render::{render, RenderSettings, Schedule};
+use crate::scene::Scene;
+
+/// One builder on one scene.
+#[derive(Clone, Debug, Serialize)]
+pub struct BuilderReport {
+    pub scene: String,
+    pub triangles: usize,
+    pub builder: String,
+    pub max_leaf_size_param: usize,
+    /// Median of the timed builds on one thread.
+    pub build_ms_serial: f64,
+    /// Median of the timed builds on `build_threads` threads.
+    pub build_ms_parallel: f64,
+    pub build_threads: usize,
+    /// Whether the serial and parallel builds produced the same tree.
+    pub deterministic: bool,
+    #[serde(flatten)]
+    pub tree: TreeStats,
+    pub sah_constants: SahConstants,
+    /// Traversal work per ray kind over the render described by `settings`.
+    pub primary: KindWork,
+    pub shadow: KindWork,
+    pub ao: KindWork,
+}
+
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct SahConstants {
+    pub traversal: f32,
+    pub intersect: f32,
+    pub normalised_by: &'static str,
+}
+
+const SAH_CONSTANTS: SahConstants = SahConstants {
+    traversal: sah::C_TRAVERSAL,
+    intersect: sah::C_INTERSECT,
+    normalised_by: "root surface area",
+};
+
+/// Builds `reps` times and returns the median time and the last tree.
+fn timed_build(
+    triangles: &[[glam::Vec3; 3]],
+    params: &BuildParams,
+    reps: usize,
+) -> (Duration, Bvh) {
+    let mut times = Vec::with_capacity(reps);
+    let mut bvh = Bvh::default();
+    for _ in 0..reps.max(1) {
+        let start = Instant::now();
+        bvh = Bvh::build(triangles, params);
+        times.push(start.elapsed());
+    }
+    times.sort();
+    (times[times.len() / 2], bvh)
+}
+
+/// Measures one builder on `scene`: `reps` timed builds serially and on
+/// `threads` threads, then a counting render with `settings` on `threads` threads.
+pub fn builder_report(
+    scene: &Scene,
+    params: &BuildParams,
+    settings: &RenderSettings,
+    threads: usize,
+    reps: usize,
+) -> Result<BuilderReport> {
+    let triangles = scene.triangle_vertices();
+    let (serial_time, serial) = timed_build(&triangles, &params.with_threads(1), reps);
+    let (parallel_time, parallel) = timed_build(&triangles, &params.with_threads(threads), reps);
+    let deterministic = serial.nodes == parallel.nodes && serial.tri_ids == parallel.tri_ids;
+    let tracer = CountingTracer::new(&parallel);
+    render(
+        scene,
+        &tracer,
+        settings,
+        Schedule::Rayon,
+        threads,
+        &Progress::new(),
+    )?;
+    let (primary, shadow, ao) = tracer.work();
+    Ok(BuilderReport {
+        scene: scene.name.clone(),
+        triangles: scene.triangle_count(),
+        builder: params.builder.name().to_string(),
+        max_leaf_size_param: params.max_leaf_size,
+        build_ms_serial: serial_time.as_secs_f64() * 1e3,
+        build_ms_parallel: parallel_time.as_secs_f64() * 1e3,
+        build_threads: threads,
+        deterministic,
+        tree: TreeStats::of(&parallel, scene.triangle_count()),
+        sah_constants: SAH_CONSTANTS,
+        primary,
+        shadow,
+        ao,
+    })
+}
+
+/// The reports as a Markdown table, one row per (scene, builder).
+pub fn markdown_table(reports: &[BuilderReport]) -> String {
+    let mut out = String::new();
+    out.push_str(
+        "| scene | tris | builder | build ms 1 thr | build ms N thr | nodes | leaves | depth max/mean | leaf mean/max | bytes/tri | SAH cost | nodes/ray P/S/AO | tris/ray P/S/AO |\n",
+    );
+    out.push_str("|---|---:|---|---:|---:|---:|---:|---|---|---:|---:|---|---|\n");
+    for r in reports {
+        let t = &r.tree;
+        out.push_str(&format!(
+            "| {} | {} | {} | {:.2} | {:.2} ({}) | {} | {} | {}/{:.1} | {:.2}/{} | {:.1} | {:.2} | {:.1}/{:.1}/{:.1} | {:.1}/{:.1}/{:.1} |\n",
+            r.scene,
+            r.triangles,
+            r.builder,
+            r.build_ms_serial,
+            r.build_ms_parallel,
+            r.build_threads,
+            t.nodes,
+            t.leaves,
+            t.max_depth,
+            t.mean_leaf_depth,
+            t.mean_leaf_size,
+            t.max_leaf_size,
+            t.bytes_per_triangle,
+            t.sah_cost,
+            r.primary.nodes_per_ray,
+            r.shadow.nodes_per_ray,
+            r.ao.nodes_per_ray,
+            r.primary.triangles_per_ray,
+            r.shadow.triangles_per_ray,
+            r.ao.triangles_per_ray,
+        ));
+    }
+    out.push_str(&format!(
+        "\nSAH cost: C_traversal = {}, C_intersect = {}, normalised by the {}. Work per ray measured over the render's primary (P), shadow (S) and AO rays.\n",
+        SAH_CONSTANTS.traversal, SAH_CONSTANTS.intersect, SAH_CONSTANTS.normalised_by
+    ));
+    out
+}

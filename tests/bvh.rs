@@ -1,0 +1,333 @@
+//! The BVH backends against the naive reference: the same hits bit for bit (same
+//! triangle, same t, ties broken alike) on random, axis-aligned and adversarial
+//! rays; tree invariants; degenerate input; determinism across thread counts; and
+//! bit-identical renders.
+
+mod common;
+
+use common::{settings, TestRng};
+use glam::Vec3;
+use raylab::accel::bvh::{BuildParams, BuilderKind, Bvh, BvhBackend};
+use raylab::accel::naive::Naive;
+use raylab::accel::Backend;
+use raylab::geometry::{Aabb, Ray};
+use raylab::progress::Progress;
+use raylab::render::{render, AoMode, Schedule};
+use raylab::scene::builtin::{builtin, BUILTIN_SCENES};
+use raylab::validate::{classify, Agreement};
+
+const BUILDERS: [BuildParams; 3] = [
+    BuildParams::median(),
+    BuildParams::sah(),
+    // A multi-triangle-leaf median tree exercises leaf loops with ties inside a leaf.
+    BuildParams::median().with_max_leaf_size(3),
+];
+
+/// Random rays: origins in and around `bounds` (50% margin), uniform directions,
+/// with some axis-aligned directions (zero components) mixed in.
+fn random_rays(bounds: Aabb, n: usize, seed: u64) -> Vec<Ray> {
+    let mut rng = TestRng(seed);
+    let margin = bounds.extent() * 0.5 + Vec3::splat(1e-3);
+    let axes = [Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z, -Vec3::Z];
+    (0..n)
+        .map(|i| {
+            let o = rng.vec_in(bounds.min - margin, bounds.max + margin);
+            let d = if i % 10 == 0 {
+                axes[i / 10 % 6]
+            } else {
+                rng.unit()
+            };
+            Ray::new(o, d)
+        })
+        .collect()
+}
+
+/// Rays aimed exactly at vertices and edge midpoints: the shared-edge ties.
+fn adversarial_rays(tris: &[[Vec3; 3]], bounds: Aabb, n: usize, seed: u64) -> Vec<Ray> {
+    let mut rng = TestRng(seed);
+    let margin = bounds.extent() * 0.5 + Vec3::splat(1e-3);
+    (0..n)
+        .map(|i| {
+            let t = &tris[(rng.next_f32() * tris.len() as f32) as usize % tris.len()];
+            let target = match i % 3 {
+                0 => t[i % 3],
+                1 => (t[0] + t[1]) * 0.5,
+                _ => (t[1] + t[2]) * 0.5,
+            };
+            let o = rng.vec_in(bounds.min - margin, bounds.max + margin);
+            Ray::new(o, (target - o).normalize_or(Vec3::X))
+        })
+        .collect()
+}
+
+/// Closest hits must agree exactly, except that `allow_ties` accepts a different
+/// triangle sharing a vertex at the same t (within 1e-5 relative): for rays aimed
+/// exactly at shared vertices, MT's rounding, not geometry, picks the winner.
+/// Returns the number of ties seen.
+fn assert_same_hits(
+    name: &str,
+    tris: &[[Vec3; 3]],
+    rays: &[Ray],
+    seed: u64,
+    allow_ties: bool,
+) -> usize {
+    let mut ties = 0;
+    let naive = Naive::from_triangles(tris.to_vec());
+    let mut rng = TestRng(seed);
+    let diag = Aabb::from_points(&tris.iter().flatten().copied().collect::<Vec<_>>())
+        .extent()
+        .length();
+    for params in BUILDERS {
+        let bvh = Bvh::build(tris, &params);
+        for (i, ray) in rays.iter().enumerate() {
+            let want = naive.intersect(ray);
+            let got = bvh.intersect(ray);
+            if got != want {
+                let agreement = classify(got, want, tris);
+                assert!(
+                    allow_ties && agreement == Agreement::Tie,
+                    "{name} {params:?}: ray {i} {ray:?}: bvh {got:?} naive {want:?} ({agreement:?})"
+                );
+                ties += 1;
+            }
+            let segment = Ray::segment(ray.origin, ray.dir, 0.0, rng.range(0.0, 2.0 * diag));
+            assert_eq!(
+                bvh.occluded(&segment),
+                naive.occluded(&segment),
+                "{name} {params:?}: occlusion ray {i} {segment:?}"
+            );
+        }
+    }
+    ties
+}
+
+#[test]
+fn bvh_hits_match_naive_on_random_rays_in_builtin_scenes() {
+    for (k, (name, _)) in BUILTIN_SCENES.iter().enumerate() {
+        let scene = builtin(name).unwrap();
+        let tris = scene.triangle_vertices();
+        let rays = random_rays(scene.bounds(), 100_000, 17 + k as u64);
+        assert_same_hits(name, &tris, &rays, 99, false);
+    }
+}
+
+#[test]
+fn bvh_hits_match_naive_on_rays_aimed_at_vertices_and_edges() {
+    for (k, (name, _)) in BUILTIN_SCENES.iter().enumerate() {
+        let scene = builtin(name).unwrap();
+        let tris = scene.triangle_vertices();
+        let rays = adversarial_rays(&tris, scene.bounds(), 20_000, 5 + k as u64);
+        let ties = assert_same_hits(name, &tris, &rays, 3, true);
+        // Ties are rare events at exact vertices, not a licence for sloppiness.
+        assert!(
+            ties * 1000 < rays.len() * BUILDERS.len(),
+            "{name}: {ties} ties"
+        );
+    }
+}
+
+fn soup(n: usize, seed: u64) -> Vec<[Vec3; 3]> {
+    let mut rng = TestRng(seed);
+    (0..n)
+        .map(|_| {
+            let c = rng.vec_in(Vec3::splat(-1.0), Vec3::splat(1.0));
+            let size = 0.3 * rng.next_f32().powi(2) + 1e-3;
+            [
+                c + rng.unit() * size,
+                c + rng.unit() * size,
+                c + rng.unit() * size,
+            ]
+        })
+        .collect()
+}
+
+#[test]
+fn bvh_hits_match_naive_on_random_triangle_soups() {
+    for (n, rays) in [
+        (1, 2000),
+        (2, 2000),
+        (3, 2000),
+        (10, 5000),
+        (100, 20_000),
+        (1000, 20_000),
+        (10_000, 5000),
+    ] {
+        let tris = soup(n, n as u64);
+        let bounds = Aabb::from_points(&tris.iter().flatten().copied().collect::<Vec<_>>());
+        let mut all = random_rays(bounds, rays, 7 * n as u64);
+        all.extend(adversarial_rays(&tris, bounds, rays / 4, n as u64));
+        // Soup triangles share no vertices, so there is no tie to excuse.
+        assert_same_hits(&format!("soup of {n}"), &tris, &all, 11, false);
+    }
+}
+
+/// Checks the layout's invariants and returns the leaf-slot triangle ids.
+fn check_invariants(bvh: &Bvh, tris: &[[Vec3; 3]], max_leaf: usize) {
+    let mut seen = vec![0u32; tris.len()];
+    let mut stack = vec![0usize];
+    while let Some(i) = stack.pop() {
+        let n = &bvh.nodes[i];
+        if n.is_leaf() {
+            assert!(
+                n.count as usize <= max_leaf,
+                "leaf of {} > {max_leaf}",
+                n.count
+            );
+            for slot in n.offset as usize..(n.offset + n.count) as usize {
+                let id = bvh.tri_ids[slot] as usize;
+                seen[id] += 1;
+                assert_eq!(bvh.tris[slot], tris[id], "gathered vertices out of order");
+                assert!(
+                    n.bounds().contains(&Aabb::from_points(&tris[id])),
+                    "triangle outside its leaf"
+                );
+            }
+        } else {
+            for child in [i + 1, n.offset as usize] {
+                assert!(child > i && child < bvh.nodes.len());
+                assert!(
+                    n.bounds().contains(&bvh.nodes[child].bounds()),
+                    "child {child} outside parent {i}"
+                );
+                stack.push(child);
+            }
+        }
+    }
+    assert!(
+        seen.iter().all(|&c| c == 1),
+        "every triangle must be in exactly one leaf"
+    );
+}
+
+#[test]
+fn trees_keep_their_invariants() {
+    for tris in [
+        soup(1, 1),
+        soup(7, 2),
+        soup(1000, 3),
+        builtin("cornell-water").unwrap().triangle_vertices(),
+    ] {
+        for params in BUILDERS {
+            check_invariants(&Bvh::build(&tris, &params), &tris, params.max_leaf_size);
+        }
+        for leaf in [1, 2, 8] {
+            let params = BuildParams::sah().with_max_leaf_size(leaf);
+            check_invariants(&Bvh::build(&tris, &params), &tris, leaf);
+        }
+    }
+}
+
+#[test]
+fn median_tree_is_the_studys_shape() {
+    let tris = soup(1000, 4);
+    let bvh = Bvh::build(&tris, &BuildParams::median());
+    let s = raylab::accel::bvh::quality::TreeStats::of(&bvh, tris.len());
+    // One triangle per leaf, balanced: 2n - 1 nodes, depth ceil(log2 n).
+    assert_eq!(s.leaves, 1000);
+    assert_eq!(s.nodes, 1999);
+    assert_eq!(s.max_leaf_size, 1);
+    assert_eq!(s.max_depth, 10);
+}
+
+#[test]
+fn degenerate_inputs_build_and_trace() {
+    let t = [Vec3::ZERO, Vec3::X, Vec3::Y];
+    let cases: Vec<(&str, Vec<[Vec3; 3]>)> = vec![
+        ("one triangle", vec![t]),
+        ("all identical", vec![t; 5000]),
+        (
+            "all in one plane",
+            soup(3000, 9)
+                .into_iter()
+                .map(|tri| tri.map(|v| Vec3::new(v.x, v.y, 0.5)))
+                .collect(),
+        ),
+        ("zero-area", vec![[Vec3::ZERO, Vec3::X, Vec3::X * 2.0]; 100]),
+        ("points", vec![[Vec3::ONE; 3]; 50]),
+        (
+            "huge and tiny",
+            vec![
+                [
+                    Vec3::splat(-1e6),
+                    Vec3::new(1e6, -1e6, 0.0),
+                    Vec3::new(0.0, 1e6, 0.0),
+                ],
+                [Vec3::ZERO, Vec3::X * 1e-6, Vec3::Y * 1e-6],
+                t,
+            ],
+        ),
+        ("empty", vec![]),
+    ];
+    for (name, tris) in cases {
+        let bounds = if tris.is_empty() {
+            Aabb::from_points(&[Vec3::ZERO, Vec3::ONE])
+        } else {
+            Aabb::from_points(&tris.iter().flatten().copied().collect::<Vec<_>>())
+        };
+        let rays = random_rays(bounds, 2000, 1);
+        let naive = Naive::from_triangles(tris.clone());
+        for params in BUILDERS {
+            let bvh = Bvh::build(&tris, &params);
+            for r in &rays {
+                assert_eq!(bvh.intersect(r), naive.intersect(r), "{name} {params:?}");
+            }
+            let nan = Ray::new(Vec3::NAN, Vec3::X);
+            assert!(bvh.intersect(&nan).is_none() && !bvh.occluded(&nan));
+        }
+    }
+}
+
+#[test]
+fn tree_is_identical_for_any_thread_count() {
+    let tris = soup(30_000, 12);
+    for builder in [BuilderKind::Median, BuilderKind::Sah] {
+        let one = Bvh::build(&tris, &BuildParams::for_builder(builder));
+        for threads in [2, 4] {
+            let many = Bvh::build(
+                &tris,
+                &BuildParams::for_builder(builder).with_threads(threads),
+            );
+            assert!(
+                one.nodes == many.nodes && one.tri_ids == many.tri_ids,
+                "{builder:?} on {threads} threads"
+            );
+        }
+    }
+}
+
+#[test]
+fn bvh_renders_are_bit_identical_to_naive() {
+    for (name, _) in BUILTIN_SCENES {
+        let scene = builtin(name).unwrap();
+        let s = settings(128, 96, AoMode::Paper);
+        let naive = Naive::new(&scene);
+        let (reference, _) =
+            render(&scene, &naive, &s, Schedule::Rayon, 2, &Progress::new()).unwrap();
+        for params in [BuildParams::median(), BuildParams::sah()] {
+            let bvh = BvhBackend::new(&scene, &params);
+            let (frame, _) =
+                render(&scene, &bvh, &s, Schedule::Tiles, 2, &Progress::new()).unwrap();
+            assert!(
+                frame == reference,
+                "{name}: {} image differs from naive",
+                bvh.name()
+            );
+        }
+    }
+}
+
+#[test]
+fn sah_tree_is_cheaper_than_median_on_the_big_scenes() {
+    use raylab::accel::bvh::quality::TreeStats;
+    for name in ["cornell-sphere", "cornell-water"] {
+        let tris = builtin(name).unwrap().triangle_vertices();
+        let median = TreeStats::of(&Bvh::build(&tris, &BuildParams::median()), tris.len());
+        let sah = TreeStats::of(&Bvh::build(&tris, &BuildParams::sah()), tris.len());
+        assert!(
+            sah.sah_cost < median.sah_cost,
+            "{name}: sah {} vs median {}",
+            sah.sah_cost,
+            median.sah_cost
+        );
+    }
+}
