@@ -12,7 +12,13 @@ pub struct Median {
 }
 
 impl Splitter for Median {
-    fn split(&self, prims: &mut [PrimRef], _bounds: &Aabb, depth: u32) -> Option<usize> {
+    fn split(
+        &self,
+        prims: &mut [PrimRef],
+        _bounds: &Aabb,
+        depth: u32,
+        _parallel: bool,
+    ) -> Option<usize> {
         if prims.len() <= self.max_leaf {
             return None;
         }

@@ -103,7 +103,53 @@ pub const MAX_SPLIT_DEPTH: u32 = 32;
 pub trait Splitter: Sync {
     /// Either `None` (make a leaf of all `prims`) or `Some(mid)` with
     /// `0 < mid < prims.len()` after reordering `prims` so that `..mid` goes left.
-    fn split(&self, prims: &mut [PrimRef], bounds: &Aabb, depth: u32) -> Option<usize>;
+    /// `parallel` allows the splitter to use rayon for large nodes.
+    fn split(
+        &self,
+        prims: &mut [PrimRef],
+        bounds: &Aabb,
+        depth: u32,
+        parallel: bool,
+    ) -> Option<usize>;
+}
+
+/// Below this many primitives a per-node reduction (bounds, bins) runs serially.
+pub const PARALLEL_REDUCE_CUTOFF: usize = 1 << 16;
+
+/// Folds `prims` into one value; in parallel chunks for large inputs when
+/// `parallel`. Every use is exact (box unions, integer counts), so the result does
+/// not depend on the chunking and the tree stays deterministic.
+pub fn reduce_prims<T: Send + Sync + Clone>(
+    prims: &[PrimRef],
+    parallel: bool,
+    identity: T,
+    fold: impl Fn(&mut T, &PrimRef) + Sync,
+    combine: impl Fn(&mut T, T) + Sync + Send,
+) -> T {
+    use rayon::prelude::*;
+    // Accumulators are updated in place: a large one (SAH bins) must not be
+    // moved per primitive.
+    let serial = |chunk: &[PrimRef]| {
+        let mut acc = identity.clone();
+        for p in chunk {
+            fold(&mut acc, p);
+        }
+        acc
+    };
+    if parallel && prims.len() >= PARALLEL_REDUCE_CUTOFF {
+        prims
+            .par_chunks(PARALLEL_REDUCE_CUTOFF / 4)
+            .map(serial)
+            .reduce(
+                || identity.clone(),
+                |mut a, b| {
+                    combine(&mut a, b);
+                    a
+                },
+            )
+    } else {
+        serial(prims)
+    }
 }
 
 /// Temporary tree, flattened once into the compact layout.
@@ -172,8 +218,14 @@ fn recurse<S: Splitter>(
     splitter: &S,
     parallel: bool,
 ) -> BuildNode {
-    let bounds = prims.iter().fold(Aabb::EMPTY, |b, p| b.union(p.bounds));
-    let mid = splitter.split(prims, &bounds, depth);
+    let bounds = reduce_prims(
+        prims,
+        parallel,
+        Aabb::EMPTY,
+        |b, p| *b = b.union(p.bounds),
+        |a, b| *a = a.union(b),
+    );
+    let mid = splitter.split(prims, &bounds, depth, parallel);
     let Some(mid) = mid.filter(|&m| m > 0 && m < prims.len()) else {
         return BuildNode::Leaf {
             bounds,

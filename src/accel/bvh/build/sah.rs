@@ -6,10 +6,13 @@
 //! object-median split, so degenerate input (identical or coplanar triangles)
 //! always terminates.
 
-use super::{median_partition, PrimRef, Splitter, MAX_SPLIT_DEPTH};
+use glam::Vec3;
+
+use super::{median_partition, reduce_prims, PrimRef, Splitter, MAX_SPLIT_DEPTH};
 use crate::geometry::Aabb;
 
-/// Bins per axis.
+/// Bins per axis (nodes of fewer triangles use one bin per triangle: the per-node
+/// sweep, not the binning, dominates build time at the bottom of the tree).
 pub const BINS: usize = 16;
 /// Cost of visiting a node, relative to one ray/triangle test.
 pub const C_TRAVERSAL: f32 = 1.0;
@@ -37,19 +40,31 @@ struct Bin {
 }
 
 /// The bin of centroid coordinate `c` for a centroid range starting at `lo` with
-/// `scale = BINS / extent`; used both for binning and for the partition.
+/// `scale = bins / extent`; used both for binning and for the partition.
 #[inline]
-fn bin_of(c: f32, lo: f32, scale: f32) -> usize {
-    (((c - lo) * scale) as usize).min(BINS - 1)
+fn bin_of(c: f32, lo: f32, scale: f32, bins: usize) -> usize {
+    (((c - lo) * scale) as usize).min(bins - 1)
 }
 
 impl Splitter for BinnedSah {
-    fn split(&self, prims: &mut [PrimRef], bounds: &Aabb, depth: u32) -> Option<usize> {
+    fn split(
+        &self,
+        prims: &mut [PrimRef],
+        bounds: &Aabb,
+        depth: u32,
+        parallel: bool,
+    ) -> Option<usize> {
         let n = prims.len();
         if n <= 1 {
             return None;
         }
-        let centroids = prims.iter().fold(Aabb::EMPTY, |b, p| b.grown(p.centroid));
+        let centroids = reduce_prims(
+            prims,
+            parallel,
+            Aabb::EMPTY,
+            |b, p| *b = b.grown(p.centroid),
+            |a, b| *a = a.union(b),
+        );
         let extent = centroids.extent();
         let widest = extent.max_position();
         if depth >= MAX_SPLIT_DEPTH || extent[widest] <= 0.0 {
@@ -62,57 +77,74 @@ impl Splitter for BinnedSah {
             return Some(n / 2);
         }
 
-        let parent_area = bounds.surface_area();
-        let mut best: Option<(f32, usize, usize)> = None; // (cost, axis, first bin of the right side)
-        for axis in 0..3 {
-            if extent[axis] <= 0.0 {
-                continue;
-            }
-            let lo = centroids.min[axis];
-            let scale = BINS as f32 / extent[axis];
-            let mut bins = [Bin {
-                bounds: Aabb::EMPTY,
-                count: 0,
-            }; BINS];
-            for p in prims.iter() {
-                let b = &mut bins[bin_of(p.centroid[axis], lo, scale)];
-                b.bounds = b.bounds.union(p.bounds);
-                b.count += 1;
-            }
+        // Bin all three axes in one pass; an axis of zero extent gets scale 0 and
+        // puts everything in bin 0, where no plane can separate it.
+        let nbins = BINS.min(n);
+        let lo = centroids.min;
+        let scale = Vec3::select(extent.cmpgt(Vec3::ZERO), nbins as f32 / extent, Vec3::ZERO);
+        let empty = [[Bin {
+            bounds: Aabb::EMPTY,
+            count: 0,
+        }; BINS]; 3];
+        let bins = reduce_prims(
+            prims,
+            parallel,
+            empty,
+            |bins, p| {
+                for (axis, axis_bins) in bins.iter_mut().enumerate() {
+                    let b = &mut axis_bins[bin_of(p.centroid[axis], lo[axis], scale[axis], nbins)];
+                    b.bounds = b.bounds.union(p.bounds);
+                    b.count += 1;
+                }
+            },
+            |a, b| {
+                for (axis_a, axis_b) in a.iter_mut().zip(&b) {
+                    for (x, y) in axis_a.iter_mut().zip(axis_b) {
+                        x.bounds = x.bounds.union(y.bounds);
+                        x.count += y.count;
+                    }
+                }
+            },
+        );
+
+        // Candidates are compared by A_left N_left + A_right N_right; the cost
+        // formula is applied to the winner only.
+        let mut best: Option<(f32, usize, usize)> = None; // (area-weighted count, axis, first bin of the right side)
+        for (axis, bins) in bins.iter().enumerate() {
+            let bins = &bins[..nbins];
             // Right-to-left sweep: area * count of everything right of each plane.
             let mut right_cost = [0f32; BINS];
             let mut acc = Aabb::EMPTY;
             let mut count = 0u32;
-            for i in (1..BINS).rev() {
+            for i in (1..nbins).rev() {
                 acc = acc.union(bins[i].bounds);
                 count += bins[i].count;
                 right_cost[i] = acc.surface_area() * count as f32;
             }
             let mut acc = Aabb::EMPTY;
             let mut left_count = 0u32;
-            for plane in 1..BINS {
+            for plane in 1..nbins {
                 acc = acc.union(bins[plane - 1].bounds);
                 left_count += bins[plane - 1].count;
                 if left_count == 0 || left_count as usize == n {
                     continue;
                 }
-                let cost = C_TRAVERSAL
-                    + C_INTERSECT * (acc.surface_area() * left_count as f32 + right_cost[plane])
-                        / parent_area.max(f32::MIN_POSITIVE);
+                let weighted = acc.surface_area() * left_count as f32 + right_cost[plane];
                 // Strictly lower wins: ties keep the lowest axis and plane.
-                if best.is_none_or(|(c, _, _)| cost < c) {
-                    best = Some((cost, axis, plane));
+                if best.is_none_or(|(c, _, _)| weighted < c) {
+                    best = Some((weighted, axis, plane));
                 }
             }
         }
-        let (cost, axis, plane) = best?;
+        let (weighted, axis, plane) = best?;
+        let cost =
+            C_TRAVERSAL + C_INTERSECT * weighted / bounds.surface_area().max(f32::MIN_POSITIVE);
         if n <= self.max_leaf && cost >= n as f32 * C_INTERSECT {
             return None;
         }
-        let lo = centroids.min[axis];
-        let scale = BINS as f32 / extent[axis];
+        let (lo, scale) = (lo[axis], scale[axis]);
         Some(partition(prims, |p| {
-            bin_of(p.centroid[axis], lo, scale) < plane
+            bin_of(p.centroid[axis], lo, scale, nbins) < plane
         }))
     }
 }
