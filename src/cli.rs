@@ -10,6 +10,7 @@ use glam::Vec3;
 use serde::Serialize;
 
 use crate::accel::bvh::{BuildParams, BuilderKind};
+use crate::accel::embree::Quality;
 use crate::accel::{build_backend, BackendKind, BackendSpec};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
@@ -34,6 +35,8 @@ struct Cli {
 enum Command {
     /// Render a scene with one backend and schedule, write a PNG and print timings.
     Render(RenderArgs),
+    /// Check one backend's hits against another's on the same ray sets.
+    Validate(ValidateArgs),
     /// BVH quality per scene and builder: build times, shape, SAH cost, and
     /// traversal work per ray measured over a render.
     Stats(StatsArgs),
@@ -106,6 +109,8 @@ struct RenderArgs {
     backend: BackendKind,
     #[command(flatten)]
     bvh: BvhArgs,
+    #[command(flatten)]
+    embree: EmbreeArgs,
     /// How the image is divided between threads.
     #[arg(long, value_enum, default_value_t = Schedule::Tiles)]
     schedule: Schedule,
@@ -155,6 +160,28 @@ impl BvhArgs {
     }
 }
 
+/// How the Embree backend builds its scene (used with `--backend embree`).
+#[derive(Args, Debug, Clone)]
+pub struct EmbreeArgs {
+    /// Embree's scene build quality.
+    #[arg(long, value_enum, default_value_t = Quality::Medium)]
+    pub embree_quality: Quality,
+    /// Set RTC_SCENE_FLAG_ROBUST (watertight-leaning traversal, slower).
+    #[arg(long)]
+    pub embree_robust: bool,
+}
+
+impl RenderArgs {
+    fn spec(&self, threads: usize) -> BackendSpec {
+        BackendSpec {
+            kind: self.backend,
+            bvh: self.bvh.params(self.bvh.builder, threads),
+            embree_quality: self.embree.embree_quality,
+            embree_robust: self.embree.embree_robust,
+        }
+    }
+}
+
 fn parse_leaf_size(s: &str) -> std::result::Result<usize, String> {
     match s.parse::<usize>() {
         Ok(n) if (1..=255).contains(&n) => Ok(n),
@@ -166,8 +193,9 @@ fn parse_leaf_size(s: &str) -> std::result::Result<usize, String> {
 struct StatsArgs {
     /// .obj files or built-in names [default: the four built-in Cornell boxes].
     scenes: Vec<String>,
-    /// Which builders to measure.
-    #[arg(long, value_name = "NAME", default_value = "all", value_parser = ["median", "sah", "all"])]
+    /// Which builders to measure: median, sah, embree-low, embree-medium,
+    /// embree-high, or all (the Embree ones only when Embree is built in).
+    #[arg(long, value_name = "NAME", default_value = "all", value_parser = ["median", "sah", "embree-low", "embree-medium", "embree-high", "all"])]
     builder: String,
     /// Most triangles per leaf for every builder [default: each builder's own].
     #[arg(long, value_name = "N", value_parser = parse_leaf_size)]
@@ -185,13 +213,189 @@ struct StatsArgs {
     json: bool,
 }
 
+#[derive(Args, Debug)]
+struct ValidateArgs {
+    /// .obj files or built-in names [default: the four built-in Cornell boxes].
+    scenes: Vec<String>,
+    /// The backend under test.
+    #[arg(long, value_enum, default_value_t = BackendKind::Bvh)]
+    backend: BackendKind,
+    #[command(flatten)]
+    bvh: BvhArgs,
+    #[command(flatten)]
+    embree: EmbreeArgs,
+    /// The reference backend (built with its defaults).
+    #[arg(long, value_enum, default_value_t = if crate::accel::embree::AVAILABLE { BackendKind::Embree } else { BackendKind::Naive })]
+    against: BackendKind,
+    /// Ray sets to compare.
+    #[arg(long, value_name = "SET", default_value = "all", value_parser = ["primary", "shadow", "ao", "random", "all"])]
+    rays: String,
+    /// At most this many rays per set (evenly subsampled).
+    #[arg(long, value_name = "N", default_value_t = 100_000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
+    count: u64,
+    /// Write a picture of primary-ray agreement (red: genuine, yellow: tie);
+    /// with several scenes the scene name is added to the file name.
+    #[arg(long, value_name = "PNG")]
+    diff_image: Option<PathBuf>,
+    /// Exit with status 1 when a scene has more genuine disagreements than this.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    max_genuine: usize,
+    /// Worker threads [default: all hardware threads].
+    #[arg(long, value_name = "N", value_parser = parse_threads)]
+    threads: Option<usize>,
+    #[command(flatten)]
+    view: ViewArgs,
+    /// Print one JSON array with a report per scene on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Serialize)]
+struct ValidateReport {
+    scene: String,
+    backend: String,
+    against: String,
+    genuine: usize,
+    ties: usize,
+    max_genuine: usize,
+    pass: bool,
+    sets: Vec<crate::validate::SetReport>,
+    diff_image: Option<String>,
+}
+
+fn diff_image_path(base: &Path, scene: &str, several: bool) -> PathBuf {
+    if !several {
+        return base.to_path_buf();
+    }
+    let stem = base.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+    let tag: String = Path::new(scene)
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_default()
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' })
+        .collect();
+    base.with_file_name(format!("{stem}-{tag}.png"))
+}
+
+fn run_validate(args: &ValidateArgs) -> Result<()> {
+    use crate::validate::{compare, mismatch_image, primary_rays, random_rays, recorded_rays, subsample, RaySet};
+    let settings = args.view.settings()?;
+    let threads = args.threads.unwrap_or_else(default_threads);
+    let names: Vec<String> = if args.scenes.is_empty() {
+        BUILTIN_SCENES.iter().map(|(n, _)| n.to_string()).collect()
+    } else {
+        args.scenes.clone()
+    };
+    if let Some(path) = &args.diff_image {
+        output::check_writable(&diff_image_path(path, &names[0], names.len() > 1))?;
+    }
+    let sets: Vec<RaySet> = match args.rays.as_str() {
+        "primary" => vec![RaySet::Primary],
+        "shadow" => vec![RaySet::Shadow],
+        "ao" => vec![RaySet::Ao],
+        "random" => vec![RaySet::Random],
+        _ => RaySet::ALL.to_vec(),
+    };
+    let count = args.count as usize;
+    let spec = BackendSpec {
+        kind: args.backend,
+        bvh: args.bvh.params(args.bvh.builder, threads),
+        embree_quality: args.embree.embree_quality,
+        embree_robust: args.embree.embree_robust,
+    };
+    let reference_spec = BackendSpec {
+        bvh: BuildParams::sah().with_threads(threads),
+        ..BackendSpec::embree(Quality::Medium, false)
+    }
+    .with_kind(args.against);
+    let mut reports = Vec::new();
+    for name in &names {
+        let scene = load_scene(name)?;
+        let tested = build_backend(&spec, &scene)?;
+        let reference = build_backend(&reference_spec, &scene)?;
+        let triangles = scene.triangle_vertices();
+        // Record the render's rays with the faster of the two (naive is slow).
+        let recorder: &dyn crate::accel::Backend =
+            if args.against == BackendKind::Naive { tested.as_ref() } else { reference.as_ref() };
+        let needs_recording = sets.iter().any(|s| matches!(s, RaySet::Shadow | RaySet::Ao));
+        let (shadow, ao) =
+            if needs_recording { recorded_rays(&scene, recorder, &settings)? } else { (Vec::new(), Vec::new()) };
+        let mut set_reports = Vec::new();
+        let mut diff_written = None;
+        for set in &sets {
+            let (label, rays) = match set {
+                RaySet::Primary => ("primary", primary_rays(&settings)),
+                RaySet::Shadow => ("shadow", subsample(shadow.clone(), count)),
+                RaySet::Ao => ("ao", subsample(ao.clone(), count)),
+                RaySet::Random => ("random", random_rays(scene.bounds(), count, settings.seed)),
+            };
+            let is_primary = *set == RaySet::Primary;
+            // Primary rays are kept whole for the picture, and subsampled to compare otherwise.
+            let rays = if is_primary && args.diff_image.is_none() { subsample(rays, count) } else { rays };
+            let (report, agreements) = compare(label, &rays, tested.as_ref(), reference.as_ref(), &triangles);
+            if is_primary {
+                if let Some(base) = &args.diff_image {
+                    let path = diff_image_path(base, name, names.len() > 1);
+                    let hits: Vec<bool> = rays.iter().map(|r| reference.intersect(r).is_some()).collect();
+                    output::write_png(&path, settings.width, settings.height, &mismatch_image(&agreements, &hits))?;
+                    diff_written = Some(path.display().to_string());
+                }
+            }
+            set_reports.push(report);
+        }
+        let genuine: usize = set_reports.iter().map(|r| r.genuine).sum();
+        let ties: usize = set_reports.iter().map(|r| r.ties).sum();
+        if !args.json {
+            println!("{} ({} triangles): {} against {}", scene.name, scene.triangle_count(), tested.name(), reference.name());
+            println!("| set | rays | hit/miss agree | same triangle | ties | genuine | occlusion mismatches | max rel dt | mean rel dt |");
+            println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+            for r in &set_reports {
+                println!(
+                    "| {} | {} | {} | {} | {} | {} | {} | {:.2e} | {:.2e} |",
+                    r.set, r.rays, r.hit_miss_agree, r.same_triangle, r.ties, r.genuine, r.occlusion_mismatches, r.max_rel_dt, r.mean_rel_dt
+                );
+            }
+            let verdict = if genuine <= args.max_genuine { "ok" } else { "FAIL" };
+            println!("{verdict}: {genuine} genuine disagreements (max {}), {ties} ties\n", args.max_genuine);
+        }
+        reports.push(ValidateReport {
+            scene: scene.name.clone(),
+            backend: tested.name(),
+            against: reference.name(),
+            genuine,
+            ties,
+            max_genuine: args.max_genuine,
+            pass: genuine <= args.max_genuine,
+            sets: set_reports,
+            diff_image: diff_written,
+        });
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&reports).map_err(|e| Error::Other(e.to_string()))?);
+    }
+    let failed: Vec<&str> = reports.iter().filter(|r| !r.pass).map(|r| r.scene.as_str()).collect();
+    if failed.is_empty() {
+        Ok(())
+    } else {
+        Err(Error::Other(format!(
+            "validate: genuine disagreements above --max-genuine {} in {}",
+            args.max_genuine,
+            failed.join(", ")
+        )))
+    }
+}
+
 fn run_stats(args: &StatsArgs) -> Result<()> {
     let settings = args.view.settings()?;
     let threads = args.threads.unwrap_or_else(default_threads);
-    let builders: Vec<BuilderKind> = match args.builder.as_str() {
-        "median" => vec![BuilderKind::Median],
-        "sah" => vec![BuilderKind::Sah],
-        _ => vec![BuilderKind::Median, BuilderKind::Sah],
+    let builders: Vec<BuilderKind> = if args.builder == "all" {
+        BuilderKind::ALL
+            .into_iter()
+            .filter(|b| b.embree_quality().is_none() || crate::accel::embree::AVAILABLE)
+            .collect()
+    } else {
+        BuilderKind::ALL.into_iter().filter(|b| b.name() == args.builder).collect()
     };
     let names: Vec<String> = if args.scenes.is_empty() {
         BUILTIN_SCENES.iter().map(|(n, _)| n.to_string()).collect()
@@ -370,11 +574,7 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         ms(load_time)
     ));
 
-    let spec = BackendSpec {
-        kind: args.backend,
-        bvh: args.bvh.params(args.bvh.builder, threads),
-    };
-    let backend = build_backend(&spec, &scene);
+    let backend = build_backend(&args.spec(threads), &scene)?;
     say(format!(
         "backend {}: built in {:.1} ms",
         backend.name(),
@@ -508,6 +708,7 @@ pub fn main() -> i32 {
     let result = match &cli.command {
         Command::Render(args) => run_render(args),
         Command::Stats(args) => run_stats(args),
+        Command::Validate(args) => run_validate(args),
         Command::Scenes => {
             for (name, about) in BUILTIN_SCENES.iter().chain(PROCEDURAL_SCENES) {
                 println!("{name:18} {about}");

@@ -54,16 +54,16 @@ fn timed_build(
     triangles: &[[glam::Vec3; 3]],
     params: &BuildParams,
     reps: usize,
-) -> (Duration, Bvh) {
+) -> Result<(Duration, Bvh)> {
     let mut times = Vec::with_capacity(reps);
     let mut bvh = Bvh::default();
     for _ in 0..reps.max(1) {
         let start = Instant::now();
-        bvh = Bvh::build(triangles, params);
+        bvh = Bvh::build(triangles, params)?;
         times.push(start.elapsed());
     }
     times.sort();
-    (times[times.len() / 2], bvh)
+    Ok((times[times.len() / 2], bvh))
 }
 
 /// Measures one builder on `scene`: `reps` timed builds serially and on
@@ -76,8 +76,8 @@ pub fn builder_report(
     reps: usize,
 ) -> Result<BuilderReport> {
     let triangles = scene.triangle_vertices();
-    let (serial_time, serial) = timed_build(&triangles, &params.with_threads(1), reps);
-    let (parallel_time, parallel) = timed_build(&triangles, &params.with_threads(threads), reps);
+    let (serial_time, serial) = timed_build(&triangles, &params.with_threads(1), reps)?;
+    let (parallel_time, parallel) = timed_build(&triangles, &params.with_threads(threads), reps)?;
     let deterministic = serial.nodes == parallel.nodes && serial.tri_ids == parallel.tri_ids;
     let tracer = CountingTracer::new(&parallel);
     render(

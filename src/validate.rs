@@ -1,27 +1,51 @@
-//! Comparing the hits of two backends: the same hit, a tie (both hit adjacent
-//! triangles at the same distance, as on a shared edge or vertex), or a genuine
-//! disagreement (one misses, or one reports a farther hit).
+//! Comparing the hits of two backends (`raylab validate`): the same ray sets go
+//! through both, and every answer is classified as the same hit, a tie (both hit
+//! adjacent triangles at the same distance, as on a shared edge or vertex), or a
+//! genuine disagreement (one misses, or one reports a farther hit, or their
+//! occlusion answers differ).
+//!
+//! Ray sets: the primary rays of a render (raster order), its shadow rays and
+//! its AO rays (recorded through the shared shading loop), and random rays in
+//! and around the scene.
+
+use std::sync::Mutex;
 
 use glam::Vec3;
+use serde::Serialize;
 
-use crate::geometry::Hit;
+use crate::accel::Backend;
+use crate::geometry::{Aabb, Hit, Ray};
+use crate::progress::Progress;
+use crate::render::{render, RenderSettings, Schedule, Tracer};
+use crate::scene::Scene;
 
-/// Relative tolerance on `t` for two hits to count as the same distance.
+/// Relative tolerance on `t` for two hits to count as the same distance,
+/// relative to the distance scale of the query (see [`t_scale`]).
 pub const T_TOLERANCE: f32 = 1e-5;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Agreement {
     /// Both miss, or both hit the same triangle at the same `t` (within tolerance).
     Same,
-    /// Both hit different triangles that share a vertex, at the same `t`
-    /// (within tolerance): which one wins is decided by rounding, not geometry.
+    /// Decided by rounding, not geometry: both hit different triangles at the
+    /// same `t` (within tolerance) on a shared vertex or edge or where they
+    /// overlap in one plane; or only one hits, exactly on its triangle's edge.
     Tie,
     /// One misses, or the hits are at different distances or on unrelated triangles.
     Genuine,
 }
 
-fn same_t(a: f32, b: f32) -> bool {
-    (a - b).abs() <= T_TOLERANCE * a.abs().max(b.abs()).max(1e-30)
+/// The magnitude against which a difference in `t` is judged: the larger of the
+/// two distances and the ray origin's largest coordinate (in units of the
+/// direction's length). A ray that starts on a surface has a tiny `t`, but its
+/// rounding error follows the coordinates, not `t`.
+pub fn t_scale(ray: &Ray, a: f32, b: f32) -> f32 {
+    let origin = ray.origin.abs().max_element() / ray.dir.length().max(f32::MIN_POSITIVE);
+    a.abs().max(b.abs()).max(origin).max(f32::MIN_POSITIVE)
+}
+
+fn same_t(ray: &Ray, a: f32, b: f32) -> bool {
+    (a - b).abs() <= T_TOLERANCE * t_scale(ray, a, b)
 }
 
 /// Whether triangles `a` and `b` share at least one vertex position.
@@ -29,22 +53,270 @@ pub fn adjacent(a: &[Vec3; 3], b: &[Vec3; 3]) -> bool {
     a.iter().any(|p| b.contains(p))
 }
 
-/// Classifies two answers to the same closest-hit query; `triangles` are the
-/// scene's triangles by index.
-pub fn classify(a: Option<Hit>, b: Option<Hit>, triangles: &[[Vec3; 3]]) -> Agreement {
+/// Whether `p` lies on triangle `tri` up to a small tolerance (relative to the
+/// triangle's size and the coordinates' magnitude): within the plane, and with
+/// barycentric coordinates no more negative than the tolerance.
+pub fn on_triangle(p: Vec3, tri: &[Vec3; 3]) -> bool {
+    let (e1, e2) = (tri[1] - tri[0], tri[2] - tri[0]);
+    let n = e1.cross(e2);
+    let area2 = n.length();
+    if !(area2 > 0.0) {
+        return false;
+    }
+    let scale = e1.length().max(e2.length()).max(p.abs().max_element());
+    let w = p - tri[0];
+    if (n.dot(w) / area2).abs() > 1e-5 * scale {
+        return false;
+    }
+    // Barycentrics from sub-triangle areas, signed along n.
+    let b1 = w.cross(e2).dot(n) / (area2 * area2);
+    let b2 = e1.cross(w).dot(n) / (area2 * area2);
+    let slack = 1e-4;
+    b1 >= -slack && b2 >= -slack && b1 + b2 <= 1.0 + slack
+}
+
+/// Classifies two answers to the same closest-hit query along `ray`;
+/// `triangles` are the scene's triangles by index. Different triangles at the
+/// same distance are a tie when they share a vertex or when either hit point
+/// lies on the other triangle (shared edges, coplanar overlaps).
+pub fn classify(ray: &Ray, a: Option<Hit>, b: Option<Hit>, triangles: &[[Vec3; 3]]) -> Agreement {
     match (a, b) {
         (None, None) => Agreement::Same,
-        (Some(x), Some(y)) if same_t(x.t, y.t) => {
+        (Some(x), Some(y)) if same_t(ray, x.t, y.t) => {
+            let (ta, tb) = (&triangles[x.tri as usize], &triangles[y.tri as usize]);
             if x.tri == y.tri {
                 Agreement::Same
-            } else if adjacent(&triangles[x.tri as usize], &triangles[y.tri as usize]) {
+            } else if adjacent(ta, tb) || on_triangle(ray.at(x.t), tb) || on_triangle(ray.at(y.t), ta) {
                 Agreement::Tie
             } else {
                 Agreement::Genuine
             }
         }
+        (Some(h), None) | (None, Some(h)) if on_edge(&h) => Agreement::Tie,
         _ => Agreement::Genuine,
     }
+}
+
+/// Whether a hit lies on its triangle's boundary (a barycentric coordinate
+/// within 1e-5 of 0), where inclusive and exclusive edge rules disagree.
+fn on_edge(h: &Hit) -> bool {
+    h.u.min(h.v).min(1.0 - h.u - h.v) <= 1e-5
+}
+
+/// The kinds of ray set `validate` compares.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RaySet {
+    Primary,
+    Shadow,
+    Ao,
+    Random,
+}
+
+impl RaySet {
+    pub const ALL: [RaySet; 4] = [RaySet::Primary, RaySet::Shadow, RaySet::Ao, RaySet::Random];
+}
+
+/// Records the shadow and AO rays of a render while tracing with `backend`.
+struct Recorder<'a> {
+    backend: &'a dyn Backend,
+    shadow: Mutex<Vec<Ray>>,
+    ao: Mutex<Vec<Ray>>,
+}
+
+impl Tracer for Recorder<'_> {
+    fn primary(&self, ray: &Ray) -> Option<Hit> {
+        self.backend.intersect(ray)
+    }
+    fn shadow(&self, ray: &Ray) -> bool {
+        if let Ok(mut v) = self.shadow.lock() {
+            v.push(*ray);
+        }
+        self.backend.occluded(ray)
+    }
+    fn ao(&self, ray: &Ray) -> bool {
+        if let Ok(mut v) = self.ao.lock() {
+            v.push(*ray);
+        }
+        self.backend.occluded(ray)
+    }
+}
+
+/// The primary rays of `settings` in raster order.
+pub fn primary_rays(settings: &RenderSettings) -> Vec<Ray> {
+    (0..settings.height)
+        .flat_map(|y| (0..settings.width).map(move |x| settings.camera.ray(x, y)))
+        .collect()
+}
+
+/// The (shadow, AO) rays a serial render of `scene` with `backend` casts, in the
+/// order they are cast.
+pub fn recorded_rays(scene: &Scene, backend: &dyn Backend, settings: &RenderSettings) -> crate::Result<(Vec<Ray>, Vec<Ray>)> {
+    let recorder = Recorder {
+        backend,
+        shadow: Mutex::new(Vec::new()),
+        ao: Mutex::new(Vec::new()),
+    };
+    render(scene, &recorder, settings, Schedule::Serial, 1, &Progress::new())?;
+    let take = |m: Mutex<Vec<Ray>>| m.into_inner().unwrap_or_default();
+    Ok((take(recorder.shadow), take(recorder.ao)))
+}
+
+/// `n` rays with origins uniform in `bounds` grown by half its size on every
+/// side and uniformly distributed directions; deterministic for a `seed`.
+pub fn random_rays(bounds: Aabb, n: usize, seed: u64) -> Vec<Ray> {
+    let mut rng = crate::render::rng::Rng::for_pixel(0, seed, 0xA11D);
+    let margin = bounds.extent() * 0.5 + Vec3::splat(1e-3);
+    let (lo, size) = (bounds.min - margin, bounds.extent() + 2.0 * margin);
+    let mut rays = Vec::with_capacity(n);
+    while rays.len() < n {
+        let o = lo + size * Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+        let d = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - Vec3::ONE;
+        let len = d.length();
+        if len > 1e-3 && len <= 1.0 {
+            rays.push(Ray::new(o, d / len));
+        }
+    }
+    rays
+}
+
+/// At most `n` rays of `rays`, evenly strided (all of them if there are fewer).
+pub fn subsample(rays: Vec<Ray>, n: usize) -> Vec<Ray> {
+    if rays.len() <= n || n == 0 {
+        return rays;
+    }
+    let step = rays.len() as f64 / n as f64;
+    (0..n).map(|i| rays[(i as f64 * step) as usize]).collect()
+}
+
+/// Agreement of two backends on one ray set.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct SetReport {
+    pub set: String,
+    pub rays: usize,
+    /// Both hit or both missed.
+    pub hit_miss_agree: usize,
+    /// Both hit the same triangle (t within tolerance).
+    pub same_triangle: usize,
+    pub both_hit: usize,
+    pub ties: usize,
+    pub genuine: usize,
+    /// Rays whose occlusion answers differ (counted in `genuine` too).
+    pub occlusion_mismatches: usize,
+    /// Over rays where both hit: |t_a - t_b| relative to the query's distance
+    /// scale (the larger t, or the origin's magnitude when larger).
+    pub max_rel_dt: f64,
+    pub mean_rel_dt: f64,
+    /// The first few genuine disagreements, to reproduce them.
+    pub examples: Vec<Disagreement>,
+}
+
+/// One genuine disagreement: the ray and both backends' answers.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Disagreement {
+    pub origin: [f32; 3],
+    pub dir: [f32; 3],
+    pub tmin: f32,
+    pub tmax: f32,
+    /// (t, triangle) of the backend under test, and of the reference.
+    pub tested: Option<(f32, u32)>,
+    pub reference: Option<(f32, u32)>,
+    pub tested_occluded: bool,
+    pub reference_occluded: bool,
+}
+
+/// How many genuine disagreements a [`SetReport`] keeps as examples.
+pub const EXAMPLES: usize = 5;
+
+/// Sends every ray through both backends (closest hit and occlusion) and
+/// classifies the answers; returns the report and the per-ray classification.
+pub fn compare(
+    name: &str,
+    rays: &[Ray],
+    a: &dyn Backend,
+    b: &dyn Backend,
+    triangles: &[[Vec3; 3]],
+) -> (SetReport, Vec<Agreement>) {
+    use rayon::prelude::*;
+    let per_ray: Vec<(Agreement, Option<f64>, bool, bool)> = rays
+        .par_iter()
+        .map(|ray| {
+            let (ha, hb) = (a.intersect(ray), b.intersect(ray));
+            let mut agreement = classify(ray, ha, hb, triangles);
+            let occlusion_differs = a.occluded(ray) != b.occluded(ray);
+            // An occlusion answer that contradicts agreeing closest hits is genuine;
+            // one that follows an edge tie is the same tie.
+            if occlusion_differs && agreement == Agreement::Same {
+                agreement = Agreement::Genuine;
+            }
+            let dt = match (ha, hb) {
+                (Some(x), Some(y)) => Some(((x.t - y.t).abs() / t_scale(ray, x.t, y.t)) as f64),
+                _ => None,
+            };
+            let same_tri = matches!((ha, hb), (Some(x), Some(y)) if x.tri == y.tri);
+            (agreement, dt, occlusion_differs, same_tri)
+        })
+        .collect();
+    let mut r = SetReport {
+        set: name.to_string(),
+        rays: rays.len(),
+        ..SetReport::default()
+    };
+    let mut dt_sum = 0.0;
+    for (agreement, dt, occlusion_differs, same_tri) in &per_ray {
+        match agreement {
+            Agreement::Tie => r.ties += 1,
+            Agreement::Genuine => r.genuine += 1,
+            Agreement::Same => {}
+        }
+        r.occlusion_mismatches += *occlusion_differs as usize;
+        r.same_triangle += *same_tri as usize;
+        if let Some(dt) = dt {
+            r.both_hit += 1;
+            dt_sum += dt;
+            r.max_rel_dt = r.max_rel_dt.max(*dt);
+        }
+    }
+    r.examples = rays
+        .iter()
+        .zip(&per_ray)
+        .filter(|(_, p)| p.0 == Agreement::Genuine)
+        .take(EXAMPLES)
+        .map(|(ray, _)| Disagreement {
+            origin: ray.origin.to_array(),
+            dir: ray.dir.to_array(),
+            tmin: ray.tmin,
+            tmax: ray.tmax,
+            tested: a.intersect(ray).map(|h| (h.t, h.tri)),
+            reference: b.intersect(ray).map(|h| (h.t, h.tri)),
+            tested_occluded: a.occluded(ray),
+            reference_occluded: b.occluded(ray),
+        })
+        .collect();
+    let both_miss = rays
+        .iter()
+        .zip(&per_ray)
+        .filter(|(_, (agreement, dt, ..))| dt.is_none() && *agreement == Agreement::Same)
+        .count();
+    r.hit_miss_agree = r.both_hit + both_miss;
+    r.mean_rel_dt = if r.both_hit > 0 { dt_sum / r.both_hit as f64 } else { 0.0 };
+    (r, per_ray.into_iter().map(|p| p.0).collect())
+}
+
+/// An RGB8 picture of per-pixel agreement for primary rays in raster order:
+/// black where both agree on a miss, grey where they agree on a hit, yellow for
+/// ties, red for genuine disagreements.
+pub fn mismatch_image(agreements: &[Agreement], hits: &[bool]) -> Vec<u8> {
+    agreements
+        .iter()
+        .zip(hits)
+        .flat_map(|(a, &hit)| match a {
+            Agreement::Same if hit => [60, 60, 60],
+            Agreement::Same => [0, 0, 0],
+            Agreement::Tie => [255, 220, 0],
+            Agreement::Genuine => [255, 0, 0],
+        })
+        .collect()
 }
 
 #[cfg(test)]

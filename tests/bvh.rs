@@ -83,7 +83,7 @@ fn assert_same_hits(
             let want = naive.intersect(ray);
             let got = bvh.intersect(ray);
             if got != want {
-                let agreement = classify(got, want, tris);
+                let agreement = classify(ray, got, want, tris);
                 assert!(
                     allow_ties && agreement == Agreement::Tie,
                     "{name} {params:?}: ray {i} {ray:?}: bvh {got:?} naive {want:?} ({agreement:?})"

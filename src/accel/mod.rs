@@ -5,6 +5,7 @@
 //! so the renderer produces the same image whichever backend it is given.
 
 pub mod bvh;
+pub mod embree;
 pub mod naive;
 
 use std::time::Duration;
@@ -30,6 +31,12 @@ pub trait Backend: Send + Sync {
 
     /// Whether anything is hit within `(ray.tmin, ray.tmax)`.
     fn occluded(&self, ray: &Ray) -> bool;
+
+    /// Whether render threads should flush denormals while tracing (Embree asks
+    /// for it; the schedules set and restore it per work unit).
+    fn flushes_denormals(&self) -> bool {
+        false
+    }
 }
 
 /// The backends a user can pick with `--backend`.
@@ -39,19 +46,62 @@ pub enum BackendKind {
     Naive,
     /// A hand-built BVH (`--builder` chooses how).
     Bvh,
+    /// Intel Embree's single-ray queries (rtcIntersect1/rtcOccluded1).
+    Embree,
 }
 
-/// A backend and, for BVHs, how to build it.
+/// A backend and how to build it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BackendSpec {
     pub kind: BackendKind,
+    /// For `bvh`: the builder and its parameters (also the build threads for Embree).
     pub bvh: bvh::BuildParams,
+    /// For `embree`: scene build quality and the robust flag.
+    pub embree_quality: embree::Quality,
+    pub embree_robust: bool,
+}
+
+impl BackendSpec {
+    pub fn naive() -> Self {
+        Self::bvh(bvh::BuildParams::sah()).with_kind(BackendKind::Naive)
+    }
+
+    pub fn bvh(params: bvh::BuildParams) -> Self {
+        BackendSpec {
+            kind: BackendKind::Bvh,
+            bvh: params,
+            embree_quality: embree::Quality::Medium,
+            embree_robust: false,
+        }
+    }
+
+    pub fn embree(quality: embree::Quality, robust: bool) -> Self {
+        BackendSpec {
+            embree_quality: quality,
+            embree_robust: robust,
+            ..Self::bvh(bvh::BuildParams::sah()).with_kind(BackendKind::Embree)
+        }
+    }
+
+    pub fn with_kind(mut self, kind: BackendKind) -> Self {
+        self.kind = kind;
+        self
+    }
 }
 
 /// Builds the chosen backend over `scene`.
-pub fn build_backend(spec: &BackendSpec, scene: &Scene) -> Box<dyn Backend> {
-    match spec.kind {
+pub fn build_backend(spec: &BackendSpec, scene: &Scene) -> crate::Result<Box<dyn Backend>> {
+    Ok(match spec.kind {
         BackendKind::Naive => Box::new(naive::Naive::new(scene)),
-        BackendKind::Bvh => Box::new(bvh::BvhBackend::new(scene, &spec.bvh)),
-    }
+        BackendKind::Bvh => Box::new(bvh::BvhBackend::new(scene, &spec.bvh)?),
+        #[cfg(feature = "embree")]
+        BackendKind::Embree => Box::new(embree::EmbreeBackend::new(
+            scene,
+            spec.embree_quality,
+            spec.embree_robust,
+            spec.bvh.threads,
+        )?),
+        #[cfg(not(feature = "embree"))]
+        BackendKind::Embree => return Err(embree::unavailable()),
+    })
 }

@@ -31,6 +31,10 @@ pub trait Tracer: Sync {
     fn primary(&self, ray: &Ray) -> Option<Hit>;
     fn shadow(&self, ray: &Ray) -> bool;
     fn ao(&self, ray: &Ray) -> bool;
+    /// See [`Backend::flushes_denormals`].
+    fn flushes_denormals(&self) -> bool {
+        false
+    }
 }
 
 impl<B: Backend + ?Sized> Tracer for B {
@@ -45,6 +49,9 @@ impl<B: Backend + ?Sized> Tracer for B {
     #[inline]
     fn ao(&self, ray: &Ray) -> bool {
         self.occluded(ray)
+    }
+    fn flushes_denormals(&self) -> bool {
+        Backend::flushes_denormals(self)
     }
 }
 

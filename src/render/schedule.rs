@@ -96,6 +96,9 @@ pub fn render<T: Tracer + ?Sized>(
         return Err(Error::usage("--threads", "must be at least 1"));
     }
     let work = |rect: Rect| {
+        let _ftz = tracer
+            .flushes_denormals()
+            .then(crate::accel::embree::ftz::FlushDenormals::enable);
         let mut pixels = vec![Vec3::ZERO; rect.pixel_count()];
         let stats = render_rect(scene, tracer, settings, rect, &mut pixels);
         progress.advance(rect.pixel_count() as u64);

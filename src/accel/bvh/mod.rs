@@ -63,8 +63,9 @@ pub struct Bvh {
 }
 
 impl Bvh {
-    /// Builds over `triangles` (indexed as in the scene) with `params`.
-    pub fn build(triangles: &[[Vec3; 3]], params: &BuildParams) -> Bvh {
+    /// Builds over `triangles` (indexed as in the scene) with `params`. Only the
+    /// Embree builders can fail.
+    pub fn build(triangles: &[[Vec3; 3]], params: &BuildParams) -> crate::Result<Bvh> {
         build::build(triangles, params)
     }
 
@@ -86,15 +87,15 @@ pub struct BvhBackend {
 impl BvhBackend {
     /// Builds a BVH over the scene's triangles; like every backend's, the build
     /// time runs from the scene to a ready structure (vertex gather included).
-    pub fn new(scene: &Scene, params: &BuildParams) -> Self {
+    pub fn new(scene: &Scene, params: &BuildParams) -> crate::Result<Self> {
         let start = Instant::now();
         let triangles = scene.triangle_vertices();
-        let bvh = Bvh::build(&triangles, params);
-        BvhBackend {
+        let bvh = Bvh::build(&triangles, params)?;
+        Ok(BvhBackend {
             bvh,
             name: format!("bvh-{}", params.builder.name()),
             build_time: start.elapsed(),
-        }
+        })
     }
 }
 

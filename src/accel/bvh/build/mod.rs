@@ -17,19 +17,47 @@ use crate::geometry::Aabb;
 
 /// The builders a user can choose with `--builder`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
+#[serde(rename_all = "kebab-case")]
 pub enum BuilderKind {
     /// The study's: median split on centroids along an axis cycling x, y, z.
     Median,
     /// Binned surface-area heuristic over all three axes.
     Sah,
+    /// Embree's builder (rtcBuildBVH) at low quality, in raylab's layout.
+    EmbreeLow,
+    /// Embree's builder at medium quality.
+    EmbreeMedium,
+    /// Embree's builder at high quality (spatial splits).
+    EmbreeHigh,
 }
 
 impl BuilderKind {
+    pub const ALL: [BuilderKind; 5] = [
+        BuilderKind::Median,
+        BuilderKind::Sah,
+        BuilderKind::EmbreeLow,
+        BuilderKind::EmbreeMedium,
+        BuilderKind::EmbreeHigh,
+    ];
+
     pub fn name(self) -> &'static str {
         match self {
             BuilderKind::Median => "median",
             BuilderKind::Sah => "sah",
+            BuilderKind::EmbreeLow => "embree-low",
+            BuilderKind::EmbreeMedium => "embree-medium",
+            BuilderKind::EmbreeHigh => "embree-high",
+        }
+    }
+
+    /// Embree's build quality for the `embree-*` builders.
+    pub fn embree_quality(self) -> Option<crate::accel::embree::Quality> {
+        use crate::accel::embree::Quality;
+        match self {
+            BuilderKind::EmbreeLow => Some(Quality::Low),
+            BuilderKind::EmbreeMedium => Some(Quality::Medium),
+            BuilderKind::EmbreeHigh => Some(Quality::High),
+            _ => None,
         }
     }
 }
@@ -64,10 +92,15 @@ impl BuildParams {
         }
     }
 
+    /// Each builder's defaults; Embree's builder gets the SAH builder's leaf limit
+    /// so that the two are compared like for like.
     pub const fn for_builder(builder: BuilderKind) -> Self {
         match builder {
             BuilderKind::Median => Self::median(),
-            BuilderKind::Sah => Self::sah(),
+            _ => BuildParams {
+                builder,
+                ..Self::sah()
+            },
         }
     }
 
@@ -152,8 +185,9 @@ pub fn reduce_prims<T: Send + Sync + Clone>(
     }
 }
 
-/// Temporary tree, flattened once into the compact layout.
-enum BuildNode {
+/// Temporary tree, flattened once into the compact layout. Leaves refer to a
+/// range of the leaf-ordered triangle list.
+pub(crate) enum BuildNode {
     Leaf {
         bounds: Aabb,
         start: u32,
@@ -165,17 +199,21 @@ enum BuildNode {
     },
 }
 
-/// Builds the hierarchy (the entry point behind [`Bvh::build`]).
-pub fn build(triangles: &[[Vec3; 3]], params: &BuildParams) -> Bvh {
+/// Builds the hierarchy (the entry point behind [`Bvh::build`]). Only the
+/// Embree builders can fail (no Embree in this build, or an Embree error).
+pub fn build(triangles: &[[Vec3; 3]], params: &BuildParams) -> crate::Result<Bvh> {
+    if let Some(quality) = params.builder.embree_quality() {
+        return build_with_embree(triangles, params, quality);
+    }
     if triangles.is_empty() {
-        return Bvh::default();
+        return Ok(Bvh::default());
     }
     let max_leaf = params.max_leaf_size.max(1);
     let run = |prims: &mut [PrimRef]| {
         let parallel = params.threads > 1;
         match params.builder {
             BuilderKind::Median => recurse(prims, 0, 0, &median::Median { max_leaf }, parallel),
-            BuilderKind::Sah => recurse(prims, 0, 0, &sah::BinnedSah::new(max_leaf), parallel),
+            _ => recurse(prims, 0, 0, &sah::BinnedSah::new(max_leaf), parallel),
         }
     };
     let mut prims: Vec<PrimRef> = triangles
@@ -191,10 +229,7 @@ pub fn build(triangles: &[[Vec3; 3]], params: &BuildParams) -> Bvh {
         })
         .collect();
     let root = if params.threads > 1 {
-        match rayon::ThreadPoolBuilder::new()
-            .num_threads(params.threads)
-            .build()
-        {
+        match rayon::ThreadPoolBuilder::new().num_threads(params.threads).build() {
             Ok(pool) => pool.install(|| run(&mut prims)),
             // No threads to be had: the same tree, built serially.
             Err(_) => run(&mut prims),
@@ -202,13 +237,55 @@ pub fn build(triangles: &[[Vec3; 3]], params: &BuildParams) -> Bvh {
     } else {
         run(&mut prims)
     };
-    let mut nodes = Vec::with_capacity(2 * prims.len());
+    Ok(assemble(root, prims.iter().map(|p| p.index).collect(), triangles))
+}
+
+#[cfg(feature = "embree")]
+fn build_with_embree(
+    triangles: &[[Vec3; 3]],
+    params: &BuildParams,
+    quality: crate::accel::embree::Quality,
+) -> crate::Result<Bvh> {
+    use std::collections::HashMap;
+    use std::sync::{Arc, Mutex, OnceLock};
+
+    use crate::accel::embree::Device;
+    // One device per thread count, made once: device start-up (thread pool) is
+    // not part of a build.
+    static DEVICES: OnceLock<Mutex<HashMap<usize, Arc<Device>>>> = OnceLock::new();
+    let device = {
+        let mut devices = DEVICES
+            .get_or_init(Default::default)
+            .lock()
+            .map_err(|_| crate::Error::Other("embree device cache poisoned".into()))?;
+        match devices.get(&params.threads) {
+            Some(d) => d.clone(),
+            None => {
+                let d = Device::new(&format!("threads={}", params.threads.max(1)))?;
+                devices.insert(params.threads, d.clone());
+                d
+            }
+        }
+    };
+    crate::accel::embree::builder::build(&device, triangles, quality, params.max_leaf_size)
+}
+
+#[cfg(not(feature = "embree"))]
+fn build_with_embree(
+    _triangles: &[[Vec3; 3]],
+    _params: &BuildParams,
+    _quality: crate::accel::embree::Quality,
+) -> crate::Result<Bvh> {
+    Err(crate::accel::embree::unavailable())
+}
+
+/// Flattens a temporary tree whose leaves index `tri_ids` into the compact
+/// layout, gathering the triangles' vertices in leaf order.
+pub(crate) fn assemble(root: BuildNode, tri_ids: Vec<u32>, triangles: &[[Vec3; 3]]) -> Bvh {
+    let mut nodes = Vec::with_capacity(2 * tri_ids.len());
     flatten(root, &mut nodes);
-    Bvh {
-        nodes,
-        tri_ids: prims.iter().map(|p| p.index).collect(),
-        tris: prims.iter().map(|p| triangles[p.index as usize]).collect(),
-    }
+    let tris = tri_ids.iter().map(|&i| triangles[i as usize]).collect();
+    Bvh { nodes, tri_ids, tris }
 }
 
 fn recurse<S: Splitter>(

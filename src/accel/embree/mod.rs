@@ -1,0 +1,48 @@
+//! Intel Embree through FFI: the industrial reference backend, and Embree's BVH
+//! builder producing trees in raylab's own layout (`builder`).
+//!
+//! `unsafe` lives only in this module tree: `ffi` (generated bindings), `api`
+//! (the Embree 3/4 difference), this safe wrapper, `builder` and `ftz`.
+
+pub mod ftz;
+
+#[cfg(feature = "embree")]
+pub mod api;
+#[cfg(feature = "embree")]
+pub mod builder;
+#[cfg(feature = "embree")]
+mod ffi;
+#[cfg(feature = "embree")]
+mod wrapper;
+
+#[cfg(feature = "embree")]
+pub use wrapper::{version, Device, EmbreeBackend, EmbreeScene};
+
+/// Embree's build quality (`--embree-quality`, and the `embree-*` builders).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Quality {
+    Low,
+    Medium,
+    High,
+}
+
+impl Quality {
+    pub fn name(self) -> &'static str {
+        match self {
+            Quality::Low => "low",
+            Quality::Medium => "medium",
+            Quality::High => "high",
+        }
+    }
+}
+
+/// Whether this build of raylab links Embree.
+pub const AVAILABLE: bool = cfg!(feature = "embree");
+
+/// The error for Embree features in a build without Embree.
+pub fn unavailable() -> crate::Error {
+    crate::Error::Other(
+        "this raylab was built without Embree (cargo feature `embree`); install libembree-dev and rebuild".into(),
+    )
+}

@@ -1,0 +1,323 @@
+//! Safe ownership of Embree objects: a [`Device`] whose errors become Rust
+//! errors, an [`EmbreeScene`] with one triangle geometry fed from raylab's arrays,
+//! and the [`EmbreeBackend`] that renders through the shared loop.
+
+use std::ffi::{c_char, c_void, CStr, CString};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use glam::Vec3;
+
+use super::{api, ffi, Quality};
+use crate::accel::Backend;
+use crate::error::{Error, Result};
+use crate::geometry::{Hit, Ray};
+use crate::scene::Scene;
+
+/// Messages passed to the device's error callback, oldest first.
+type ErrorLog = Mutex<Vec<String>>;
+
+/// An Embree device. Dropping the last handle releases it.
+pub struct Device {
+    raw: ffi::RTCDevice,
+    /// Boxed so its address, given to Embree as the callback's user pointer,
+    /// stays fixed; it outlives the device because `Drop` releases the device first.
+    errors: Box<ErrorLog>,
+}
+
+// SAFETY: Embree devices are thread-safe (its API may be called on one device
+// from several threads); the error log is behind a Mutex.
+unsafe impl Send for Device {}
+// SAFETY: as above.
+unsafe impl Sync for Device {}
+
+unsafe extern "C" fn record_error(user: *mut c_void, code: ffi::RTCError, message: *const c_char) {
+    let text = if message.is_null() {
+        String::new()
+    } else {
+        // SAFETY: Embree passes a NUL-terminated string valid for this call.
+        unsafe { CStr::from_ptr(message) }.to_string_lossy().into_owned()
+    };
+    // SAFETY: `user` is the `ErrorLog` boxed in the `Device`, alive while the device is.
+    let log = unsafe { &*(user as *const ErrorLog) };
+    if let Ok(mut log) = log.lock() {
+        log.push(format!("{} (code {code})", text.trim()));
+    }
+}
+
+impl Device {
+    /// A device with Embree's `config` string (e.g. `"threads=2"`).
+    pub fn new(config: &str) -> Result<Arc<Device>> {
+        let c = CString::new(config).map_err(|_| Error::Other("embree: config contains NUL".into()))?;
+        // SAFETY: `c` is a valid NUL-terminated string for the duration of the call.
+        let raw = unsafe { ffi::rtcNewDevice(c.as_ptr()) };
+        if raw.is_null() {
+            // SAFETY: a null device asks for the error of the failed rtcNewDevice.
+            let code = unsafe { ffi::rtcGetDeviceError(std::ptr::null_mut()) };
+            return Err(Error::Other(format!(
+                "embree: cannot create a device with config '{config}' (error code {code})"
+            )));
+        }
+        let device = Device {
+            raw,
+            errors: Box::new(Mutex::new(Vec::new())),
+        };
+        let user = &*device.errors as *const ErrorLog as *mut c_void;
+        // SAFETY: `raw` is a live device; `user` points to the boxed log that lives
+        // until after the device is released (see `Drop`).
+        unsafe { ffi::rtcSetDeviceErrorFunction(raw, Some(record_error), user) };
+        Ok(Arc::new(device))
+    }
+
+    /// Turns the device's pending error, if any, into an `Err` naming `what`.
+    pub fn check(&self, what: &str) -> Result<()> {
+        // SAFETY: `raw` is a live device.
+        let code = unsafe { ffi::rtcGetDeviceError(self.raw) };
+        let mut log = self.errors.lock().map(|mut l| std::mem::take(&mut *l)).unwrap_or_default();
+        if code == ffi::RTCError_RTC_ERROR_NONE && log.is_empty() {
+            return Ok(());
+        }
+        let message = log.pop().unwrap_or_else(|| format!("error code {code}"));
+        Err(Error::Other(format!("embree: {what}: {message}")))
+    }
+
+    pub(super) fn raw(&self) -> ffi::RTCDevice {
+        self.raw
+    }
+}
+
+impl Drop for Device {
+    fn drop(&mut self) {
+        // SAFETY: releases our reference; no callback can run after the device is
+        // gone, and `errors` is dropped after this body.
+        unsafe { ffi::rtcReleaseDevice(self.raw) };
+    }
+}
+
+/// Embree's version string, e.g. "3.13.5", from the linked library.
+pub fn version() -> String {
+    let device = match Device::new("verbose=0") {
+        Ok(d) => d,
+        Err(_) => return format!("{}.x", api::MAJOR),
+    };
+    let get = |p| {
+        // SAFETY: a live device and a valid property id.
+        unsafe { ffi::rtcGetDeviceProperty(device.raw, p) }
+    };
+    format!(
+        "{}.{}.{}",
+        get(ffi::RTCDeviceProperty_RTC_DEVICE_PROPERTY_VERSION_MAJOR),
+        get(ffi::RTCDeviceProperty_RTC_DEVICE_PROPERTY_VERSION_MINOR),
+        get(ffi::RTCDeviceProperty_RTC_DEVICE_PROPERTY_VERSION_PATCH)
+    )
+}
+
+/// A committed Embree scene holding one triangle mesh.
+pub struct EmbreeScene {
+    raw: ffi::RTCScene,
+    device: Arc<Device>,
+}
+
+// SAFETY: a committed scene is immutable and Embree allows rtcIntersect1 and
+// rtcOccluded1 on it from any number of threads at once.
+unsafe impl Send for EmbreeScene {}
+// SAFETY: as above.
+unsafe impl Sync for EmbreeScene {}
+
+impl EmbreeScene {
+    /// Builds a scene over `positions` and index triples (triangle `i` of the
+    /// scene becomes Embree primitive `i`). `robust` sets `RTC_SCENE_FLAG_ROBUST`.
+    pub fn new(
+        device: &Arc<Device>,
+        positions: &[Vec3],
+        triangles: &[[u32; 3]],
+        quality: Quality,
+        robust: bool,
+    ) -> Result<EmbreeScene> {
+        if let Some(t) = triangles.iter().find(|t| t.iter().any(|&i| i as usize >= positions.len())) {
+            return Err(Error::Other(format!("embree: triangle {t:?} indexes past {} vertices", positions.len())));
+        }
+        let raw_device = device.raw();
+        // SAFETY: a live device.
+        let scene = unsafe { ffi::rtcNewScene(raw_device) };
+        let this = EmbreeScene {
+            raw: scene,
+            device: device.clone(),
+        };
+        device.check("rtcNewScene")?;
+        let quality = match quality {
+            Quality::Low => ffi::RTCBuildQuality_RTC_BUILD_QUALITY_LOW,
+            Quality::Medium => ffi::RTCBuildQuality_RTC_BUILD_QUALITY_MEDIUM,
+            Quality::High => ffi::RTCBuildQuality_RTC_BUILD_QUALITY_HIGH,
+        };
+        // SAFETY: a live scene; plain setters.
+        unsafe {
+            ffi::rtcSetSceneBuildQuality(scene, quality);
+            if robust {
+                ffi::rtcSetSceneFlags(scene, ffi::RTCSceneFlags_RTC_SCENE_FLAG_ROBUST);
+            }
+        }
+        // SAFETY: a live device; the geometry is released below after attaching.
+        let geometry = unsafe { ffi::rtcNewGeometry(raw_device, ffi::RTCGeometryType_RTC_GEOMETRY_TYPE_TRIANGLE) };
+        device.check("rtcNewGeometry")?;
+        // Embree allocates both buffers itself, which takes care of its alignment
+        // and of the padding it reads past the last vertex.
+        // SAFETY: a live geometry; Embree returns a buffer of `count` items of
+        // `stride` bytes (or null on error, checked before use).
+        let vertices = unsafe {
+            ffi::rtcSetNewGeometryBuffer(
+                geometry,
+                ffi::RTCBufferType_RTC_BUFFER_TYPE_VERTEX,
+                0,
+                ffi::RTCFormat_RTC_FORMAT_FLOAT3,
+                12,
+                positions.len(),
+            )
+        } as *mut f32;
+        // SAFETY: as above.
+        let indices = unsafe {
+            ffi::rtcSetNewGeometryBuffer(
+                geometry,
+                ffi::RTCBufferType_RTC_BUFFER_TYPE_INDEX,
+                0,
+                ffi::RTCFormat_RTC_FORMAT_UINT3,
+                12,
+                triangles.len(),
+            )
+        } as *mut u32;
+        if let Err(e) = device.check("rtcSetNewGeometryBuffer") {
+            // SAFETY: releases the geometry we own.
+            unsafe { ffi::rtcReleaseGeometry(geometry) };
+            return Err(e);
+        }
+        if vertices.is_null() || indices.is_null() {
+            // SAFETY: as above.
+            unsafe { ffi::rtcReleaseGeometry(geometry) };
+            return Err(Error::Other("embree: could not allocate geometry buffers".into()));
+        }
+        // SAFETY: the buffers hold exactly positions.len() * 3 floats and
+        // triangles.len() * 3 indices (12-byte stride, tightly packed), and do not
+        // overlap our slices.
+        unsafe {
+            std::ptr::copy_nonoverlapping(positions.as_ptr() as *const f32, vertices, positions.len() * 3);
+            std::ptr::copy_nonoverlapping(triangles.as_ptr() as *const u32, indices, triangles.len() * 3);
+            ffi::rtcCommitGeometry(geometry);
+            ffi::rtcAttachGeometry(scene, geometry);
+            ffi::rtcReleaseGeometry(geometry);
+            ffi::rtcCommitScene(scene);
+        }
+        device.check("rtcCommitScene")?;
+        Ok(this)
+    }
+
+    #[inline]
+    pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        if !ray.is_valid() {
+            return None;
+        }
+        let mut rh = ffi::RTCRayHit {
+            ray: embree_ray(ray),
+            hit: ffi::RTCHit {
+                geomID: api::INVALID_ID,
+                primID: api::INVALID_ID,
+                ..Default::default()
+            },
+        };
+        // SAFETY: `self.raw` is a committed scene kept alive by `self`.
+        unsafe { api::intersect1(self.raw, &mut rh) };
+        (rh.hit.geomID != api::INVALID_ID).then_some(Hit {
+            t: rh.ray.tfar,
+            u: rh.hit.u,
+            v: rh.hit.v,
+            tri: rh.hit.primID,
+        })
+    }
+
+    #[inline]
+    pub fn occluded(&self, ray: &Ray) -> bool {
+        if !ray.is_valid() {
+            return false;
+        }
+        let mut r = embree_ray(ray);
+        // SAFETY: as in `intersect`.
+        unsafe { api::occluded1(self.raw, &mut r) };
+        r.tfar == f32::NEG_INFINITY
+    }
+
+    pub fn device(&self) -> &Arc<Device> {
+        &self.device
+    }
+}
+
+impl Drop for EmbreeScene {
+    fn drop(&mut self) {
+        // SAFETY: releases our reference to a scene we created.
+        unsafe { ffi::rtcReleaseScene(self.raw) };
+    }
+}
+
+/// Our ray in Embree's layout: all mask bits set (Embree 4 gives geometries mask
+/// 1 by default), time 0.
+#[inline]
+fn embree_ray(ray: &Ray) -> ffi::RTCRay {
+    ffi::RTCRay {
+        org_x: ray.origin.x,
+        org_y: ray.origin.y,
+        org_z: ray.origin.z,
+        tnear: ray.tmin,
+        dir_x: ray.dir.x,
+        dir_y: ray.dir.y,
+        dir_z: ray.dir.z,
+        time: 0.0,
+        tfar: ray.tmax,
+        mask: u32::MAX,
+        id: 0,
+        flags: 0,
+    }
+}
+
+/// Embree as a render backend.
+pub struct EmbreeBackend {
+    scene: EmbreeScene,
+    name: String,
+    build_time: Duration,
+}
+
+impl EmbreeBackend {
+    /// Builds on a device with `threads` build threads; the build time covers
+    /// device creation, buffer copies and the BVH build.
+    pub fn new(scene: &Scene, quality: Quality, robust: bool, threads: usize) -> Result<Self> {
+        let start = Instant::now();
+        let device = Device::new(&format!("threads={threads}"))?;
+        let embree = EmbreeScene::new(&device, &scene.positions, &scene.triangles, quality, robust)?;
+        Ok(EmbreeBackend {
+            scene: embree,
+            name: format!("embree-{}{}", quality.name(), if robust { "-robust" } else { "" }),
+            build_time: start.elapsed(),
+        })
+    }
+}
+
+impl Backend for EmbreeBackend {
+    fn name(&self) -> String {
+        self.name.clone()
+    }
+
+    fn build_time(&self) -> Duration {
+        self.build_time
+    }
+
+    #[inline]
+    fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        self.scene.intersect(ray)
+    }
+
+    #[inline]
+    fn occluded(&self, ray: &Ray) -> bool {
+        self.scene.occluded(ray)
+    }
+
+    fn flushes_denormals(&self) -> bool {
+        true
+    }
+}
