@@ -17,9 +17,11 @@ struct Embree {
 }
 
 fn header_major(include_dir: &Path) -> Option<u32> {
-    [4, 3]
-        .into_iter()
-        .find(|major| include_dir.join(format!("embree{major}/rtcore.h")).is_file())
+    [4, 3].into_iter().find(|major| {
+        include_dir
+            .join(format!("embree{major}/rtcore.h"))
+            .is_file()
+    })
 }
 
 fn find_embree() -> Option<Embree> {
@@ -34,7 +36,11 @@ fn find_embree() -> Option<Embree> {
     }
     for (major, name) in [(4, "embree4"), (3, "embree3")] {
         if let Ok(lib) = pkg_config_probe(name) {
-            if let Some(include_dir) = lib.0.into_iter().find(|d| d.join(format!("embree{major}/rtcore.h")).is_file()) {
+            if let Some(include_dir) = lib
+                .0
+                .into_iter()
+                .find(|d| d.join(format!("embree{major}/rtcore.h")).is_file())
+            {
                 return Some(Embree {
                     major,
                     include_dir,
@@ -78,7 +84,10 @@ fn pkg_config_probe(name: &str) -> Result<(Vec<PathBuf>, Option<PathBuf>), ()> {
         .map(PathBuf::from)
         .collect();
     includes.push("/usr/include".into());
-    let lib = libs.split_whitespace().find_map(|f| f.strip_prefix("-L")).map(PathBuf::from);
+    let lib = libs
+        .split_whitespace()
+        .find_map(|f| f.strip_prefix("-L"))
+        .map(PathBuf::from);
     Ok((includes, lib))
 }
 
@@ -118,10 +127,14 @@ fn main() {
         .layout_tests(true)
         .generate()
         .unwrap_or_else(|e| {
-            eprintln!("raylab: bindgen could not read {}: {e} (is libclang-dev installed?)", header.display());
+            eprintln!(
+                "raylab: bindgen could not read {}: {e} (is libclang-dev installed?)",
+                header.display()
+            );
             std::process::exit(1);
         });
-    let out = PathBuf::from(env::var("OUT_DIR").expect("OUT_DIR is set by cargo")).join("embree_bindings.rs");
+    let out = PathBuf::from(env::var("OUT_DIR").expect("OUT_DIR is set by cargo"))
+        .join("embree_bindings.rs");
     bindings.write_to_file(&out).unwrap_or_else(|e| {
         eprintln!("raylab: cannot write {}: {e}", out.display());
         std::process::exit(1);

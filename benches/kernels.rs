@@ -71,7 +71,7 @@ fn bvh_queries(c: &mut Criterion) {
     for name in ["cornell-sphere", "cornell-water"] {
         let tris = builtin(name).unwrap().triangle_vertices();
         for params in [BuildParams::median(), BuildParams::sah()] {
-            let bvh = Bvh::build(&tris, &params);
+            let bvh = Bvh::build(&tris, &params).unwrap();
             let id = format!("{}/{name}", params.builder.name());
             g.bench_with_input(BenchmarkId::new("intersect", &id), &rays, |b, rays| {
                 b.iter(|| rays.iter().filter_map(|r| bvh.intersect(r)).count())
@@ -96,7 +96,7 @@ fn bvh_builds(c: &mut Criterion) {
                 let p = params.with_threads(threads);
                 let id = format!("{}-{threads}t", params.builder.name());
                 g.bench_with_input(BenchmarkId::new(id, n), &tris, |b, tris| {
-                    b.iter(|| Bvh::build(tris, &p))
+                    b.iter(|| Bvh::build(tris, &p).unwrap())
                 });
             }
         }

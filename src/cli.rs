@@ -267,19 +267,30 @@ fn diff_image_path(base: &Path, scene: &str, several: bool) -> PathBuf {
     if !several {
         return base.to_path_buf();
     }
-    let stem = base.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+    let stem = base
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_default();
     let tag: String = Path::new(scene)
         .file_stem()
         .map(|s| s.to_string_lossy().to_string())
         .unwrap_or_default()
         .chars()
-        .map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' })
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
         .collect();
     base.with_file_name(format!("{stem}-{tag}.png"))
 }
 
 fn run_validate(args: &ValidateArgs) -> Result<()> {
-    use crate::validate::{compare, mismatch_image, primary_rays, random_rays, recorded_rays, subsample, RaySet};
+    use crate::validate::{
+        compare, mismatch_image, primary_rays, random_rays, recorded_rays, subsample, RaySet,
+    };
     let settings = args.view.settings()?;
     let threads = args.threads.unwrap_or_else(default_threads);
     let names: Vec<String> = if args.scenes.is_empty() {
@@ -316,11 +327,19 @@ fn run_validate(args: &ValidateArgs) -> Result<()> {
         let reference = build_backend(&reference_spec, &scene)?;
         let triangles = scene.triangle_vertices();
         // Record the render's rays with the faster of the two (naive is slow).
-        let recorder: &dyn crate::accel::Backend =
-            if args.against == BackendKind::Naive { tested.as_ref() } else { reference.as_ref() };
-        let needs_recording = sets.iter().any(|s| matches!(s, RaySet::Shadow | RaySet::Ao));
-        let (shadow, ao) =
-            if needs_recording { recorded_rays(&scene, recorder, &settings)? } else { (Vec::new(), Vec::new()) };
+        let recorder: &dyn crate::accel::Backend = if args.against == BackendKind::Naive {
+            tested.as_ref()
+        } else {
+            reference.as_ref()
+        };
+        let needs_recording = sets
+            .iter()
+            .any(|s| matches!(s, RaySet::Shadow | RaySet::Ao));
+        let (shadow, ao) = if needs_recording {
+            recorded_rays(&scene, recorder, &settings)?
+        } else {
+            (Vec::new(), Vec::new())
+        };
         let mut set_reports = Vec::new();
         let mut diff_written = None;
         for set in &sets {
@@ -332,13 +351,31 @@ fn run_validate(args: &ValidateArgs) -> Result<()> {
             };
             let is_primary = *set == RaySet::Primary;
             // Primary rays are kept whole for the picture, and subsampled to compare otherwise.
-            let rays = if is_primary && args.diff_image.is_none() { subsample(rays, count) } else { rays };
-            let (report, agreements) = compare(label, &rays, tested.as_ref(), reference.as_ref(), &triangles);
+            let rays = if is_primary && args.diff_image.is_none() {
+                subsample(rays, count)
+            } else {
+                rays
+            };
+            let (report, agreements) = compare(
+                label,
+                &rays,
+                tested.as_ref(),
+                reference.as_ref(),
+                &triangles,
+            );
             if is_primary {
                 if let Some(base) = &args.diff_image {
                     let path = diff_image_path(base, name, names.len() > 1);
-                    let hits: Vec<bool> = rays.iter().map(|r| reference.intersect(r).is_some()).collect();
-                    output::write_png(&path, settings.width, settings.height, &mismatch_image(&agreements, &hits))?;
+                    let hits: Vec<bool> = rays
+                        .iter()
+                        .map(|r| reference.intersect(r).is_some())
+                        .collect();
+                    output::write_png(
+                        &path,
+                        settings.width,
+                        settings.height,
+                        &mismatch_image(&agreements, &hits),
+                    )?;
                     diff_written = Some(path.display().to_string());
                 }
             }
@@ -347,17 +384,38 @@ fn run_validate(args: &ValidateArgs) -> Result<()> {
         let genuine: usize = set_reports.iter().map(|r| r.genuine).sum();
         let ties: usize = set_reports.iter().map(|r| r.ties).sum();
         if !args.json {
-            println!("{} ({} triangles): {} against {}", scene.name, scene.triangle_count(), tested.name(), reference.name());
+            println!(
+                "{} ({} triangles): {} against {}",
+                scene.name,
+                scene.triangle_count(),
+                tested.name(),
+                reference.name()
+            );
             println!("| set | rays | hit/miss agree | same triangle | ties | genuine | occlusion mismatches | max rel dt | mean rel dt |");
             println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
             for r in &set_reports {
                 println!(
                     "| {} | {} | {} | {} | {} | {} | {} | {:.2e} | {:.2e} |",
-                    r.set, r.rays, r.hit_miss_agree, r.same_triangle, r.ties, r.genuine, r.occlusion_mismatches, r.max_rel_dt, r.mean_rel_dt
+                    r.set,
+                    r.rays,
+                    r.hit_miss_agree,
+                    r.same_triangle,
+                    r.ties,
+                    r.genuine,
+                    r.occlusion_mismatches,
+                    r.max_rel_dt,
+                    r.mean_rel_dt
                 );
             }
-            let verdict = if genuine <= args.max_genuine { "ok" } else { "FAIL" };
-            println!("{verdict}: {genuine} genuine disagreements (max {}), {ties} ties\n", args.max_genuine);
+            let verdict = if genuine <= args.max_genuine {
+                "ok"
+            } else {
+                "FAIL"
+            };
+            println!(
+                "{verdict}: {genuine} genuine disagreements (max {}), {ties} ties\n",
+                args.max_genuine
+            );
         }
         reports.push(ValidateReport {
             scene: scene.name.clone(),
@@ -372,9 +430,16 @@ fn run_validate(args: &ValidateArgs) -> Result<()> {
         });
     }
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&reports).map_err(|e| Error::Other(e.to_string()))?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&reports).map_err(|e| Error::Other(e.to_string()))?
+        );
     }
-    let failed: Vec<&str> = reports.iter().filter(|r| !r.pass).map(|r| r.scene.as_str()).collect();
+    let failed: Vec<&str> = reports
+        .iter()
+        .filter(|r| !r.pass)
+        .map(|r| r.scene.as_str())
+        .collect();
     if failed.is_empty() {
         Ok(())
     } else {
@@ -395,7 +460,10 @@ fn run_stats(args: &StatsArgs) -> Result<()> {
             .filter(|b| b.embree_quality().is_none() || crate::accel::embree::AVAILABLE)
             .collect()
     } else {
-        BuilderKind::ALL.into_iter().filter(|b| b.name() == args.builder).collect()
+        BuilderKind::ALL
+            .into_iter()
+            .filter(|b| b.name() == args.builder)
+            .collect()
     };
     let names: Vec<String> = if args.scenes.is_empty() {
         BUILTIN_SCENES.iter().map(|(n, _)| n.to_string()).collect()

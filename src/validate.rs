@@ -77,7 +77,7 @@ pub fn on_triangle(p: Vec3, tri: &[Vec3; 3]) -> bool {
 
 /// Classifies two answers to the same closest-hit query along `ray`;
 /// `triangles` are the scene's triangles by index. Different triangles at the
-/// same distance are a tie when they share a vertex or when either hit point
+/// same distance are a tie when they share a vertex, or when each hit point also
 /// lies on the other triangle (shared edges, coplanar overlaps).
 pub fn classify(ray: &Ray, a: Option<Hit>, b: Option<Hit>, triangles: &[[Vec3; 3]]) -> Agreement {
     match (a, b) {
@@ -86,7 +86,9 @@ pub fn classify(ray: &Ray, a: Option<Hit>, b: Option<Hit>, triangles: &[[Vec3; 3
             let (ta, tb) = (&triangles[x.tri as usize], &triangles[y.tri as usize]);
             if x.tri == y.tri {
                 Agreement::Same
-            } else if adjacent(ta, tb) || on_triangle(ray.at(x.t), tb) || on_triangle(ray.at(y.t), ta) {
+            } else if adjacent(ta, tb)
+                || (on_triangle(ray.at(x.t), tb) && on_triangle(ray.at(y.t), ta))
+            {
                 Agreement::Tie
             } else {
                 Agreement::Genuine
@@ -151,13 +153,24 @@ pub fn primary_rays(settings: &RenderSettings) -> Vec<Ray> {
 
 /// The (shadow, AO) rays a serial render of `scene` with `backend` casts, in the
 /// order they are cast.
-pub fn recorded_rays(scene: &Scene, backend: &dyn Backend, settings: &RenderSettings) -> crate::Result<(Vec<Ray>, Vec<Ray>)> {
+pub fn recorded_rays(
+    scene: &Scene,
+    backend: &dyn Backend,
+    settings: &RenderSettings,
+) -> crate::Result<(Vec<Ray>, Vec<Ray>)> {
     let recorder = Recorder {
         backend,
         shadow: Mutex::new(Vec::new()),
         ao: Mutex::new(Vec::new()),
     };
-    render(scene, &recorder, settings, Schedule::Serial, 1, &Progress::new())?;
+    render(
+        scene,
+        &recorder,
+        settings,
+        Schedule::Serial,
+        1,
+        &Progress::new(),
+    )?;
     let take = |m: Mutex<Vec<Ray>>| m.into_inner().unwrap_or_default();
     Ok((take(recorder.shadow), take(recorder.ao)))
 }
@@ -299,7 +312,11 @@ pub fn compare(
         .filter(|(_, (agreement, dt, ..))| dt.is_none() && *agreement == Agreement::Same)
         .count();
     r.hit_miss_agree = r.both_hit + both_miss;
-    r.mean_rel_dt = if r.both_hit > 0 { dt_sum / r.both_hit as f64 } else { 0.0 };
+    r.mean_rel_dt = if r.both_hit > 0 {
+        dt_sum / r.both_hit as f64
+    } else {
+        0.0
+    };
     (r, per_ray.into_iter().map(|p| p.0).collect())
 }
 
@@ -323,11 +340,12 @@ pub fn mismatch_image(agreements: &[Agreement], hits: &[bool]) -> Vec<u8> {
 mod tests {
     use super::*;
 
+    /// A hit in the middle of its triangle.
     fn hit(t: f32, tri: u32) -> Option<Hit> {
         Some(Hit {
             t,
-            u: 0.0,
-            v: 0.0,
+            u: 0.3,
+            v: 0.3,
             tri,
         })
     }
@@ -339,21 +357,75 @@ mod tests {
             [Vec3::X, Vec3::Y, Vec3::ONE],
             [Vec3::splat(5.0), Vec3::splat(6.0), Vec3::new(5.0, 6.0, 7.0)],
         ];
-        assert_eq!(classify(None, None, &tris), Agreement::Same);
+        let r = Ray::new(Vec3::new(0.2, 0.2, -1.0), Vec3::Z);
+        assert_eq!(classify(&r, None, None, &tris), Agreement::Same);
         assert_eq!(
-            classify(hit(1.0, 0), hit(1.0 + 1e-6, 0), &tris),
+            classify(&r, hit(1.0, 0), hit(1.0 + 1e-6, 0), &tris),
             Agreement::Same
         );
-        assert_eq!(classify(hit(1.0, 0), hit(1.0, 1), &tris), Agreement::Tie);
         assert_eq!(
-            classify(hit(1.0, 0), hit(1.0, 2), &tris),
+            classify(&r, hit(1.0, 0), hit(1.0, 1), &tris),
+            Agreement::Tie
+        );
+        assert_eq!(
+            classify(&r, hit(1.0, 0), hit(1.0, 2), &tris),
             Agreement::Genuine
         );
         assert_eq!(
-            classify(hit(1.0, 0), hit(1.1, 1), &tris),
+            classify(&r, hit(1.0, 0), hit(1.1, 1), &tris),
             Agreement::Genuine
         );
-        assert_eq!(classify(hit(1.0, 0), None, &tris), Agreement::Genuine);
-        assert_eq!(classify(None, hit(1.0, 0), &tris), Agreement::Genuine);
+        assert_eq!(classify(&r, hit(1.0, 0), None, &tris), Agreement::Genuine);
+        assert_eq!(classify(&r, None, hit(1.0, 0), &tris), Agreement::Genuine);
+        let edge = Some(Hit {
+            t: 1.0,
+            u: 0.5,
+            v: 0.0,
+            tri: 0,
+        });
+        assert_eq!(classify(&r, edge, None, &tris), Agreement::Tie);
+        // A ray starting on a surface: tiny t, judged against the origin's scale.
+        let on_surface = Ray::new(Vec3::new(0.2, 0.2, 1.0), Vec3::Z);
+        assert_eq!(
+            classify(&on_surface, hit(4.5e-4, 0), hit(4.5001e-4, 0), &tris),
+            Agreement::Same
+        );
+    }
+
+    #[test]
+    fn coplanar_overlap_is_a_tie() {
+        // Two overlapping triangles in the plane z = 0 that share no vertex.
+        let tris = [
+            [Vec3::ZERO, Vec3::X, Vec3::Y],
+            [
+                Vec3::new(0.1, 0.1, 0.0),
+                Vec3::new(2.0, 0.1, 0.0),
+                Vec3::new(0.1, 2.0, 0.0),
+            ],
+            [
+                Vec3::new(0.1, 0.1, 0.5),
+                Vec3::new(2.0, 0.1, 0.5),
+                Vec3::new(0.1, 2.0, 0.5),
+            ],
+        ];
+        let r = Ray::new(Vec3::new(0.2, 0.2, -1.0), Vec3::Z);
+        assert_eq!(
+            classify(&r, hit(1.0, 0), hit(1.0, 1), &tris),
+            Agreement::Tie
+        );
+        assert!(on_triangle(Vec3::new(0.2, 0.2, 0.0), &tris[1]));
+        assert!(!on_triangle(Vec3::new(0.2, 0.2, 0.0), &tris[2]));
+        assert!(!on_triangle(Vec3::new(3.0, 3.0, 0.0), &tris[1]));
+    }
+
+    #[test]
+    fn subsample_strides_evenly() {
+        let rays: Vec<Ray> = (0..10)
+            .map(|i| Ray::new(Vec3::splat(i as f32), Vec3::X))
+            .collect();
+        let s = subsample(rays.clone(), 5);
+        assert_eq!(s.len(), 5);
+        assert_eq!(s[1].origin.x, 2.0);
+        assert_eq!(subsample(rays, 50).len(), 10);
     }
 }

@@ -78,7 +78,7 @@ fn assert_same_hits(
         .extent()
         .length();
     for params in BUILDERS {
-        let bvh = Bvh::build(tris, &params);
+        let bvh = Bvh::build(tris, &params).unwrap();
         for (i, ray) in rays.iter().enumerate() {
             let want = naive.intersect(ray);
             let got = bvh.intersect(ray);
@@ -208,11 +208,15 @@ fn trees_keep_their_invariants() {
         builtin("cornell-water").unwrap().triangle_vertices(),
     ] {
         for params in BUILDERS {
-            check_invariants(&Bvh::build(&tris, &params), &tris, params.max_leaf_size);
+            check_invariants(
+                &Bvh::build(&tris, &params).unwrap(),
+                &tris,
+                params.max_leaf_size,
+            );
         }
         for leaf in [1, 2, 8] {
             let params = BuildParams::sah().with_max_leaf_size(leaf);
-            check_invariants(&Bvh::build(&tris, &params), &tris, leaf);
+            check_invariants(&Bvh::build(&tris, &params).unwrap(), &tris, leaf);
         }
     }
 }
@@ -220,7 +224,7 @@ fn trees_keep_their_invariants() {
 #[test]
 fn median_tree_is_the_studys_shape() {
     let tris = soup(1000, 4);
-    let bvh = Bvh::build(&tris, &BuildParams::median());
+    let bvh = Bvh::build(&tris, &BuildParams::median()).unwrap();
     let s = raylab::accel::bvh::quality::TreeStats::of(&bvh, tris.len());
     // One triangle per leaf, balanced: 2n - 1 nodes, depth ceil(log2 n).
     assert_eq!(s.leaves, 1000);
@@ -267,7 +271,7 @@ fn degenerate_inputs_build_and_trace() {
         let rays = random_rays(bounds, 2000, 1);
         let naive = Naive::from_triangles(tris.clone());
         for params in BUILDERS {
-            let bvh = Bvh::build(&tris, &params);
+            let bvh = Bvh::build(&tris, &params).unwrap();
             for r in &rays {
                 assert_eq!(bvh.intersect(r), naive.intersect(r), "{name} {params:?}");
             }
@@ -281,12 +285,13 @@ fn degenerate_inputs_build_and_trace() {
 fn tree_is_identical_for_any_thread_count() {
     let tris = soup(30_000, 12);
     for builder in [BuilderKind::Median, BuilderKind::Sah] {
-        let one = Bvh::build(&tris, &BuildParams::for_builder(builder));
+        let one = Bvh::build(&tris, &BuildParams::for_builder(builder)).unwrap();
         for threads in [2, 4] {
             let many = Bvh::build(
                 &tris,
                 &BuildParams::for_builder(builder).with_threads(threads),
-            );
+            )
+            .unwrap();
             assert!(
                 one.nodes == many.nodes && one.tri_ids == many.tri_ids,
                 "{builder:?} on {threads} threads"
@@ -304,7 +309,7 @@ fn bvh_renders_are_bit_identical_to_naive() {
         let (reference, _) =
             render(&scene, &naive, &s, Schedule::Rayon, 2, &Progress::new()).unwrap();
         for params in [BuildParams::median(), BuildParams::sah()] {
-            let bvh = BvhBackend::new(&scene, &params);
+            let bvh = BvhBackend::new(&scene, &params).unwrap();
             let (frame, _) =
                 render(&scene, &bvh, &s, Schedule::Tiles, 2, &Progress::new()).unwrap();
             assert!(
@@ -321,8 +326,11 @@ fn sah_tree_is_cheaper_than_median_on_the_big_scenes() {
     use raylab::accel::bvh::quality::TreeStats;
     for name in ["cornell-sphere", "cornell-water"] {
         let tris = builtin(name).unwrap().triangle_vertices();
-        let median = TreeStats::of(&Bvh::build(&tris, &BuildParams::median()), tris.len());
-        let sah = TreeStats::of(&Bvh::build(&tris, &BuildParams::sah()), tris.len());
+        let median = TreeStats::of(
+            &Bvh::build(&tris, &BuildParams::median()).unwrap(),
+            tris.len(),
+        );
+        let sah = TreeStats::of(&Bvh::build(&tris, &BuildParams::sah()).unwrap(), tris.len());
         assert!(
             sah.sah_cost < median.sah_cost,
             "{name}: sah {} vs median {}",

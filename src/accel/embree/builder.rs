@@ -37,11 +37,16 @@ struct Leaf {
     count: u32,
 }
 
-unsafe extern "C" fn create_node(alloc: ffi::RTCThreadLocalAllocator, children: u32, _user: *mut c_void) -> *mut c_void {
+unsafe extern "C" fn create_node(
+    alloc: ffi::RTCThreadLocalAllocator,
+    children: u32,
+    _user: *mut c_void,
+) -> *mut c_void {
     debug_assert_eq!(children, 2);
     // SAFETY: Embree's allocator returns memory of the requested size and
     // alignment, owned by the RTCBVH until it is released.
-    let p = unsafe { ffi::rtcThreadLocalAlloc(alloc, std::mem::size_of::<Inner>(), 16) } as *mut Inner;
+    let p =
+        unsafe { ffi::rtcThreadLocalAlloc(alloc, std::mem::size_of::<Inner>(), 16) } as *mut Inner;
     if !p.is_null() {
         // SAFETY: `p` is valid for one `Inner`.
         unsafe {
@@ -55,7 +60,12 @@ unsafe extern "C" fn create_node(alloc: ffi::RTCThreadLocalAllocator, children: 
     p as *mut c_void
 }
 
-unsafe extern "C" fn set_children(node: *mut c_void, children: *mut *mut c_void, count: u32, _user: *mut c_void) {
+unsafe extern "C" fn set_children(
+    node: *mut c_void,
+    children: *mut *mut c_void,
+    count: u32,
+    _user: *mut c_void,
+) {
     let node = node as *mut Inner;
     for i in 0..count.min(2) as usize {
         // SAFETY: `node` came from `create_node`; `children` holds `count` pointers.
@@ -63,7 +73,12 @@ unsafe extern "C" fn set_children(node: *mut c_void, children: *mut *mut c_void,
     }
 }
 
-unsafe extern "C" fn set_bounds(node: *mut c_void, bounds: *mut *const ffi::RTCBounds, count: u32, _user: *mut c_void) {
+unsafe extern "C" fn set_bounds(
+    node: *mut c_void,
+    bounds: *mut *const ffi::RTCBounds,
+    count: u32,
+    _user: *mut c_void,
+) {
     let node = node as *mut Inner;
     for i in 0..count.min(2) as usize {
         // SAFETY: `bounds` holds `count` valid pointers for this call.
@@ -122,7 +137,14 @@ unsafe extern "C" fn split_primitive(
 ) {
     // SAFETY: `user` is the `SplitData` passed to rtcBuildBVH, alive during the
     // build; `prim`, `left` and `right` are valid for this call.
-    let (data, prim, left, right) = unsafe { (&*(user as *const SplitData), &*prim, &mut *left, &mut *right) };
+    let (data, prim, left, right) = unsafe {
+        (
+            &*(user as *const SplitData),
+            &*prim,
+            &mut *left,
+            &mut *right,
+        )
+    };
     let d = dim as usize;
     let tri = &data.triangles[prim.primID as usize];
     let mut lo = Aabb::EMPTY;
@@ -174,13 +196,22 @@ unsafe extern "C" fn split_primitive(
 
 /// Builds a BVH over `triangles` with Embree's builder at `quality`, leaves of at
 /// most `max_leaf` triangles and the same SAH constants as raylab's SAH builder.
-pub fn build(device: &Arc<Device>, triangles: &[[Vec3; 3]], quality: Quality, max_leaf: usize) -> Result<Bvh> {
+pub fn build(
+    device: &Arc<Device>,
+    triangles: &[[Vec3; 3]],
+    quality: Quality,
+    max_leaf: usize,
+) -> Result<Bvh> {
     if triangles.is_empty() {
         return Ok(Bvh::default());
     }
     let count = triangles.len();
     // Room for spatial splits at high quality.
-    let capacity = if quality == Quality::High { 2 * count } else { count };
+    let capacity = if quality == Quality::High {
+        2 * count
+    } else {
+        count
+    };
     let mut prims: Vec<ffi::RTCBuildPrimitive> = Vec::with_capacity(capacity);
     for (i, t) in triangles.iter().enumerate() {
         let b = Aabb::from_points(t);
@@ -199,7 +230,10 @@ pub fn build(device: &Arc<Device>, triangles: &[[Vec3; 3]], quality: Quality, ma
     let split = SplitData { triangles };
 
     // SAH constants: the same as raylab's own SAH builder.
-    let (c_t, c_i) = (crate::accel::bvh::build::sah::C_TRAVERSAL, crate::accel::bvh::build::sah::C_INTERSECT);
+    let (c_t, c_i) = (
+        crate::accel::bvh::build::sah::C_TRAVERSAL,
+        crate::accel::bvh::build::sah::C_INTERSECT,
+    );
     // SAFETY: a live device.
     let bvh = unsafe { ffi::rtcNewBVH(device.raw()) };
     device.check("rtcNewBVH")?;
@@ -256,13 +290,23 @@ pub fn build(device: &Arc<Device>, triangles: &[[Vec3; 3]], quality: Quality, ma
 /// # Safety
 /// `node` must be a node created by `create_node` or `create_leaf`, with all
 /// children set, in memory that stays alive during the call.
-unsafe fn convert(node: *mut c_void, bounds: Option<Aabb>, triangles: &[[Vec3; 3]], tri_ids: &mut Vec<u32>) -> BuildNode {
+unsafe fn convert(
+    node: *mut c_void,
+    bounds: Option<Aabb>,
+    triangles: &[[Vec3; 3]],
+    tri_ids: &mut Vec<u32>,
+) -> BuildNode {
     // SAFETY: every node starts with its kind (u32).
     let kind = unsafe { *(node as *const u32) };
     if kind == LEAF {
         let leaf = node as *const Leaf;
         // SAFETY: a leaf header followed by `count` ids (see `create_leaf`).
-        let (count, ids) = unsafe { ((*leaf).count as usize, (leaf as *const u8).add(std::mem::size_of::<Leaf>()) as *const u32) };
+        let (count, ids) = unsafe {
+            (
+                (*leaf).count as usize,
+                (leaf as *const u8).add(std::mem::size_of::<Leaf>()) as *const u32,
+            )
+        };
         let start = tri_ids.len() as u32;
         let mut own = Aabb::EMPTY;
         for i in 0..count {

@@ -36,7 +36,9 @@ unsafe extern "C" fn record_error(user: *mut c_void, code: ffi::RTCError, messag
         String::new()
     } else {
         // SAFETY: Embree passes a NUL-terminated string valid for this call.
-        unsafe { CStr::from_ptr(message) }.to_string_lossy().into_owned()
+        unsafe { CStr::from_ptr(message) }
+            .to_string_lossy()
+            .into_owned()
     };
     // SAFETY: `user` is the `ErrorLog` boxed in the `Device`, alive while the device is.
     let log = unsafe { &*(user as *const ErrorLog) };
@@ -48,7 +50,8 @@ unsafe extern "C" fn record_error(user: *mut c_void, code: ffi::RTCError, messag
 impl Device {
     /// A device with Embree's `config` string (e.g. `"threads=2"`).
     pub fn new(config: &str) -> Result<Arc<Device>> {
-        let c = CString::new(config).map_err(|_| Error::Other("embree: config contains NUL".into()))?;
+        let c =
+            CString::new(config).map_err(|_| Error::Other("embree: config contains NUL".into()))?;
         // SAFETY: `c` is a valid NUL-terminated string for the duration of the call.
         let raw = unsafe { ffi::rtcNewDevice(c.as_ptr()) };
         if raw.is_null() {
@@ -73,7 +76,11 @@ impl Device {
     pub fn check(&self, what: &str) -> Result<()> {
         // SAFETY: `raw` is a live device.
         let code = unsafe { ffi::rtcGetDeviceError(self.raw) };
-        let mut log = self.errors.lock().map(|mut l| std::mem::take(&mut *l)).unwrap_or_default();
+        let mut log = self
+            .errors
+            .lock()
+            .map(|mut l| std::mem::take(&mut *l))
+            .unwrap_or_default();
         if code == ffi::RTCError_RTC_ERROR_NONE && log.is_empty() {
             return Ok(());
         }
@@ -134,8 +141,14 @@ impl EmbreeScene {
         quality: Quality,
         robust: bool,
     ) -> Result<EmbreeScene> {
-        if let Some(t) = triangles.iter().find(|t| t.iter().any(|&i| i as usize >= positions.len())) {
-            return Err(Error::Other(format!("embree: triangle {t:?} indexes past {} vertices", positions.len())));
+        if let Some(t) = triangles
+            .iter()
+            .find(|t| t.iter().any(|&i| i as usize >= positions.len()))
+        {
+            return Err(Error::Other(format!(
+                "embree: triangle {t:?} indexes past {} vertices",
+                positions.len()
+            )));
         }
         let raw_device = device.raw();
         // SAFETY: a live device.
@@ -158,7 +171,9 @@ impl EmbreeScene {
             }
         }
         // SAFETY: a live device; the geometry is released below after attaching.
-        let geometry = unsafe { ffi::rtcNewGeometry(raw_device, ffi::RTCGeometryType_RTC_GEOMETRY_TYPE_TRIANGLE) };
+        let geometry = unsafe {
+            ffi::rtcNewGeometry(raw_device, ffi::RTCGeometryType_RTC_GEOMETRY_TYPE_TRIANGLE)
+        };
         device.check("rtcNewGeometry")?;
         // Embree allocates both buffers itself, which takes care of its alignment
         // and of the padding it reads past the last vertex.
@@ -193,14 +208,24 @@ impl EmbreeScene {
         if vertices.is_null() || indices.is_null() {
             // SAFETY: as above.
             unsafe { ffi::rtcReleaseGeometry(geometry) };
-            return Err(Error::Other("embree: could not allocate geometry buffers".into()));
+            return Err(Error::Other(
+                "embree: could not allocate geometry buffers".into(),
+            ));
         }
         // SAFETY: the buffers hold exactly positions.len() * 3 floats and
         // triangles.len() * 3 indices (12-byte stride, tightly packed), and do not
         // overlap our slices.
         unsafe {
-            std::ptr::copy_nonoverlapping(positions.as_ptr() as *const f32, vertices, positions.len() * 3);
-            std::ptr::copy_nonoverlapping(triangles.as_ptr() as *const u32, indices, triangles.len() * 3);
+            std::ptr::copy_nonoverlapping(
+                positions.as_ptr() as *const f32,
+                vertices,
+                positions.len() * 3,
+            );
+            std::ptr::copy_nonoverlapping(
+                triangles.as_ptr() as *const u32,
+                indices,
+                triangles.len() * 3,
+            );
             ffi::rtcCommitGeometry(geometry);
             ffi::rtcAttachGeometry(scene, geometry);
             ffi::rtcReleaseGeometry(geometry);
@@ -289,10 +314,15 @@ impl EmbreeBackend {
     pub fn new(scene: &Scene, quality: Quality, robust: bool, threads: usize) -> Result<Self> {
         let start = Instant::now();
         let device = Device::new(&format!("threads={threads}"))?;
-        let embree = EmbreeScene::new(&device, &scene.positions, &scene.triangles, quality, robust)?;
+        let embree =
+            EmbreeScene::new(&device, &scene.positions, &scene.triangles, quality, robust)?;
         Ok(EmbreeBackend {
             scene: embree,
-            name: format!("embree-{}{}", quality.name(), if robust { "-robust" } else { "" }),
+            name: format!(
+                "embree-{}{}",
+                quality.name(),
+                if robust { "-robust" } else { "" }
+            ),
             build_time: start.elapsed(),
         })
     }

@@ -229,7 +229,10 @@ pub fn build(triangles: &[[Vec3; 3]], params: &BuildParams) -> crate::Result<Bvh
         })
         .collect();
     let root = if params.threads > 1 {
-        match rayon::ThreadPoolBuilder::new().num_threads(params.threads).build() {
+        match rayon::ThreadPoolBuilder::new()
+            .num_threads(params.threads)
+            .build()
+        {
             Ok(pool) => pool.install(|| run(&mut prims)),
             // No threads to be had: the same tree, built serially.
             Err(_) => run(&mut prims),
@@ -237,7 +240,11 @@ pub fn build(triangles: &[[Vec3; 3]], params: &BuildParams) -> crate::Result<Bvh
     } else {
         run(&mut prims)
     };
-    Ok(assemble(root, prims.iter().map(|p| p.index).collect(), triangles))
+    Ok(assemble(
+        root,
+        prims.iter().map(|p| p.index).collect(),
+        triangles,
+    ))
 }
 
 #[cfg(feature = "embree")]
@@ -285,7 +292,11 @@ pub(crate) fn assemble(root: BuildNode, tri_ids: Vec<u32>, triangles: &[[Vec3; 3
     let mut nodes = Vec::with_capacity(2 * tri_ids.len());
     flatten(root, &mut nodes);
     let tris = tri_ids.iter().map(|&i| triangles[i as usize]).collect();
-    Bvh { nodes, tri_ids, tris }
+    Bvh {
+        nodes,
+        tri_ids,
+        tris,
+    }
 }
 
 fn recurse<S: Splitter>(

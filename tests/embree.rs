@@ -1,0 +1,272 @@
+//! Embree through FFI: its hits against the naive reference, its errors as Rust
+//! errors, its memory released, its builder's trees traversed by ours, and
+//! `validate` catching a planted disagreement.
+#![cfg(feature = "embree")]
+
+mod common;
+
+use common::{settings, TestRng};
+use glam::Vec3;
+use raylab::accel::bvh::{BuildParams, BuilderKind, Bvh, BvhBackend};
+use raylab::accel::embree::{Device, EmbreeBackend, EmbreeScene, Quality};
+use raylab::accel::naive::Naive;
+use raylab::accel::Backend;
+use raylab::geometry::{Aabb, Hit, Ray};
+use raylab::render::AoMode;
+use raylab::scene::builtin::{builtin, BUILTIN_SCENES};
+use raylab::validate::{compare, primary_rays, random_rays, recorded_rays, Agreement};
+
+#[test]
+fn embree_hits_agree_with_naive_on_random_rays_ties_aside() {
+    for (name, _) in BUILTIN_SCENES {
+        let scene = builtin(name).unwrap();
+        let tris = scene.triangle_vertices();
+        let naive = Naive::new(&scene);
+        for robust in [false, true] {
+            let embree = EmbreeBackend::new(&scene, Quality::Medium, robust, 2).unwrap();
+            let rays = random_rays(scene.bounds(), 30_000, 5);
+            let (report, _) = compare("random", &rays, &embree, &naive, &tris);
+            assert_eq!(report.genuine, 0, "{name} robust={robust}: {report:?}");
+            assert!(
+                report.same_triangle > rays.len() / 10,
+                "{name}: too few hits to mean anything"
+            );
+        }
+    }
+}
+
+#[test]
+fn render_ray_sets_agree_between_bvh_and_embree() {
+    let scene = builtin("cornell-sphere").unwrap();
+    let tris = scene.triangle_vertices();
+    let s = settings(96, 72, AoMode::Paper);
+    let embree = EmbreeBackend::new(&scene, Quality::High, false, 2).unwrap();
+    let bvh = BvhBackend::new(&scene, &BuildParams::sah()).unwrap();
+    let (shadow, ao) = recorded_rays(&scene, &embree, &s).unwrap();
+    assert!(!shadow.is_empty() && !ao.is_empty());
+    for (label, rays) in [
+        ("primary", primary_rays(&s)),
+        ("shadow", shadow),
+        ("ao", ao),
+    ] {
+        let (report, _) = compare(label, &rays, &bvh, &embree, &tris);
+        assert_eq!(report.genuine, 0, "{label}: {report:?}");
+    }
+}
+
+#[test]
+fn embree_errors_are_rust_errors() {
+    let err = Device::new("threads=abc")
+        .err()
+        .expect("an invalid config must fail");
+    assert!(err.to_string().contains("embree"), "{err}");
+    // Out-of-range indices are caught before Embree sees them.
+    let device = Device::new("threads=1").unwrap();
+    let bad = EmbreeScene::new(&device, &[Vec3::ZERO], &[[0, 1, 2]], Quality::Medium, false);
+    assert!(bad.is_err());
+}
+
+#[test]
+fn degenerate_triangles_and_nan_rays_are_handled() {
+    let device = Device::new("threads=1").unwrap();
+    let positions = vec![Vec3::ZERO, Vec3::X, Vec3::X * 2.0, Vec3::Y, Vec3::ONE];
+    // A zero-area triangle, a repeated-vertex one, and one real triangle.
+    let scene = EmbreeScene::new(
+        &device,
+        &positions,
+        &[[0, 1, 2], [0, 0, 3], [0, 1, 3]],
+        Quality::High,
+        true,
+    )
+    .unwrap();
+    let hit = scene
+        .intersect(&Ray::new(Vec3::new(0.2, 0.2, 1.0), -Vec3::Z))
+        .unwrap();
+    assert_eq!(hit.tri, 2);
+    assert!((hit.t - 1.0).abs() < 1e-6);
+    for bad in [
+        Ray::new(Vec3::NAN, Vec3::Z),
+        Ray::new(Vec3::ZERO, Vec3::ZERO),
+        Ray::segment(Vec3::ZERO, Vec3::Z, 0.0, f32::NAN),
+    ] {
+        assert!(scene.intersect(&bad).is_none());
+        assert!(!scene.occluded(&bad));
+    }
+}
+
+/// Resident set size in bytes, from /proc.
+fn rss() -> usize {
+    let statm = std::fs::read_to_string("/proc/self/statm").unwrap_or_default();
+    let pages: usize = statm
+        .split_whitespace()
+        .nth(1)
+        .and_then(|p| p.parse().ok())
+        .unwrap_or(0);
+    pages * 4096
+}
+
+#[test]
+fn building_and_dropping_many_scenes_does_not_grow_memory() {
+    let scene = builtin("cornell-sphere").unwrap();
+    let device = Device::new("threads=1").unwrap();
+    let build = || {
+        let s = EmbreeScene::new(
+            &device,
+            &scene.positions,
+            &scene.triangles,
+            Quality::Medium,
+            false,
+        )
+        .unwrap();
+        assert!(s
+            .intersect(&Ray::new(Vec3::new(0.0, 1.0, 3.0), -Vec3::Z))
+            .is_some());
+    };
+    // Warm up allocator pools, then measure.
+    for _ in 0..100 {
+        build();
+    }
+    let before = rss();
+    for _ in 0..1000 {
+        build();
+    }
+    let grown = rss().saturating_sub(before);
+    // One scene of 2188 triangles takes well over 100 KB; 1000 leaked ones would be > 100 MB.
+    assert!(grown < 16 << 20, "RSS grew by {} MB", grown >> 20);
+}
+
+#[test]
+fn embree_built_trees_are_traversed_by_ours_and_match_naive() {
+    for name in ["cornell-original", "cornell-water"] {
+        let scene = builtin(name).unwrap();
+        let tris = scene.triangle_vertices();
+        let naive = Naive::new(&scene);
+        let rays = random_rays(scene.bounds(), 20_000, 9);
+        for builder in [
+            BuilderKind::EmbreeLow,
+            BuilderKind::EmbreeMedium,
+            BuilderKind::EmbreeHigh,
+        ] {
+            let bvh = BvhBackend::new(&scene, &BuildParams::for_builder(builder).with_threads(2))
+                .unwrap();
+            // Every triangle is referenced by some leaf (spatial splits may repeat it).
+            let mut seen = vec![false; tris.len()];
+            for &id in &bvh.bvh.tri_ids {
+                seen[id as usize] = true;
+            }
+            assert!(
+                seen.iter().all(|&s| s),
+                "{name} {builder:?}: a triangle is in no leaf"
+            );
+            for (i, n) in bvh.bvh.nodes.iter().enumerate() {
+                if !n.is_leaf() {
+                    for c in [i + 1, n.offset as usize] {
+                        assert!(
+                            n.bounds().contains(&bvh.bvh.nodes[c].bounds()),
+                            "{name} {builder:?} node {i}"
+                        );
+                    }
+                }
+            }
+            let (report, _) = compare("random", &rays, &bvh, &naive, &tris);
+            assert_eq!(report.genuine, 0, "{name} {builder:?}: {report:?}");
+        }
+    }
+}
+
+#[test]
+fn embree_high_quality_splits_triangles_on_long_thin_geometry() {
+    // Long diagonal slivers: the case where spatial splits pay, so HIGH should
+    // reference some triangles from more than one leaf.
+    let mut rng = TestRng(3);
+    let tris: Vec<[Vec3; 3]> = (0..2000)
+        .map(|_| {
+            let a = rng.vec_in(Vec3::splat(-1.0), Vec3::splat(1.0));
+            let b = -a + rng.vec_in(Vec3::splat(-0.05), Vec3::splat(0.05));
+            [a, b, a + Vec3::splat(0.01)]
+        })
+        .collect();
+    let high = Bvh::build(&tris, &BuildParams::for_builder(BuilderKind::EmbreeHigh)).unwrap();
+    let medium = Bvh::build(&tris, &BuildParams::for_builder(BuilderKind::EmbreeMedium)).unwrap();
+    assert!(
+        high.tri_ids.len() > tris.len(),
+        "no spatial splits at high quality"
+    );
+    assert_eq!(medium.tri_ids.len(), tris.len());
+    let naive = Naive::from_triangles(tris.clone());
+    let bounds = Aabb::from_points(&tris.iter().flatten().copied().collect::<Vec<_>>());
+    for r in random_rays(bounds, 5000, 4) {
+        let (h, n) = (high.intersect(&r), naive.intersect(&r));
+        assert_eq!(h.map(|h| h.tri), n.map(|n| n.tri), "{r:?}");
+    }
+}
+
+/// A backend that loses one triangle: what `validate` exists to catch.
+struct DropsTriangle<'a> {
+    inner: &'a dyn Backend,
+    dropped: u32,
+    all: Vec<[Vec3; 3]>,
+}
+
+impl Backend for DropsTriangle<'_> {
+    fn name(&self) -> String {
+        "drops-one".into()
+    }
+    fn build_time(&self) -> std::time::Duration {
+        std::time::Duration::ZERO
+    }
+    fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        // The naive answer without the dropped triangle.
+        let mut best: Option<Hit> = None;
+        for (i, t) in self.all.iter().enumerate() {
+            if i as u32 == self.dropped {
+                continue;
+            }
+            if let Some((t, u, v)) = raylab::geometry::intersect_triangle(ray, t) {
+                let h = Hit {
+                    t,
+                    u,
+                    v,
+                    tri: i as u32,
+                };
+                if best.is_none_or(|b| h.is_closer_than(&b)) {
+                    best = Some(h);
+                }
+            }
+        }
+        let _ = self.inner;
+        best
+    }
+    fn occluded(&self, ray: &Ray) -> bool {
+        self.intersect(&Ray {
+            tmax: ray.tmax,
+            ..*ray
+        })
+        .is_some()
+    }
+}
+
+#[test]
+fn validate_finds_a_planted_disagreement_and_calls_it_genuine() {
+    let scene = builtin("cornell-original").unwrap();
+    let tris = scene.triangle_vertices();
+    let embree = EmbreeBackend::new(&scene, Quality::Medium, false, 1).unwrap();
+    // Drop the back wall's first triangle: many primary rays hit it.
+    let back_wall = (0..tris.len() as u32)
+        .find(|&i| tris[i as usize].iter().all(|v| v.z == -1.0))
+        .unwrap();
+    let broken = DropsTriangle {
+        inner: &embree,
+        dropped: back_wall,
+        all: tris.clone(),
+    };
+    let rays = primary_rays(&settings(64, 48, AoMode::Off));
+    let (report, agreements) = compare("primary", &rays, &broken, &embree, &tris);
+    assert!(report.genuine > 50, "{report:?}");
+    assert!(agreements.contains(&Agreement::Genuine));
+    assert!(!report.examples.is_empty());
+    assert!(report
+        .examples
+        .iter()
+        .all(|e| e.reference.map(|r| r.1) == Some(back_wall)));
+}
