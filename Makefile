@@ -2,7 +2,7 @@
 # Debian packages are installed with apt-get (through sudo when not root).
 
 CARGO ?= cargo
-DEB_PACKAGES := build-essential pkg-config libclang-dev
+DEB_PACKAGES := build-essential pkg-config libclang-dev libembree-dev
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 RAYLAB := target/release/raylab
 

@@ -7,6 +7,9 @@
 //! from the header that is installed, never from a vendored copy: Embree 4.3 grew
 //! `RTCHit`, and bindings from older headers make Embree write past the ray.
 
+// Without the `embree` feature the search code is compiled but not called.
+#![cfg_attr(not(feature = "embree"), allow(dead_code))]
+
 use std::env;
 use std::path::{Path, PathBuf};
 
@@ -35,7 +38,7 @@ fn find_embree() -> Option<Embree> {
         });
     }
     for (major, name) in [(4, "embree4"), (3, "embree3")] {
-        if let Ok(lib) = pkg_config_probe(name) {
+        if let Some(lib) = pkg_config_probe(name) {
             if let Some(include_dir) = lib
                 .0
                 .into_iter()
@@ -66,7 +69,7 @@ fn find_embree() -> Option<Embree> {
 }
 
 /// Include folders and library folder that `pkg-config` reports for `name`.
-fn pkg_config_probe(name: &str) -> Result<(Vec<PathBuf>, Option<PathBuf>), ()> {
+fn pkg_config_probe(name: &str) -> Option<(Vec<PathBuf>, Option<PathBuf>)> {
     let run = |arg: &str| {
         std::process::Command::new("pkg-config")
             .args([arg, name])
@@ -74,7 +77,6 @@ fn pkg_config_probe(name: &str) -> Result<(Vec<PathBuf>, Option<PathBuf>), ()> {
             .ok()
             .filter(|o| o.status.success())
             .map(|o| String::from_utf8_lossy(&o.stdout).to_string())
-            .ok_or(())
     };
     let cflags = run("--cflags-only-I")?;
     let libs = run("--libs-only-L")?;
@@ -88,7 +90,7 @@ fn pkg_config_probe(name: &str) -> Result<(Vec<PathBuf>, Option<PathBuf>), ()> {
         .split_whitespace()
         .find_map(|f| f.strip_prefix("-L"))
         .map(PathBuf::from);
-    Ok((includes, lib))
+    Some((includes, lib))
 }
 
 fn main() {
@@ -96,9 +98,12 @@ fn main() {
     println!("cargo:rerun-if-changed=build.rs");
     println!("cargo:rustc-check-cfg=cfg(embree3)");
     println!("cargo:rustc-check-cfg=cfg(embree4)");
-    if env::var_os("CARGO_FEATURE_EMBREE").is_none() {
-        return;
-    }
+    #[cfg(feature = "embree")]
+    embree_bindings();
+}
+
+#[cfg(feature = "embree")]
+fn embree_bindings() {
     let Some(embree) = find_embree() else {
         eprintln!(
             "raylab: Embree not found: install it (Debian: `sudo apt-get install libembree-dev libclang-dev`, or `make deps`), \

@@ -557,6 +557,14 @@ fn parse_threads(s: &str) -> std::result::Result<usize, String> {
     }
 }
 
+/// The linked Embree's version ("none" in a build without Embree).
+pub fn embree_version() -> String {
+    #[cfg(feature = "embree")]
+    return crate::accel::embree::version();
+    #[cfg(not(feature = "embree"))]
+    "none".to_string()
+}
+
 /// All hardware threads, the default for `--threads`.
 pub fn default_threads() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get())
@@ -588,6 +596,13 @@ struct RayCounts {
 }
 
 #[derive(Serialize)]
+struct KindTimes {
+    primary: f64,
+    shadow: f64,
+    ao: f64,
+}
+
+#[derive(Serialize)]
 struct RenderReport {
     scene: String,
     triangles: usize,
@@ -605,11 +620,16 @@ struct RenderReport {
     build_ms: f64,
     render_ms: f64,
     rays: RayCounts,
+    /// Time spent in each pass, summed over threads (includes that pass's shading).
+    thread_ms: KindTimes,
     /// All rays over render wall time.
     mrays_per_s: f64,
     output: String,
     image_hash: String,
     warnings: Vec<String>,
+    /// The linked Embree's version, for the embree backend.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    embree_version: Option<String>,
 }
 
 fn run_render(args: &RenderArgs) -> Result<()> {
@@ -725,10 +745,16 @@ fn run_render(args: &RenderArgs) -> Result<()> {
                 shadow: stats.shadow_rays,
                 ao: stats.ao_rays,
             },
+            thread_ms: KindTimes {
+                primary: ms(stats.primary_time),
+                shadow: ms(stats.shadow_time),
+                ao: ms(stats.ao_time),
+            },
             mrays_per_s: mrays,
             output: args.output.display().to_string(),
             image_hash: hash,
             warnings: scene.warnings.clone(),
+            embree_version: (args.backend == BackendKind::Embree).then(embree_version),
         };
         let text = serde_json::to_string(&report).map_err(|e| Error::Other(e.to_string()))?;
         println!("{text}");
