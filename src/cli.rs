@@ -171,14 +171,18 @@ pub struct EmbreeArgs {
     pub embree_robust: bool,
 }
 
-impl RenderArgs {
-    fn spec(&self, threads: usize) -> BackendSpec {
-        BackendSpec {
-            kind: self.backend,
-            bvh: self.bvh.params(self.bvh.builder, threads),
-            embree_quality: self.embree.embree_quality,
-            embree_robust: self.embree.embree_robust,
-        }
+/// The backend a command's flags describe.
+fn backend_spec(
+    kind: BackendKind,
+    bvh: &BvhArgs,
+    embree: &EmbreeArgs,
+    threads: usize,
+) -> BackendSpec {
+    BackendSpec {
+        kind,
+        bvh: bvh.params(bvh.builder, threads),
+        embree_quality: embree.embree_quality,
+        embree_robust: embree.embree_robust,
     }
 }
 
@@ -309,12 +313,7 @@ fn run_validate(args: &ValidateArgs) -> Result<()> {
         _ => RaySet::ALL.to_vec(),
     };
     let count = args.count as usize;
-    let spec = BackendSpec {
-        kind: args.backend,
-        bvh: args.bvh.params(args.bvh.builder, threads),
-        embree_quality: args.embree.embree_quality,
-        embree_robust: args.embree.embree_robust,
-    };
+    let spec = backend_spec(args.backend, &args.bvh, &args.embree, threads);
     let reference_spec = BackendSpec {
         bvh: BuildParams::sah().with_threads(threads),
         ..BackendSpec::embree(Quality::Medium, false)
@@ -662,7 +661,10 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         ms(load_time)
     ));
 
-    let backend = build_backend(&args.spec(threads), &scene)?;
+    let backend = build_backend(
+        &backend_spec(args.backend, &args.bvh, &args.embree, threads),
+        &scene,
+    )?;
     say(format!(
         "backend {}: built in {:.1} ms",
         backend.name(),
