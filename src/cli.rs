@@ -14,6 +14,7 @@ use crate::accel::embree::Quality;
 use crate::accel::{build_backend, BackendKind, BackendSpec};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
+use crate::geometry::Intersector;
 use crate::progress::Progress;
 use crate::render::{self, output, AoMode, RenderSettings, Schedule};
 use crate::scene::builtin::{builtin, BUILTIN_SCENES, PROCEDURAL_SCENES};
@@ -147,6 +148,9 @@ pub struct BvhArgs {
     /// Threads for the BVH build [default: --threads].
     #[arg(long, value_name = "N", value_parser = parse_threads)]
     pub build_threads: Option<usize>,
+    /// Ray/triangle test of the naive and bvh backends.
+    #[arg(long, value_enum, default_value_t = Intersector::Mt)]
+    pub intersector: Intersector,
 }
 
 impl BvhArgs {
@@ -181,6 +185,7 @@ fn backend_spec(
     BackendSpec {
         kind,
         bvh: bvh.params(bvh.builder, threads),
+        intersector: bvh.intersector,
         embree_quality: embree.embree_quality,
         embree_robust: embree.embree_robust,
     }

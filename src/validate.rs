@@ -29,7 +29,8 @@ pub enum Agreement {
     Same,
     /// Decided by rounding, not geometry: both hit different triangles at the
     /// same `t` (within tolerance) on a shared vertex or edge or where they
-    /// overlap in one plane; or only one hits, exactly on its triangle's edge.
+    /// overlap in one plane; or only one hits, exactly on its triangle's edge;
+    /// or one reports a hit at the ray's very start (a self-intersection).
     Tie,
     /// One misses, or the hits are at different distances or on unrelated triangles.
     Genuine,
@@ -80,6 +81,15 @@ pub fn on_triangle(p: Vec3, tri: &[Vec3; 3]) -> bool {
 /// same distance are a tie when they share a vertex, or when each hit point also
 /// lies on the other triangle (shared edges, coplanar overlaps).
 pub fn classify(ray: &Ray, a: Option<Hit>, b: Option<Hit>, triangles: &[[Vec3; 3]]) -> Agreement {
+    // A hit at the ray's very start (t within tolerance of tmin) is a
+    // self-intersection that rounding may or may not report: whatever the other
+    // backend says, the two agree up to rounding.
+    let at_start = |h: &Option<Hit>| {
+        h.is_some_and(|h| (h.t - ray.tmin).abs() <= T_TOLERANCE * t_scale(ray, h.t, ray.tmin))
+    };
+    if (at_start(&a) || at_start(&b)) && a.map(|h| h.tri) != b.map(|h| h.tri) {
+        return Agreement::Tie;
+    }
     match (a, b) {
         (None, None) => Agreement::Same,
         (Some(x), Some(y)) if same_t(ray, x.t, y.t) => {

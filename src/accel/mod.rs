@@ -56,6 +56,8 @@ pub struct BackendSpec {
     pub kind: BackendKind,
     /// For `bvh`: the builder and its parameters (also the build threads for Embree).
     pub bvh: bvh::BuildParams,
+    /// For `naive` and `bvh`: the ray/triangle test.
+    pub intersector: crate::geometry::Intersector,
     /// For `embree`: scene build quality and the robust flag.
     pub embree_quality: embree::Quality,
     pub embree_robust: bool,
@@ -70,6 +72,7 @@ impl BackendSpec {
         BackendSpec {
             kind: BackendKind::Bvh,
             bvh: params,
+            intersector: crate::geometry::Intersector::Mt,
             embree_quality: embree::Quality::Medium,
             embree_robust: false,
         }
@@ -87,13 +90,20 @@ impl BackendSpec {
         self.kind = kind;
         self
     }
+
+    pub fn with_intersector(mut self, intersector: crate::geometry::Intersector) -> Self {
+        self.intersector = intersector;
+        self
+    }
 }
 
 /// Builds the chosen backend over `scene`.
 pub fn build_backend(spec: &BackendSpec, scene: &Scene) -> crate::Result<Box<dyn Backend>> {
     Ok(match spec.kind {
-        BackendKind::Naive => Box::new(naive::Naive::new(scene)),
-        BackendKind::Bvh => Box::new(bvh::BvhBackend::new(scene, &spec.bvh)?),
+        BackendKind::Naive => Box::new(naive::Naive::new(scene).with_intersector(spec.intersector)),
+        BackendKind::Bvh => {
+            Box::new(bvh::BvhBackend::new(scene, &spec.bvh)?.with_intersector(spec.intersector))
+        }
         #[cfg(feature = "embree")]
         BackendKind::Embree => Box::new(embree::EmbreeBackend::new(
             scene,

@@ -6,11 +6,12 @@ use std::time::{Duration, Instant};
 use glam::Vec3;
 
 use super::Backend;
-use crate::geometry::{intersect_triangle, Hit, Ray};
+use crate::geometry::{Hit, Intersector, MollerTrumbore, Ray, TriangleTest, Watertight};
 use crate::scene::Scene;
 
 pub struct Naive {
     triangles: Vec<[Vec3; 3]>,
+    intersector: Intersector,
     build_time: Duration,
 }
 
@@ -20,6 +21,7 @@ impl Naive {
         let triangles = scene.triangle_vertices();
         Naive {
             triangles,
+            intersector: Intersector::Mt,
             build_time: start.elapsed(),
         }
     }
@@ -28,30 +30,28 @@ impl Naive {
     pub fn from_triangles(triangles: Vec<[Vec3; 3]>) -> Self {
         Naive {
             triangles,
+            intersector: Intersector::Mt,
             build_time: Duration::ZERO,
         }
     }
-}
 
-impl Backend for Naive {
-    fn name(&self) -> String {
-        "naive".into()
+    /// Uses `intersector` for the triangle tests.
+    pub fn with_intersector(mut self, intersector: Intersector) -> Self {
+        self.intersector = intersector;
+        self
     }
 
-    fn build_time(&self) -> Duration {
-        self.build_time
-    }
-
-    fn intersect(&self, ray: &Ray) -> Option<Hit> {
+    fn closest<T: TriangleTest>(&self, ray: &Ray) -> Option<Hit> {
         if !ray.is_valid() {
             return None;
         }
+        let prepared = T::prepare(ray);
         let mut ray = *ray;
         let mut best: Option<Hit> = None;
         for (i, tri) in self.triangles.iter().enumerate() {
             // Triangles are visited in index order and only a strictly nearer hit
             // replaces the best one, so equal-t ties keep the lowest index.
-            if let Some((t, u, v)) = intersect_triangle(&ray, tri) {
+            if let Some((t, u, v)) = T::test(&prepared, &ray, tri) {
                 ray.tmax = t;
                 best = Some(Hit {
                     t,
@@ -64,11 +64,40 @@ impl Backend for Naive {
         best
     }
 
+    fn any<T: TriangleTest>(&self, ray: &Ray) -> bool {
+        if !ray.is_valid() {
+            return false;
+        }
+        let prepared = T::prepare(ray);
+        self.triangles
+            .iter()
+            .any(|tri| T::test(&prepared, ray, tri).is_some())
+    }
+}
+
+impl Backend for Naive {
+    fn name(&self) -> String {
+        match self.intersector {
+            Intersector::Mt => "naive".into(),
+            other => format!("naive-{}", other.name()),
+        }
+    }
+
+    fn build_time(&self) -> Duration {
+        self.build_time
+    }
+
+    fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        match self.intersector {
+            Intersector::Mt => self.closest::<MollerTrumbore>(ray),
+            Intersector::Watertight => self.closest::<Watertight>(ray),
+        }
+    }
+
     fn occluded(&self, ray: &Ray) -> bool {
-        ray.is_valid()
-            && self
-                .triangles
-                .iter()
-                .any(|tri| intersect_triangle(ray, tri).is_some())
+        match self.intersector {
+            Intersector::Mt => self.any::<MollerTrumbore>(ray),
+            Intersector::Watertight => self.any::<Watertight>(ray),
+        }
     }
 }

@@ -20,7 +20,7 @@ use glam::Vec3;
 pub use build::{BuildParams, BuilderKind};
 
 use super::Backend;
-use crate::geometry::{Aabb, Hit, Ray};
+use crate::geometry::{Aabb, Hit, Intersector, Ray};
 use crate::scene::Scene;
 
 /// A BVH node: bounds, and either two children or a range of leaf triangles.
@@ -80,7 +80,8 @@ impl Bvh {
 /// The BVH as a render [`Backend`].
 pub struct BvhBackend {
     pub bvh: Bvh,
-    name: String,
+    builder: BuilderKind,
+    intersector: Intersector,
     build_time: Duration,
 }
 
@@ -93,15 +94,26 @@ impl BvhBackend {
         let bvh = Bvh::build(&triangles, params)?;
         Ok(BvhBackend {
             bvh,
-            name: format!("bvh-{}", params.builder.name()),
+            builder: params.builder,
+            intersector: Intersector::Mt,
             build_time: start.elapsed(),
         })
+    }
+
+    /// Uses `intersector` for the triangle tests.
+    pub fn with_intersector(mut self, intersector: Intersector) -> Self {
+        self.intersector = intersector;
+        self
     }
 }
 
 impl Backend for BvhBackend {
+    /// `bvh-<builder>`, with `-watertight` for the watertight triangle test.
     fn name(&self) -> String {
-        self.name.clone()
+        match self.intersector {
+            Intersector::Mt => format!("bvh-{}", self.builder.name()),
+            other => format!("bvh-{}-{}", self.builder.name(), other.name()),
+        }
     }
 
     fn build_time(&self) -> Duration {
@@ -110,11 +122,11 @@ impl Backend for BvhBackend {
 
     #[inline]
     fn intersect(&self, ray: &Ray) -> Option<Hit> {
-        self.bvh.intersect(ray)
+        self.bvh.intersect_using(ray, self.intersector)
     }
 
     #[inline]
     fn occluded(&self, ray: &Ray) -> bool {
-        self.bvh.occluded(ray)
+        self.bvh.occluded_using(ray, self.intersector)
     }
 }

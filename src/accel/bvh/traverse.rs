@@ -6,7 +6,9 @@
 //! empty methods compile away, and `raylab stats` uses [`Counts`].
 
 use super::Bvh;
-use crate::geometry::{intersect_triangle, safe_reciprocal, Hit, Ray};
+use crate::geometry::{
+    safe_reciprocal, Hit, Intersector, MollerTrumbore, Ray, TriangleTest, Watertight,
+};
 
 /// Depth bound of every builder's trees (see `build::MAX_SPLIT_DEPTH`).
 const STACK_SIZE: usize = 64;
@@ -51,16 +53,46 @@ impl Counter for Counts {
 }
 
 impl Bvh {
-    /// Closest hit (ties: lowest triangle index), as [`crate::accel::Backend::intersect`].
+    /// Closest hit (ties: lowest triangle index), as [`crate::accel::Backend::intersect`],
+    /// with Moller-Trumbore.
     #[inline]
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
         self.intersect_counted(ray, &mut NoCount)
     }
 
-    /// Any hit within the segment, as [`crate::accel::Backend::occluded`].
+    /// Any hit within the segment, as [`crate::accel::Backend::occluded`],
+    /// with Moller-Trumbore.
     #[inline]
     pub fn occluded(&self, ray: &Ray) -> bool {
         self.occluded_counted(ray, &mut NoCount)
+    }
+
+    /// Closest hit with the chosen ray/triangle test.
+    #[inline]
+    pub fn intersect_using(&self, ray: &Ray, intersector: Intersector) -> Option<Hit> {
+        match intersector {
+            Intersector::Mt => self.closest::<MollerTrumbore, _>(ray, &mut NoCount),
+            Intersector::Watertight => self.closest::<Watertight, _>(ray, &mut NoCount),
+        }
+    }
+
+    /// Any hit with the chosen ray/triangle test.
+    #[inline]
+    pub fn occluded_using(&self, ray: &Ray, intersector: Intersector) -> bool {
+        match intersector {
+            Intersector::Mt => self.any::<MollerTrumbore, _>(ray, &mut NoCount),
+            Intersector::Watertight => self.any::<Watertight, _>(ray, &mut NoCount),
+        }
+    }
+
+    /// Closest hit with Moller-Trumbore, counting work.
+    pub fn intersect_counted<C: Counter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
+        self.closest::<MollerTrumbore, C>(ray, counter)
+    }
+
+    /// Any hit with Moller-Trumbore, counting work.
+    pub fn occluded_counted<C: Counter>(&self, ray: &Ray, counter: &mut C) -> bool {
+        self.any::<MollerTrumbore, C>(ray, counter)
     }
 
     /// The entry distance of node `i` if its box overlaps `(tmin, tmax)`.
@@ -75,10 +107,11 @@ impl Bvh {
         )
     }
 
-    pub fn intersect_counted<C: Counter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
+    fn closest<T: TriangleTest, C: Counter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
         if self.nodes.is_empty() || !ray.is_valid() {
             return None;
         }
+        let prepared = T::prepare(ray);
         let inv_dir = safe_reciprocal(ray.dir);
         let mut best: Option<Hit> = None;
         // Triangle tests use `tmax` just above the best t so that a hit at the same
@@ -109,7 +142,7 @@ impl Bvh {
                 let first = node.offset as usize;
                 for slot in first..first + node.count as usize {
                     counter.triangle();
-                    if let Some((t, u, v)) = intersect_triangle(&test_ray, &self.tris[slot]) {
+                    if let Some((t, u, v)) = T::test(&prepared, &test_ray, &self.tris[slot]) {
                         let hit = Hit {
                             t,
                             u,
@@ -148,10 +181,11 @@ impl Bvh {
         best
     }
 
-    pub fn occluded_counted<C: Counter>(&self, ray: &Ray, counter: &mut C) -> bool {
+    fn any<T: TriangleTest, C: Counter>(&self, ray: &Ray, counter: &mut C) -> bool {
         if self.nodes.is_empty() || !ray.is_valid() {
             return false;
         }
+        let prepared = T::prepare(ray);
         let inv_dir = safe_reciprocal(ray.dir);
         if self.enter(0, ray, inv_dir, ray.tmax).is_none() {
             return false;
@@ -176,7 +210,7 @@ impl Bvh {
                 let first = node.offset as usize;
                 for slot in first..first + node.count as usize {
                     counter.triangle();
-                    if intersect_triangle(ray, &self.tris[slot]).is_some() {
+                    if T::test(&prepared, ray, &self.tris[slot]).is_some() {
                         return true;
                     }
                 }
