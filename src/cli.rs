@@ -38,6 +38,9 @@ enum Command {
     Render(RenderArgs),
     /// Check one backend's hits against another's on the same ray sets.
     Validate(ValidateArgs),
+    /// Find where intersection methods fail: leaks, self-intersection offsets,
+    /// degenerate and hostile input.
+    Stress(StressArgs),
     /// BVH quality per scene and builder: build times, shape, SAH cost, and
     /// traversal work per ray measured over a render.
     Stats(StatsArgs),
@@ -455,6 +458,102 @@ fn run_validate(args: &ValidateArgs) -> Result<()> {
     }
 }
 
+#[derive(Args, Debug)]
+struct StressArgs {
+    /// Which suite to run.
+    #[arg(long, value_name = "SUITE", default_value = "all", value_parser = ["leaks", "offset", "degenerate", "hostile", "all"])]
+    suite: String,
+    /// Small meshes and few rays (what the tests run): seconds instead of minutes.
+    #[arg(long)]
+    quick: bool,
+    /// Extra closed meshes for the leak suite (outside rays only).
+    #[arg(long, value_name = "OBJ")]
+    mesh: Vec<PathBuf>,
+    /// Write stress.md, stress.json and leaks.csv into this folder.
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+    /// Print the report as one JSON object on stdout instead of tables.
+    #[arg(long)]
+    json: bool,
+}
+
+fn run_stress(args: &StressArgs) -> Result<()> {
+    use crate::stress::*;
+    let want = |name: &str| args.suite == "all" || args.suite == name;
+    if let Some(dir) = &args.out {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+        output::check_writable(&dir.join("probe.png"))?;
+    }
+    let mut report = StressReport::default();
+    let q = args.quick;
+    if want("leaks") {
+        eprintln!("stress: leaks ...");
+        let mut meshes = leak_meshes(q);
+        for path in &args.mesh {
+            meshes.push(obj_mesh(path)?);
+        }
+        report.leaks = leak_suite(&meshes, if q { 2 } else { 4 })?;
+    }
+    if want("offset") {
+        eprintln!("stress: offset ...");
+        let shifts: &[f32] = if q {
+            &[0.0, 1e2, 1e4, 1e6]
+        } else {
+            &[0.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6]
+        };
+        report.offset = offset_suite(shifts, if q { 2000 } else { 20_000 })?;
+    }
+    if want("degenerate") {
+        eprintln!("stress: degenerate ...");
+        report.degenerate = degenerate_suite(if q { 2000 } else { 20_000 })?;
+    }
+    if want("hostile") {
+        eprintln!("stress: hostile ...");
+        report.hostile = Some(hostile_suite(if q { 500 } else { 5000 }, 1)?);
+    }
+    let json = serde_json::to_string_pretty(&report).map_err(|e| Error::Other(e.to_string()))?;
+    if let Some(dir) = &args.out {
+        let write = |name: &str, text: &str| {
+            let path = dir.join(name);
+            std::fs::write(&path, text).map_err(|e| Error::io(&path, e))
+        };
+        write("stress.md", &report.markdown())?;
+        write("stress.json", &json)?;
+        let mut csv =
+            String::from("mesh,triangles,backend,intersector,rays,leaks,leak_rate,ns_per_ray\n");
+        for r in &report.leaks {
+            csv.push_str(&format!(
+                "{},{},{},{},{},{},{},{}\n",
+                r.mesh,
+                r.triangles,
+                r.backend,
+                r.intersector,
+                r.rays,
+                r.leaks,
+                r.leak_rate,
+                r.ns_per_ray
+            ));
+        }
+        write("leaks.csv", &csv)?;
+    }
+    if args.json {
+        println!("{json}");
+    } else {
+        print!("{}", report.markdown());
+    }
+    let hostile_failed = report
+        .hostile
+        .as_ref()
+        .is_some_and(|h| h.panics > 0 || h.invalid_scenes > 0 || h.multi_line_errors > 0);
+    let nan = report.degenerate.iter().any(|r| r.nan_results > 0);
+    if hostile_failed || nan {
+        return Err(Error::Other(
+            "stress: raylab itself failed (panic, NaN or invalid scene): see the report".into(),
+        ));
+    }
+    Ok(())
+}
+
 fn run_stats(args: &StatsArgs) -> Result<()> {
     let settings = args.view.settings()?;
     let threads = args.threads.unwrap_or_else(default_threads);
@@ -810,6 +909,7 @@ pub fn main() -> i32 {
         Command::Render(args) => run_render(args),
         Command::Stats(args) => run_stats(args),
         Command::Validate(args) => run_validate(args),
+        Command::Stress(args) => run_stress(args),
         Command::Scenes => {
             for (name, about) in BUILTIN_SCENES.iter().chain(PROCEDURAL_SCENES) {
                 println!("{name:18} {about}");

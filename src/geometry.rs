@@ -359,6 +359,75 @@ impl TriangleTest for Watertight {
     }
 }
 
+/// Where secondary rays start, to avoid hitting the surface they leave
+/// (self-intersection). `raylab stress --suite offset` measures each.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OffsetStrategy {
+    /// The hit point itself, `tmin = 0`.
+    None,
+    /// Moved 1e-4 scene units along the normal.
+    Fixed,
+    /// Moved `1e-4 * max(1, |p|_max)` along the normal.
+    Scaled,
+    /// The hit point, with `tmin = 1e-4 * max(1, |p|_max)` instead of a moved origin.
+    Tmin,
+    /// Wachter and Binder (Ray Tracing Gems, ch. 6): each coordinate moved by
+    /// 256 * n units in the last place (a fixed 1/65536 * n near the origin).
+    Ulp,
+}
+
+impl OffsetStrategy {
+    pub const ALL: [OffsetStrategy; 5] = [
+        OffsetStrategy::None,
+        OffsetStrategy::Fixed,
+        OffsetStrategy::Scaled,
+        OffsetStrategy::Tmin,
+        OffsetStrategy::Ulp,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            OffsetStrategy::None => "none",
+            OffsetStrategy::Fixed => "fixed",
+            OffsetStrategy::Scaled => "scaled",
+            OffsetStrategy::Tmin => "tmin",
+            OffsetStrategy::Ulp => "ulp",
+        }
+    }
+
+    /// The origin and `tmin` of a ray leaving point `p` on the side of unit
+    /// normal `n`.
+    #[inline]
+    pub fn apply(self, p: Vec3, n: Vec3) -> (Vec3, f32) {
+        let scale = || 1e-4 * p.abs().max_element().max(1.0);
+        match self {
+            OffsetStrategy::None => (p, 0.0),
+            OffsetStrategy::Fixed => (p + n * 1e-4, 0.0),
+            OffsetStrategy::Scaled => (p + n * scale(), 0.0),
+            OffsetStrategy::Tmin => (p, scale()),
+            OffsetStrategy::Ulp => (offset_ulp(p, n), 0.0),
+        }
+    }
+}
+
+/// Wachter and Binder's offset: per coordinate, `256 * n` units in the last
+/// place away from the surface, which is a relative step whatever the magnitude;
+/// near zero, where ULPs are tiny, a fixed `n / 65536` instead.
+#[inline]
+pub fn offset_ulp(p: Vec3, n: Vec3) -> Vec3 {
+    const NEAR_ORIGIN: f32 = 1.0 / 32.0;
+    let step = |pc: f32, nc: f32| {
+        if pc.abs() < NEAR_ORIGIN {
+            return pc + nc / 65536.0;
+        }
+        let ulps = (256.0 * nc) as i32;
+        let ulps = if pc < 0.0 { -ulps } else { ulps };
+        f32::from_bits((pc.to_bits() as i32).wrapping_add(ulps) as u32)
+    };
+    Vec3::new(step(p.x, n.x), step(p.y, n.y), step(p.z, n.z))
+}
+
 /// The unnormalised geometric normal `(v1 - v0) x (v2 - v0)` (length = 2 * area).
 #[inline]
 pub fn triangle_normal(tri: &[Vec3; 3]) -> Vec3 {

@@ -17,6 +17,7 @@ pub mod progress;
 pub mod render;
 pub mod scene;
 pub mod stats;
+pub mod stress;
 pub mod validate;
 
 pub use error::{Error, Result};

@@ -181,6 +181,64 @@ fn json_report_has_the_stable_keys_and_matches_the_png() {
 }
 
 #[test]
+fn stress_quick_writes_its_report() {
+    let d = temp_dir("stress");
+    let out = raylab(&[
+        "stress",
+        "--quick",
+        "--suite",
+        "leaks",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        table.contains("| icosphere-320 |") && table.contains("naive-watertight"),
+        "{table}"
+    );
+    for f in ["stress.md", "stress.json", "leaks.csv"] {
+        assert!(d.join(f).is_file(), "{f} missing");
+    }
+    let csv = std::fs::read_to_string(d.join("leaks.csv")).unwrap();
+    assert!(csv.lines().count() > 6 && csv.starts_with("mesh,triangles,backend"));
+    assert_one_line_error(&["stress", "--suite", "everything"], "--suite");
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn intersector_flag_selects_the_watertight_test() {
+    let d = temp_dir("wt");
+    let o = d.join("wt.png");
+    let out = raylab(&[
+        "render",
+        "cornell-sphere",
+        "--backend",
+        "bvh",
+        "--intersector",
+        "watertight",
+        "--size",
+        "32x24",
+        "--json",
+        "-q",
+        "-o",
+        o.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["backend"], "bvh-sah-watertight");
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
 fn scenes_lists_the_builtins() {
     let out = raylab(&["scenes"]);
     assert!(out.status.success());

@@ -100,6 +100,18 @@ impl BvhBackend {
         })
     }
 
+    /// Builds over raw triangles (degenerate ones included), for stress tests.
+    pub fn from_triangles(triangles: &[[Vec3; 3]], params: &BuildParams) -> crate::Result<Self> {
+        let start = Instant::now();
+        let bvh = Bvh::build(triangles, params)?;
+        Ok(BvhBackend {
+            bvh,
+            builder: params.builder,
+            intersector: Intersector::Mt,
+            build_time: start.elapsed(),
+        })
+    }
+
     /// Uses `intersector` for the triangle tests.
     pub fn with_intersector(mut self, intersector: Intersector) -> Self {
         self.intersector = intersector;

@@ -312,10 +312,20 @@ impl EmbreeBackend {
     /// Builds on a device with `threads` build threads; the build time covers
     /// device creation, buffer copies and the BVH build.
     pub fn new(scene: &Scene, quality: Quality, robust: bool, threads: usize) -> Result<Self> {
+        Self::from_mesh(&scene.positions, &scene.triangles, quality, robust, threads)
+    }
+
+    /// Builds over raw arrays (degenerate triangles included), for stress tests.
+    pub fn from_mesh(
+        positions: &[Vec3],
+        triangles: &[[u32; 3]],
+        quality: Quality,
+        robust: bool,
+        threads: usize,
+    ) -> Result<Self> {
         let start = Instant::now();
         let device = Device::new(&format!("threads={threads}"))?;
-        let embree =
-            EmbreeScene::new(&device, &scene.positions, &scene.triangles, quality, robust)?;
+        let embree = EmbreeScene::new(&device, positions, triangles, quality, robust)?;
         Ok(EmbreeBackend {
             scene: embree,
             name: format!(

@@ -1,0 +1,90 @@
+//! Every `raylab stress` suite in quick mode, with the properties the project
+//! promises asserted: no leaks for watertight tests and robust Embree, the
+//! default offset free of self-hits, degenerate input harmless, hostile files
+//! rejected cleanly. Moller-Trumbore's and plain Embree's leaks are counted by
+//! the suite, not asserted.
+
+use raylab::geometry::{Intersector, OffsetStrategy};
+use raylab::stress::*;
+
+#[test]
+fn watertight_and_robust_embree_never_leak_on_closed_meshes() {
+    let rows = leak_suite(&leak_meshes(true), 2).unwrap();
+    assert!(rows.len() >= 4 * 6, "{} rows", rows.len());
+    for r in &rows {
+        assert!(r.rays > 100, "{}: only {} rays", r.mesh, r.rays);
+        if r.intersector == "watertight" || r.backend.ends_with("-robust") {
+            assert_eq!(
+                r.leaks, 0,
+                "{} leaks {} of {} rays on {}",
+                r.backend, r.leaks, r.rays, r.mesh
+            );
+        }
+    }
+    // The suite must be able to see leaks at all: MT leaks somewhere.
+    assert!(rows.iter().any(|r| r.backend == "naive" && r.leaks > 0));
+}
+
+#[test]
+fn leak_rays_hit_when_aimed_from_inside() {
+    // Every ray from the centre of a sphere must hit it; naive MT may leak only a few.
+    let mesh = icosphere(1);
+    let rays = leak_rays(&mesh, 0, 1);
+    assert_eq!(
+        rays.len(),
+        42 + 2 * 120,
+        "one inside ray per vertex and two per edge"
+    );
+}
+
+#[test]
+fn default_offset_has_no_self_hits_and_finds_near_occluders() {
+    let rows = offset_suite(&[0.0, 1e3, 1e6], 1000).unwrap();
+    for r in rows.iter().filter(|r| r.strategy == OffsetStrategy::Ulp) {
+        assert_eq!(r.self_hit_rate, 0.0, "{r:?}");
+        assert_eq!(r.missed_at_1e3, 0.0, "{r:?}");
+        assert_eq!(r.missed_at_5e5, 0.0, "{r:?}");
+    }
+    // The suite must be able to see self-hits: no offset at all self-hits far out.
+    assert!(rows.iter().any(|r| r.strategy == OffsetStrategy::None
+        && r.intersector == Intersector::Mt
+        && r.self_hit_rate > 0.05));
+}
+
+#[test]
+fn degenerate_input_gives_no_nan_and_agrees_with_naive() {
+    let rows = degenerate_suite(1000).unwrap();
+    let cases = degenerate_cases().len();
+    assert_eq!(rows.len() % cases, 0);
+    assert!(rows.len() / cases >= 6, "every backend on every case");
+    for r in &rows {
+        assert_eq!(r.nan_results, 0, "{r:?}");
+        assert_eq!(r.genuine_vs_naive, 0, "{r:?}");
+    }
+}
+
+#[test]
+fn hostile_files_never_panic_and_never_load_invalid_scenes() {
+    let r = hostile_suite(3000, 2024).unwrap();
+    assert_eq!(r.panics, 0, "{r:?}");
+    assert_eq!(r.invalid_scenes, 0, "{r:?}");
+    assert_eq!(r.multi_line_errors, 0, "{r:?}");
+    // Both outcomes must occur, or the mutations test nothing.
+    assert!(r.loaded > 100 && r.rejected > 100, "{r:?}");
+}
+
+#[test]
+fn report_has_every_table() {
+    let report = StressReport {
+        leaks: leak_suite(&[cube(1)], 1).unwrap(),
+        offset: offset_suite(&[0.0], 50).unwrap(),
+        degenerate: degenerate_suite(50).unwrap(),
+        hostile: Some(hostile_suite(20, 1).unwrap()),
+    };
+    let md = report.markdown();
+    for heading in ["## Leaks", "## Offset", "## Degenerate", "## Hostile"] {
+        assert!(md.contains(heading), "{heading} missing");
+    }
+    let json: serde_json::Value = serde_json::to_value(&report).unwrap();
+    assert!(json["leaks"].as_array().unwrap().len() >= 6);
+}
