@@ -322,11 +322,9 @@ fn run_validate(args: &ValidateArgs) -> Result<()> {
     };
     let count = args.count as usize;
     let spec = backend_spec(args.backend, &args.bvh, &args.embree, threads);
-    let reference_spec = BackendSpec {
-        bvh: BuildParams::sah().with_threads(threads),
-        ..BackendSpec::embree(Quality::Medium, false)
-    }
-    .with_kind(args.against);
+    // The reference with its defaults (Embree MEDIUM, SAH BVH, MT) on `threads`.
+    let reference_spec =
+        BackendSpec::bvh(BuildParams::sah().with_threads(threads)).with_kind(args.against);
     let mut reports = Vec::new();
     for name in &names {
         let scene = load_scene(name)?;

@@ -38,15 +38,6 @@ pub struct TestMesh {
     inside: fn(Vec3) -> Option<Vec3>,
 }
 
-impl TestMesh {
-    pub fn triangle_vertices(&self) -> Vec<[Vec3; 3]> {
-        self.triangles
-            .iter()
-            .map(|t| t.map(|i| self.positions[i as usize]))
-            .collect()
-    }
-}
-
 fn at_origin(_: Vec3) -> Option<Vec3> {
     Some(Vec3::ZERO)
 }

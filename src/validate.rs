@@ -286,6 +286,7 @@ pub fn compare(
         ..SetReport::default()
     };
     let mut dt_sum = 0.0;
+    let mut both_miss = 0;
     for (agreement, dt, occlusion_differs, same_tri) in &per_ray {
         match agreement {
             Agreement::Tie => r.ties += 1,
@@ -294,10 +295,13 @@ pub fn compare(
         }
         r.occlusion_mismatches += *occlusion_differs as usize;
         r.same_triangle += *same_tri as usize;
-        if let Some(dt) = dt {
-            r.both_hit += 1;
-            dt_sum += dt;
-            r.max_rel_dt = r.max_rel_dt.max(*dt);
+        match dt {
+            Some(dt) => {
+                r.both_hit += 1;
+                dt_sum += dt;
+                r.max_rel_dt = r.max_rel_dt.max(*dt);
+            }
+            None => both_miss += (*agreement == Agreement::Same) as usize,
         }
     }
     r.examples = rays
@@ -316,11 +320,6 @@ pub fn compare(
             reference_occluded: b.occluded(ray),
         })
         .collect();
-    let both_miss = rays
-        .iter()
-        .zip(&per_ray)
-        .filter(|(_, (agreement, dt, ..))| dt.is_none() && *agreement == Agreement::Same)
-        .count();
     r.hit_miss_agree = r.both_hit + both_miss;
     r.mean_rel_dt = if r.both_hit > 0 {
         dt_sum / r.both_hit as f64

@@ -64,10 +64,6 @@ pub struct BackendSpec {
 }
 
 impl BackendSpec {
-    pub fn naive() -> Self {
-        Self::bvh(bvh::BuildParams::sah()).with_kind(BackendKind::Naive)
-    }
-
     pub fn bvh(params: bvh::BuildParams) -> Self {
         BackendSpec {
             kind: BackendKind::Bvh,
@@ -75,14 +71,6 @@ impl BackendSpec {
             intersector: crate::geometry::Intersector::Mt,
             embree_quality: embree::Quality::Medium,
             embree_robust: false,
-        }
-    }
-
-    pub fn embree(quality: embree::Quality, robust: bool) -> Self {
-        BackendSpec {
-            embree_quality: quality,
-            embree_robust: robust,
-            ..Self::bvh(bvh::BuildParams::sah()).with_kind(BackendKind::Embree)
         }
     }
 

@@ -157,7 +157,6 @@ impl Bvh {
                 }
                 continue;
             }
-            let best_t = best.map_or(ray.tmax, |h| h.t);
             let (left, right) = (index + 1, node.offset);
             let tl = self.enter(left, ray, inv_dir, best_t);
             let tr = self.enter(right, ray, inv_dir, best_t);

@@ -122,7 +122,9 @@ pub fn version() -> String {
 /// A committed Embree scene holding one triangle mesh.
 pub struct EmbreeScene {
     raw: ffi::RTCScene,
-    device: Arc<Device>,
+    /// Held, never read: the device (and the error log its callback writes to)
+    /// must outlive every scene made on it.
+    _device: Arc<Device>,
 }
 
 // SAFETY: a committed scene is immutable and Embree allows rtcIntersect1 and
@@ -155,7 +157,7 @@ impl EmbreeScene {
         let scene = unsafe { ffi::rtcNewScene(raw_device) };
         let this = EmbreeScene {
             raw: scene,
-            device: device.clone(),
+            _device: device.clone(),
         };
         device.check("rtcNewScene")?;
         let quality = match quality {
@@ -267,10 +269,6 @@ impl EmbreeScene {
         // SAFETY: as in `intersect`.
         unsafe { api::occluded1(self.raw, &mut r) };
         r.tfar == f32::NEG_INFINITY
-    }
-
-    pub fn device(&self) -> &Arc<Device> {
-        &self.device
     }
 }
 
