@@ -44,8 +44,167 @@ enum Command {
     /// BVH quality per scene and builder: build times, shape, SAH cost, and
     /// traversal work per ray measured over a render.
     Stats(StatsArgs),
+    /// The study's tables (times and speedups of every variant over scenes,
+    /// views and AO modes), scaling and accuracy charts, and an HTML report.
+    Bench(BenchArgs),
     /// List the built-in scenes.
     Scenes,
+}
+
+#[derive(Args, Debug)]
+struct BenchArgs {
+    /// .obj files or built-in names [default: the four built-in Cornell boxes].
+    scenes: Vec<String>,
+    /// Camera positions looking at (0,1,0): `paper` for the study's (0,1,3) and
+    /// (2,1,3), or eye positions separated by spaces or semicolons ("0,1,3;2,1,3").
+    #[arg(long, value_name = "paper|X,Y,Z...", default_value = "paper", allow_hyphen_values = true)]
+    views: String,
+    /// Variants: all, paper (the study's combinations), or names separated by commas.
+    #[arg(long, value_name = "LIST", default_value = "all")]
+    variants: String,
+    /// AO modes of the tables: off, paper or both.
+    #[arg(long, value_name = "MODE", default_value = "both", value_parser = ["off", "paper", "both"])]
+    ao: String,
+    /// Measured runs per variant and cell, after one warm-up [default: 10; 1 and
+    /// no warm-up with --quick].
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=1000))]
+    reps: Option<u32>,
+    /// Image size [default: 1024x768; 96x72 with --quick].
+    #[arg(long, value_name = "WxH", value_parser = parse_size)]
+    size: Option<(u32, u32)>,
+    /// Worker threads of the parallel variants [default: all hardware threads].
+    #[arg(long, value_name = "N", value_parser = parse_threads)]
+    threads: Option<usize>,
+    /// Small images, one rep and small experiments: under a minute (what CI runs).
+    #[arg(long)]
+    quick: bool,
+    /// Stop repeating a variant in a cell once its runs would pass this many
+    /// seconds (it keeps at least one run): caps the naive loop on big scenes.
+    #[arg(long, value_name = "S", default_value_t = 60.0)]
+    max_variant_s: f64,
+    /// Parts to run, separated by commas: all, or tables, scaling, growth,
+    /// ao-error, builders, leaks, validate.
+    #[arg(long, value_name = "LIST", default_value = "all")]
+    parts: String,
+    /// Folder for bench.md, bench.csv, bench.json, charts/, images/ and index.html.
+    #[arg(long, value_name = "DIR", default_value = "bench-report")]
+    out: PathBuf,
+    /// Print the report as one JSON object on stdout instead of the tables.
+    #[arg(long)]
+    json: bool,
+    /// No progress on stderr.
+    #[arg(long, short = 'q')]
+    quiet: bool,
+}
+
+/// Parses `--views`.
+fn parse_views(s: &str) -> Result<Vec<crate::bench::measure::View>> {
+    use crate::bench::measure::View;
+    if s.trim() == "paper" {
+        return Ok(View::PAPER.to_vec());
+    }
+    let views = s
+        .split([';', ' '])
+        .map(str::trim)
+        .filter(|p| !p.is_empty())
+        .map(|p| {
+            let eye = parse_vec3(p).map_err(|e| Error::usage("--views", format!("'{p}': {e}")))?;
+            if eye == Vec3::new(0.0, 1.0, 0.0) {
+                return Err(Error::usage("--views", format!("'{p}' is the point looked at")));
+            }
+            Ok(View { eye, look: Vec3::new(0.0, 1.0, 0.0) })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    if views.is_empty() {
+        return Err(Error::usage("--views", "no view given"));
+    }
+    Ok(views)
+}
+
+fn parse_parts(s: &str) -> Result<Vec<&'static str>> {
+    use crate::bench::PARTS;
+    let mut out = Vec::new();
+    for p in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        if p == "all" {
+            out.extend(PARTS);
+            continue;
+        }
+        let known = PARTS.iter().find(|k| **k == p).ok_or_else(|| {
+            Error::usage(
+                "--parts",
+                format!("unknown part '{p}' (known: all, {})", PARTS.join(", ")),
+            )
+        })?;
+        out.push(*known);
+    }
+    if out.is_empty() {
+        return Err(Error::usage("--parts", "no part given"));
+    }
+    Ok(out)
+}
+
+fn run_bench(args: &BenchArgs) -> Result<()> {
+    use crate::bench::{self, BenchConfig};
+    if !(args.max_variant_s.is_finite() && args.max_variant_s > 0.0) {
+        return Err(Error::usage("--max-variant-s", "must be a positive number of seconds"));
+    }
+    let views = parse_views(&args.views)?;
+    let variants = bench::variants::parse_variants(&args.variants)?;
+    let ao_modes = match args.ao.as_str() {
+        "off" => vec![AoMode::Off],
+        "paper" => vec![AoMode::Paper],
+        _ => vec![AoMode::Off, AoMode::Paper],
+    };
+    let cfg = BenchConfig {
+        scenes: args.scenes.clone(),
+        views,
+        variants,
+        ao_modes,
+        reps: args.reps.unwrap_or(if args.quick { 1 } else { 10 }) as usize,
+        size: args.size.unwrap_or(if args.quick { (96, 72) } else { (1024, 768) }),
+        threads: args.threads.unwrap_or_else(default_threads),
+        quick: args.quick,
+        max_variant_s: args.max_variant_s,
+        parts: parse_parts(&args.parts)?,
+        out: args.out.clone(),
+        quiet: args.quiet,
+    };
+    let names: Vec<String> = if cfg.scenes.is_empty() {
+        BUILTIN_SCENES.iter().map(|(n, _)| n.to_string()).collect()
+    } else {
+        cfg.scenes.clone()
+    };
+    let scenes = names
+        .iter()
+        .map(|n| load_scene(n))
+        .collect::<Result<Vec<_>>>()?;
+    let report = bench::run(&cfg, &scenes)?;
+    if args.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&report).map_err(|e| Error::Other(e.to_string()))?
+        );
+    } else {
+        print!("{}", bench::markdown(&report));
+        println!(
+            "Report: {} (also bench.md, bench.csv, bench.json, charts/); {:.0} s.",
+            cfg.out.join("index.html").display(),
+            report.elapsed_s
+        );
+    }
+    if let Some(m) = report.measurements.iter().find(|m| !m.deterministic) {
+        return Err(Error::Other(format!(
+            "bench: {} gave different images in repeated runs on {} {}",
+            m.variant, m.scene, m.view
+        )));
+    }
+    if let Some(v) = report.validation.iter().find(|v| v.genuine > 0) {
+        return Err(Error::Other(format!(
+            "bench: {} disagrees with {} on {} rays of {}",
+            v.tested, v.reference, v.genuine, v.scene
+        )));
+    }
+    Ok(())
 }
 
 /// Camera and shading flags shared by commands that render.
@@ -300,9 +459,7 @@ fn diff_image_path(base: &Path, scene: &str, several: bool) -> PathBuf {
 }
 
 fn run_validate(args: &ValidateArgs) -> Result<()> {
-    use crate::validate::{
-        compare, mismatch_image, primary_rays, random_rays, recorded_rays, subsample, RaySet,
-    };
+    use crate::validate::{compare, mismatch_image, ray_sets, RaySet};
     let settings = args.view.settings()?;
     let threads = args.threads.unwrap_or_else(default_threads);
     let names: Vec<String> = if args.scenes.is_empty() {
@@ -337,33 +494,22 @@ fn run_validate(args: &ValidateArgs) -> Result<()> {
         } else {
             reference.as_ref()
         };
-        let needs_recording = sets
-            .iter()
-            .any(|s| matches!(s, RaySet::Shadow | RaySet::Ao));
-        let (shadow, ao) = if needs_recording {
-            recorded_rays(&scene, recorder, &settings)?
-        } else {
-            (Vec::new(), Vec::new())
-        };
+        let set_rays = ray_sets(
+            &scene,
+            recorder,
+            &settings,
+            &sets,
+            count,
+            args.diff_image.is_some(),
+        )?;
         let mut set_reports = Vec::new();
         let mut diff_written = None;
-        for set in &sets {
-            let (label, rays) = match set {
-                RaySet::Primary => ("primary", primary_rays(&settings)),
-                RaySet::Shadow => ("shadow", subsample(shadow.clone(), count)),
-                RaySet::Ao => ("ao", subsample(ao.clone(), count)),
-                RaySet::Random => ("random", random_rays(scene.bounds(), count, settings.seed)),
-            };
+        for (set, rays) in &set_rays {
+            let (label, rays) = (set.name(), rays);
             let is_primary = *set == RaySet::Primary;
-            // Primary rays are kept whole for the picture, and subsampled to compare otherwise.
-            let rays = if is_primary && args.diff_image.is_none() {
-                subsample(rays, count)
-            } else {
-                rays
-            };
             let (report, agreements) = compare(
                 label,
-                &rays,
+                rays,
                 tested.as_ref(),
                 reference.as_ref(),
                 &triangles,
@@ -908,6 +1054,7 @@ pub fn main() -> i32 {
         Command::Stats(args) => run_stats(args),
         Command::Validate(args) => run_validate(args),
         Command::Stress(args) => run_stress(args),
+        Command::Bench(args) => run_bench(args),
         Command::Scenes => {
             for (name, about) in BUILTIN_SCENES.iter().chain(PROCEDURAL_SCENES) {
                 println!("{name:18} {about}");

@@ -9,6 +9,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod accel;
+pub mod bench;
 pub mod camera;
 pub mod cli;
 pub mod error;

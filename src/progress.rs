@@ -74,3 +74,73 @@ impl Progress {
         }
     }
 }
+
+/// Progress through a list of steps of uneven length (the bench matrix): a bar
+/// with the running step's name and an estimate of the time left on a terminal,
+/// and otherwise one line on stderr per new message, so logs show the same.
+pub struct StepBar {
+    bar: Option<ProgressBar>,
+    quiet: bool,
+    start: Instant,
+    total: u64,
+    done: AtomicU64,
+}
+
+impl StepBar {
+    pub fn new(total: u64, quiet: bool) -> Self {
+        let target = ProgressDrawTarget::stderr();
+        let bar = (!quiet && !target.is_hidden()).then(|| {
+            let b = ProgressBar::with_draw_target(Some(total), target);
+            b.set_style(
+                ProgressStyle::with_template(
+                    "[{bar:30}] {pos}/{len} {elapsed} eta {eta} {wide_msg}",
+                )
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> "),
+            );
+            b.enable_steady_tick(Duration::from_millis(500));
+            b
+        });
+        StepBar {
+            bar,
+            quiet,
+            start: Instant::now(),
+            total,
+            done: AtomicU64::new(0),
+        }
+    }
+
+    /// Names the step now running.
+    pub fn set_message(&self, msg: String) {
+        match &self.bar {
+            Some(b) => b.set_message(msg),
+            None if !self.quiet => {
+                let done = self.done.load(Ordering::Relaxed);
+                let elapsed = self.start.elapsed().as_secs_f64();
+                let eta = if done > 0 {
+                    format!(
+                        ", ~{:.0} s left",
+                        elapsed / done as f64 * (self.total - done.min(self.total)) as f64
+                    )
+                } else {
+                    String::new()
+                };
+                eprintln!("bench [{done}/{}, {elapsed:.0} s{eta}] {msg}", self.total);
+            }
+            None => {}
+        }
+    }
+
+    pub fn inc(&self, n: u64) {
+        self.done.fetch_add(n, Ordering::Relaxed);
+        if let Some(b) = &self.bar {
+            b.inc(n);
+        }
+    }
+
+    pub fn finish(&self) {
+        if let Some(b) = &self.bar {
+            b.finish_and_clear();
+        }
+    }
+}

@@ -185,6 +185,52 @@ pub fn recorded_rays(
     Ok((take(recorder.shadow), take(recorder.ao)))
 }
 
+impl RaySet {
+    pub fn name(self) -> &'static str {
+        match self {
+            RaySet::Primary => "primary",
+            RaySet::Shadow => "shadow",
+            RaySet::Ao => "ao",
+            RaySet::Random => "random",
+        }
+    }
+}
+
+/// The rays of each of `sets`, at most `count` per set (evenly subsampled), except
+/// that primary rays are kept whole (one per pixel, in raster order) when
+/// `whole_primary`. Shadow and AO rays are those a serial render with `recorder`
+/// casts.
+pub fn ray_sets(
+    scene: &Scene,
+    recorder: &dyn Backend,
+    settings: &RenderSettings,
+    sets: &[RaySet],
+    count: usize,
+    whole_primary: bool,
+) -> crate::Result<Vec<(RaySet, Vec<Ray>)>> {
+    let needs_recording = sets
+        .iter()
+        .any(|s| matches!(s, RaySet::Shadow | RaySet::Ao));
+    let (shadow, ao) = if needs_recording {
+        recorded_rays(scene, recorder, settings)?
+    } else {
+        (Vec::new(), Vec::new())
+    };
+    Ok(sets
+        .iter()
+        .map(|&set| {
+            let rays = match set {
+                RaySet::Primary if whole_primary => primary_rays(settings),
+                RaySet::Primary => subsample(primary_rays(settings), count),
+                RaySet::Shadow => subsample(shadow.clone(), count),
+                RaySet::Ao => subsample(ao.clone(), count),
+                RaySet::Random => random_rays(scene.bounds(), count, settings.seed),
+            };
+            (set, rays)
+        })
+        .collect())
+}
+
 /// `n` rays with origins uniform in `bounds` grown by half its size on every
 /// side and uniformly distributed directions; deterministic for a `seed`.
 pub fn random_rays(bounds: Aabb, n: usize, seed: u64) -> Vec<Ray> {

@@ -7,16 +7,21 @@ use std::path::{Path, PathBuf};
 use super::Frame;
 use crate::error::{Error, Result};
 
-/// The sRGB transfer function applied to a clamped linear value, rounded to 8 bits.
+/// The sRGB transfer function applied to a clamped linear value (NaN as 0).
 #[inline]
-pub fn linear_to_srgb8(x: f32) -> u8 {
+pub fn linear_to_srgb(x: f32) -> f32 {
     let x = if x.is_nan() { 0.0 } else { x.clamp(0.0, 1.0) };
-    let s = if x <= 0.003_130_8 {
+    if x <= 0.003_130_8 {
         12.92 * x
     } else {
         1.055 * x.powf(1.0 / 2.4) - 0.055
-    };
-    (s * 255.0 + 0.5) as u8
+    }
+}
+
+/// [`linear_to_srgb`] rounded to 8 bits.
+#[inline]
+pub fn linear_to_srgb8(x: f32) -> u8 {
+    (linear_to_srgb(x) * 255.0 + 0.5) as u8
 }
 
 /// The frame as 8-bit sRGB, RGB interleaved, row 0 at the top.

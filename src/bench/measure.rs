@@ -1,0 +1,375 @@
+//! The bench matrix: every variant on every (scene, view, AO mode) cell, with a
+//! warm-up and interleaved repetitions so that machine drift hits all variants of
+//! a cell alike.
+//!
+//! A run is what the study timed: build the backend from the loaded scene, then
+//! render; both are reported separately and summed. Slow variants are capped by a
+//! time budget per cell (`--max-variant-s`): a run longer than
+//! [`WARMUP_COUNTS_S`] is counted even when it is the warm-up (cold caches cost
+//! milliseconds, not seconds), and no run is started that would take the
+//! variant's measured time in the cell past the budget, once it has one run.
+
+use std::time::Instant;
+
+use glam::Vec3;
+use serde::Serialize;
+
+use super::variants::Variant;
+use crate::accel::{build_backend, BackendKind};
+use crate::camera::Camera;
+use crate::error::Result;
+use crate::progress::{Progress, StepBar};
+use crate::render::{output, render, AoMode, Frame, RenderSettings, RenderStats};
+use crate::scene::Scene;
+
+/// A run at least this long is measured even when it is the warm-up.
+pub const WARMUP_COUNTS_S: f64 = 2.0;
+
+/// A camera position looking at a point (up is +y, vertical FOV 60 degrees).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct View {
+    pub eye: Vec3,
+    pub look: Vec3,
+}
+
+impl View {
+    /// The study's two views of the box.
+    pub const PAPER: [View; 2] = [
+        View {
+            eye: Vec3::new(0.0, 1.0, 3.0),
+            look: Vec3::new(0.0, 1.0, 0.0),
+        },
+        View {
+            eye: Vec3::new(2.0, 1.0, 3.0),
+            look: Vec3::new(0.0, 1.0, 0.0),
+        },
+    ];
+
+    /// `(x,y,z)` of the eye, as the study's tables name views.
+    pub fn label(&self) -> String {
+        let f = |x: f32| format!("{x}");
+        format!("({},{},{})", f(self.eye.x), f(self.eye.y), f(self.eye.z))
+    }
+
+    pub fn settings(&self, size: (u32, u32), ao: AoMode, seed: u64) -> Result<RenderSettings> {
+        let camera = Camera::new(self.eye, self.look, Vec3::Y, 60.0, size.0, size.1)?;
+        let settings = RenderSettings {
+            width: size.0,
+            height: size.1,
+            camera,
+            ao,
+            ao_dist: 0.2,
+            light_samples: 1,
+            seed,
+        };
+        settings.validate()?;
+        Ok(settings)
+    }
+}
+
+/// Median, minimum and maximum of a set of times (ms).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Stat {
+    pub n: usize,
+    pub median: f64,
+    pub min: f64,
+    pub max: f64,
+}
+
+impl Stat {
+    /// Of `xs` (the median of an even count is the mean of the middle two).
+    pub fn of(xs: &[f64]) -> Stat {
+        if xs.is_empty() {
+            return Stat::default();
+        }
+        let mut v = xs.to_vec();
+        v.sort_by(f64::total_cmp);
+        let n = v.len();
+        let median = if n % 2 == 1 {
+            v[n / 2]
+        } else {
+            (v[n / 2 - 1] + v[n / 2]) / 2.0
+        };
+        Stat {
+            n,
+            median,
+            min: v[0],
+            max: v[n - 1],
+        }
+    }
+
+    /// `(max - min) / median`: the spread of the runs relative to the median.
+    pub fn spread(&self) -> f64 {
+        if self.median > 0.0 {
+            (self.max - self.min) / self.median
+        } else {
+            0.0
+        }
+    }
+}
+
+/// One variant on one cell.
+#[derive(Clone, Debug, Serialize)]
+pub struct Measurement {
+    pub scene: String,
+    pub triangles: usize,
+    pub view: String,
+    pub ao: String,
+    pub variant: String,
+    pub backend: String,
+    pub schedule: String,
+    pub build_threads: usize,
+    pub render_threads: usize,
+    pub build_ms: Stat,
+    pub render_ms: Stat,
+    /// Build plus render: what the study's tables report.
+    pub total_ms: Stat,
+    /// Whether the warm-up run was counted (it took over [`WARMUP_COUNTS_S`]).
+    pub warmup_counted: bool,
+    pub rays: u64,
+    /// All rays over the median render time.
+    pub mrays_per_s: f64,
+    /// FNV hash of the 8-bit image of the first run.
+    pub image_hash: String,
+    /// Whether every run of the variant gave the same image.
+    pub deterministic: bool,
+}
+
+/// What the matrix covers.
+#[derive(Clone, Debug)]
+pub struct Matrix<'a> {
+    pub scenes: &'a [Scene],
+    pub views: &'a [View],
+    pub ao_modes: &'a [AoMode],
+    pub variants: &'a [Variant],
+    pub size: (u32, u32),
+    pub threads: usize,
+    pub reps: usize,
+    /// One unmeasured run per variant and cell before the measured ones.
+    pub warmup: bool,
+    pub max_variant_s: f64,
+    pub seed: u64,
+    /// The AO mode whose first-view frames are kept for the report's pictures.
+    pub images_ao: Option<AoMode>,
+}
+
+/// A frame kept for the report: scene index, variant and the image.
+pub struct KeptFrame {
+    pub scene: usize,
+    pub variant: Variant,
+    pub frame: Frame,
+}
+
+impl Matrix<'_> {
+    /// Runs of the whole matrix, warm-ups included (the progress bar's length).
+    pub fn planned_runs(&self) -> u64 {
+        (self.scenes.len() * self.views.len() * self.ao_modes.len() * self.variants.len()) as u64
+            * (self.reps as u64 + self.warmup as u64)
+    }
+
+    /// Whether `variant` is the one whose frames stand for its backend kind.
+    fn represents(&self, variant: &Variant) -> bool {
+        let first_of = |kind: BackendKind, prefer: &str| {
+            self.variants
+                .iter()
+                .filter(|v| v.kind == kind)
+                .find(|v| v.name.starts_with(prefer))
+                .or_else(|| self.variants.iter().find(|v| v.kind == kind))
+                .copied()
+        };
+        let rep = match variant.kind {
+            BackendKind::Bvh => first_of(BackendKind::Bvh, "bvh-sah"),
+            kind => first_of(kind, ""),
+        };
+        rep == Some(*variant)
+    }
+
+    /// Measures every cell. Frames of the first view at `images_ao` are kept for
+    /// one variant per backend kind (naive, bvh, embree).
+    pub fn run(&self, bar: &StepBar) -> Result<(Vec<Measurement>, Vec<KeptFrame>)> {
+        let mut out = Vec::new();
+        let mut kept = Vec::new();
+        for (si, scene) in self.scenes.iter().enumerate() {
+            for (vi, view) in self.views.iter().enumerate() {
+                for &ao in self.ao_modes {
+                    let settings = view.settings(self.size, ao, self.seed)?;
+                    let cell = format!("{} {} ao {ao}", scene.name, view.label());
+                    let keep = vi == 0 && self.images_ao == Some(ao);
+                    let results = self.cell(scene, &settings, &cell, bar)?;
+                    for (variant, m, frame) in results {
+                        if keep && self.represents(&variant) {
+                            if let Some(frame) = frame {
+                                kept.push(KeptFrame {
+                                    scene: si,
+                                    variant,
+                                    frame,
+                                });
+                            }
+                        }
+                        out.push(Measurement {
+                            view: view.label(),
+                            ..m
+                        });
+                    }
+                }
+            }
+        }
+        Ok((out, kept))
+    }
+
+    /// All variants on one cell, interleaved.
+    fn cell(
+        &self,
+        scene: &Scene,
+        settings: &RenderSettings,
+        cell: &str,
+        bar: &StepBar,
+    ) -> Result<Vec<(Variant, Measurement, Option<Frame>)>> {
+        struct Acc {
+            build: Vec<f64>,
+            render: Vec<f64>,
+            spent_s: f64,
+            last_s: f64,
+            warmup_counted: bool,
+            hash: Option<String>,
+            deterministic: bool,
+            stats: RenderStats,
+            frame: Option<Frame>,
+            done: bool,
+        }
+        let mut acc: Vec<Acc> = self
+            .variants
+            .iter()
+            .map(|_| Acc {
+                build: Vec::new(),
+                render: Vec::new(),
+                spent_s: 0.0,
+                last_s: 0.0,
+                warmup_counted: false,
+                hash: None,
+                deterministic: true,
+                stats: RenderStats::default(),
+                frame: None,
+                done: false,
+            })
+            .collect();
+        for rep in (!self.warmup as usize)..=self.reps {
+            for (variant, a) in self.variants.iter().zip(acc.iter_mut()) {
+                let counted = a.build.len();
+                let over_budget = (counted >= 1 && a.spent_s + a.last_s > self.max_variant_s)
+                    || counted >= self.reps;
+                if a.done || over_budget {
+                    a.done = true;
+                    bar.inc(1);
+                    continue;
+                }
+                bar.set_message(format!(
+                    "{cell}: {} {}",
+                    variant.name,
+                    if rep == 0 {
+                        "warm-up".to_string()
+                    } else {
+                        format!("rep {rep}/{}", self.reps)
+                    }
+                ));
+                let (build_ms, render_ms, frame, stats) = run_once(scene, variant, settings, self.threads)?;
+                bar.inc(1);
+                let seconds = (build_ms + render_ms) / 1e3;
+                a.last_s = seconds;
+                let hash = output::image_hash(&output::to_srgb8(&frame));
+                match &a.hash {
+                    None => a.hash = Some(hash),
+                    Some(h) => a.deterministic &= *h == hash,
+                }
+                if a.frame.is_none() {
+                    a.frame = Some(frame);
+                }
+                a.stats = stats;
+                if rep == 0 && seconds < WARMUP_COUNTS_S {
+                    continue;
+                }
+                a.warmup_counted |= rep == 0;
+                a.build.push(build_ms);
+                a.render.push(render_ms);
+                a.spent_s += seconds;
+            }
+        }
+        Ok(self
+            .variants
+            .iter()
+            .zip(acc)
+            .map(|(variant, a)| {
+                let total: Vec<f64> = a.build.iter().zip(&a.render).map(|(b, r)| b + r).collect();
+                let render_ms = Stat::of(&a.render);
+                let rays = a.stats.total_rays();
+                let m = Measurement {
+                    scene: scene.name.clone(),
+                    triangles: scene.triangle_count(),
+                    view: String::new(),
+                    ao: settings.ao.to_string(),
+                    variant: variant.name.to_string(),
+                    backend: match variant.kind {
+                        BackendKind::Naive => "naive".to_string(),
+                        BackendKind::Bvh => format!("bvh-{}", variant.builder.name()),
+                        BackendKind::Embree => "embree".to_string(),
+                    },
+                    schedule: variant.schedule.name().to_string(),
+                    build_threads: variant.build_threads(self.threads),
+                    render_threads: variant.schedule.threads_used(self.threads, settings.height),
+                    build_ms: Stat::of(&a.build),
+                    render_ms,
+                    total_ms: Stat::of(&total),
+                    warmup_counted: a.warmup_counted,
+                    rays,
+                    mrays_per_s: rays as f64 / (render_ms.median * 1e3).max(1e-9),
+                    image_hash: a.hash.unwrap_or_default(),
+                    deterministic: a.deterministic,
+                };
+                (*variant, m, a.frame)
+            })
+            .collect())
+    }
+}
+
+/// One timed run: (build ms, render ms, the frame, ray statistics).
+pub fn run_once(
+    scene: &Scene,
+    variant: &Variant,
+    settings: &RenderSettings,
+    threads: usize,
+) -> Result<(f64, f64, Frame, RenderStats)> {
+    let start = Instant::now();
+    let backend = build_backend(&variant.spec(threads), scene)?;
+    let build_ms = start.elapsed().as_secs_f64() * 1e3;
+    let start = Instant::now();
+    let (frame, stats) = render(
+        scene,
+        backend.as_ref(),
+        settings,
+        variant.schedule,
+        threads,
+        &Progress::new(),
+    )?;
+    let render_ms = start.elapsed().as_secs_f64() * 1e3;
+    Ok((build_ms, render_ms, frame, stats))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stat_of_odd_even_and_empty() {
+        let s = Stat::of(&[3.0, 1.0, 2.0]);
+        assert_eq!((s.n, s.median, s.min, s.max), (3, 2.0, 1.0, 3.0));
+        assert!((s.spread() - 1.0).abs() < 1e-12);
+        assert_eq!(Stat::of(&[4.0, 1.0, 2.0, 3.0]).median, 2.5);
+        assert_eq!(Stat::of(&[]).n, 0);
+    }
+
+    #[test]
+    fn view_labels_are_the_studys() {
+        assert_eq!(View::PAPER[0].label(), "(0,1,3)");
+        assert_eq!(View::PAPER[1].label(), "(2,1,3)");
+    }
+}

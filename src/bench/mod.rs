@@ -1,0 +1,628 @@
+//! `raylab bench`: the study's tables for any scenes in one command, and the
+//! experiments and charts that explain them, written as Markdown, CSV, JSON,
+//! PNG/SVG charts and one HTML page.
+//!
+//! Parts: `tables` (the variant matrix, [`measure`]), `scaling`, `growth`,
+//! `ao-error`, `builders`, `leaks` and `validate` ([`extras`]). Images for the
+//! report come from the matrix's own renders.
+
+pub mod charts;
+pub mod extras;
+pub mod html;
+pub mod measure;
+pub mod metrics;
+pub mod tables;
+pub mod variants;
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use crate::error::{Error, Result};
+use crate::progress::StepBar;
+use crate::render::{output, AoMode};
+use crate::scene::Scene;
+use extras::{AoErrorPoint, BuilderPoint, GrowthPoint, ScalingPoint, ValidationRow};
+use measure::{Matrix, Measurement, View};
+use variants::Variant;
+
+/// The parts of a bench run, in the order they run.
+pub const PARTS: [&str; 7] = [
+    "tables", "scaling", "growth", "ao-error", "builders", "leaks", "validate",
+];
+
+/// Everything a bench run needs; built by the CLI from its flags.
+#[derive(Clone, Debug)]
+pub struct BenchConfig {
+    pub scenes: Vec<String>,
+    pub views: Vec<View>,
+    pub variants: Vec<Variant>,
+    pub ao_modes: Vec<AoMode>,
+    pub reps: usize,
+    pub size: (u32, u32),
+    pub threads: usize,
+    pub quick: bool,
+    pub max_variant_s: f64,
+    pub parts: Vec<&'static str>,
+    pub out: PathBuf,
+    pub quiet: bool,
+}
+
+impl BenchConfig {
+    fn wants(&self, part: &str) -> bool {
+        self.parts.contains(&part)
+    }
+
+    /// Sizes of the procedural meshes of the cost-growth part.
+    fn growth_sizes(&self) -> Vec<u64> {
+        if self.quick {
+            vec![1_000, 10_000]
+        } else {
+            vec![1_000, 10_000, 100_000, 1_000_000]
+        }
+    }
+
+    /// Sample counts N of `cosine:N` and the reference's N.
+    fn ao_samples(&self) -> (Vec<u32>, u32) {
+        if self.quick {
+            (vec![1, 4, 16], 256)
+        } else {
+            ((0..=8).map(|k| 1 << k).collect(), 1024)
+        }
+    }
+
+    /// Repetitions of the extra experiments (medians of these).
+    fn extra_reps(&self) -> usize {
+        if self.quick {
+            1
+        } else {
+            self.reps.clamp(1, 3)
+        }
+    }
+
+    /// An image size `divisor` times smaller than the bench's (at least 16 x 12).
+    fn smaller(&self, divisor: u32) -> (u32, u32) {
+        ((self.size.0 / divisor).max(16), (self.size.1 / divisor).max(12))
+    }
+
+    /// The thread counts of the scaling part: 1..=threads, then twice that.
+    fn thread_counts(&self) -> Vec<usize> {
+        let mut t: Vec<usize> = (1..=self.threads).collect();
+        t.push(self.threads * 2);
+        t
+    }
+}
+
+/// The machine a bench ran on.
+#[derive(Clone, Debug, Serialize)]
+pub struct Machine {
+    pub cpu: String,
+    pub physical_cores: Option<usize>,
+    pub hardware_threads: usize,
+    pub bench_threads: usize,
+    pub os: String,
+    pub embree_version: String,
+    pub raylab_version: String,
+}
+
+impl Machine {
+    pub fn detect(bench_threads: usize) -> Machine {
+        let cpuinfo = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
+        let field = |name: &str| {
+            cpuinfo
+                .lines()
+                .find(|l| l.starts_with(name))
+                .and_then(|l| l.split_once(':'))
+                .map(|(_, v)| v.trim().to_string())
+        };
+        let os = std::fs::read_to_string("/etc/os-release")
+            .ok()
+            .and_then(|s| {
+                s.lines()
+                    .find_map(|l| l.strip_prefix("PRETTY_NAME="))
+                    .map(|v| v.trim_matches('"').to_string())
+            })
+            .unwrap_or_else(|| std::env::consts::OS.to_string());
+        Machine {
+            cpu: field("model name").unwrap_or_else(|| std::env::consts::ARCH.to_string()),
+            physical_cores: field("cpu cores").and_then(|v| v.parse().ok()),
+            hardware_threads: crate::cli::default_threads(),
+            bench_threads,
+            os,
+            embree_version: crate::cli::embree_version(),
+            raylab_version: env!("CARGO_PKG_VERSION").to_string(),
+        }
+    }
+}
+
+/// One scene's pictures in the report.
+#[derive(Clone, Debug, Serialize)]
+pub struct SceneImages {
+    pub scene: String,
+    /// (variant, PNG path relative to the report folder).
+    pub renders: Vec<(String, String)>,
+    /// Amplified difference of each render against the first (naive when run).
+    pub difference: Option<String>,
+    /// Pixels whose 8-bit value differs from the first render, per other render.
+    pub differing_pixels: Vec<(String, usize)>,
+}
+
+/// Everything a bench run measured; `bench.json` is this.
+#[derive(Clone, Debug, Serialize)]
+pub struct BenchReport {
+    pub machine: Machine,
+    pub size: (u32, u32),
+    pub reps: usize,
+    pub quick: bool,
+    pub max_variant_s: f64,
+    pub views: Vec<String>,
+    pub ao_modes: Vec<String>,
+    pub variants: Vec<(String, String)>,
+    pub baseline: String,
+    pub measurements: Vec<Measurement>,
+    pub scaling: Vec<ScalingPoint>,
+    pub growth: Vec<GrowthPoint>,
+    pub ao_error: Vec<AoErrorPoint>,
+    pub builders: Vec<BuilderPoint>,
+    pub leaks: Vec<crate::stress::LeakRow>,
+    pub validation: Vec<ValidationRow>,
+    pub images: Vec<SceneImages>,
+    /// PNG charts written (relative to the report folder).
+    pub charts: Vec<String>,
+    pub elapsed_s: f64,
+}
+
+/// Runs the bench and writes the report folder; returns the report.
+pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
+    let started = std::time::Instant::now();
+    for sub in ["", "charts", "images"] {
+        let dir = cfg.out.join(sub);
+        std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+    }
+    output::check_writable(&cfg.out.join("images").join("probe.png"))?;
+    if cfg.wants("tables") || cfg.wants("scaling") || cfg.wants("growth") {
+        // Fail before measuring for an hour, not after.
+        charts::init_font()?;
+    }
+    let images_ao = cfg
+        .ao_modes
+        .iter()
+        .copied()
+        .find(|a| *a == AoMode::Paper)
+        .or(cfg.ao_modes.first().copied());
+    let matrix = Matrix {
+        scenes,
+        views: &cfg.views,
+        ao_modes: &cfg.ao_modes,
+        variants: &cfg.variants,
+        size: cfg.size,
+        threads: cfg.threads,
+        reps: cfg.reps,
+        // --quick trades the warm-up for time: its numbers are a smoke test.
+        warmup: !cfg.quick,
+        max_variant_s: cfg.max_variant_s,
+        seed: 1,
+        images_ao,
+    };
+    let last_two: Vec<&Scene> = scenes.iter().rev().take(2).rev().collect();
+    let (ao_n, _) = cfg.ao_samples();
+    let mut steps = 0;
+    if cfg.wants("tables") {
+        steps += matrix.planned_runs();
+    }
+    if cfg.wants("scaling") {
+        steps += extras::scaling_variants().len() as u64;
+    }
+    if cfg.wants("growth") {
+        steps += (cfg.growth_sizes().len() * 4) as u64;
+    }
+    if cfg.wants("ao-error") {
+        steps += (last_two.len() * (ao_n.len() + 2)) as u64;
+    }
+    if cfg.wants("builders") {
+        steps += (last_two.len() * extras::quality_builders().len()) as u64;
+    }
+    if cfg.wants("leaks") {
+        steps += 1;
+    }
+    if cfg.wants("validate") {
+        steps += 2 * scenes.len() as u64;
+    }
+    let bar = StepBar::new(steps, cfg.quiet);
+
+    let (measurements, kept) = if cfg.wants("tables") {
+        matrix.run(&bar)?
+    } else {
+        (Vec::new(), Vec::new())
+    };
+    let reps = cfg.extra_reps();
+    let last = scenes.last().expect("at least one scene");
+    let paper_view = cfg.views.first().copied().unwrap_or(View::PAPER[0]);
+    let scaling = if cfg.wants("scaling") {
+        let settings = paper_view.settings(cfg.smaller(2), AoMode::Paper, 1)?;
+        extras::thread_scaling(last, &settings, &cfg.thread_counts(), reps, &bar)?
+    } else {
+        Vec::new()
+    };
+    let growth = if cfg.wants("growth") {
+        let settings = View::PAPER[0].settings(if cfg.quick { (32, 24) } else { (96, 72) }, AoMode::Paper, 1)?;
+        let naive_max = if cfg.quick { 10_000 } else { 100_000 };
+        extras::cost_growth(&cfg.growth_sizes(), &settings, cfg.threads, reps, naive_max, &bar)?
+    } else {
+        Vec::new()
+    };
+    let mut ao_error = Vec::new();
+    if cfg.wants("ao-error") {
+        let (samples, reference) = cfg.ao_samples();
+        let size = if cfg.quick { (48, 36) } else { (256, 192) };
+        for scene in &last_two {
+            ao_error.extend(extras::ao_error(
+                scene, &paper_view, size, &samples, reference, cfg.threads, reps, &bar,
+            )?);
+        }
+    }
+    let mut builders = Vec::new();
+    if cfg.wants("builders") {
+        let settings = paper_view.settings(cfg.smaller(2), AoMode::Paper, 1)?;
+        for scene in &last_two {
+            builders.extend(extras::builder_quality(scene, &settings, cfg.threads, reps, &bar)?);
+        }
+    }
+    let leaks = if cfg.wants("leaks") {
+        bar.set_message("leaks: rays at vertices and edges of closed meshes".into());
+        let rows = crate::stress::leak_suite(
+            &crate::stress::leak_meshes(cfg.quick),
+            if cfg.quick { 2 } else { 4 },
+        )?;
+        bar.inc(1);
+        rows
+    } else {
+        Vec::new()
+    };
+    let mut validation = Vec::new();
+    if cfg.wants("validate") {
+        let count = if cfg.quick { 2_000 } else { 20_000 };
+        for scene in scenes {
+            let settings = paper_view.settings(cfg.smaller(4), AoMode::Paper, 1)?;
+            validation.extend(extras::validation(scene, &settings, count, cfg.threads, &bar)?);
+        }
+    }
+    bar.finish();
+
+    let images = write_images(&cfg.out, scenes, &kept)?;
+    let mut report = BenchReport {
+        machine: Machine::detect(cfg.threads),
+        size: cfg.size,
+        reps: cfg.reps,
+        quick: cfg.quick,
+        max_variant_s: cfg.max_variant_s,
+        views: cfg.views.iter().map(View::label).collect(),
+        ao_modes: cfg.ao_modes.iter().map(|a| a.to_string()).collect(),
+        variants: cfg
+            .variants
+            .iter()
+            .map(|v| (v.name.to_string(), v.describe()))
+            .collect(),
+        baseline: tables::baseline_name(&measurements).to_string(),
+        measurements,
+        scaling,
+        growth,
+        ao_error,
+        builders,
+        leaks,
+        validation,
+        images,
+        charts: Vec::new(),
+        elapsed_s: 0.0,
+    };
+    report.charts = write_charts(&cfg.out.join("charts"), &report)?;
+    report.elapsed_s = started.elapsed().as_secs_f64();
+    write_files(&cfg.out, &report)?;
+    Ok(report)
+}
+
+/// File-name form of a scene name (`mesh:1e5` and paths become safe names).
+fn file_tag(name: &str) -> String {
+    let stem = Path::new(name)
+        .file_stem()
+        .map_or(name.to_string(), |s| s.to_string_lossy().to_string());
+    stem.chars()
+        .map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' })
+        .collect()
+}
+
+fn write_images(dir: &Path, scenes: &[Scene], kept: &[measure::KeptFrame]) -> Result<Vec<SceneImages>> {
+    let mut out = Vec::new();
+    for (si, scene) in scenes.iter().enumerate() {
+        let frames: Vec<&measure::KeptFrame> = kept.iter().filter(|k| k.scene == si).collect();
+        if frames.is_empty() {
+            continue;
+        }
+        let tag = file_tag(&scene.name);
+        let mut img = SceneImages {
+            scene: scene.name.clone(),
+            renders: Vec::new(),
+            difference: None,
+            differing_pixels: Vec::new(),
+        };
+        for k in &frames {
+            let rel = format!("images/{tag}-{}.png", k.variant.name);
+            let f = &k.frame;
+            output::write_png(&dir.join(&rel), f.width, f.height, &output::to_srgb8(f))?;
+            img.renders.push((k.variant.name.to_string(), rel));
+        }
+        if frames.len() > 1 {
+            // Largest difference of any render from the first, amplified 8x.
+            let first = &frames[0].frame;
+            let mut combined = vec![0u8; first.pixels.len() * 3];
+            for k in &frames[1..] {
+                let (diff, n) = metrics::difference_image(first, &k.frame, 8.0)?;
+                for (c, d) in combined.iter_mut().zip(diff) {
+                    *c = (*c).max(d);
+                }
+                img.differing_pixels.push((k.variant.name.to_string(), n));
+            }
+            let rel = format!("images/{tag}-difference.png");
+            output::write_png(&dir.join(&rel), first.width, first.height, &combined)?;
+            img.difference = Some(rel);
+        }
+        out.push(img);
+    }
+    Ok(out)
+}
+
+fn write_charts(dir: &Path, r: &BenchReport) -> Result<Vec<String>> {
+    let mut files = Vec::new();
+    let mut push = |f: String| files.push(format!("charts/{f}"));
+    if !r.measurements.is_empty() {
+        for ao in &r.ao_modes {
+            push(charts::speedup_chart(
+                dir,
+                &charts::SpeedupData {
+                    ms: &r.measurements,
+                    ao: ao.clone(),
+                },
+            )?);
+        }
+    }
+    if !r.scaling.is_empty() {
+        push(charts::scaling_chart(dir, &r.scaling)?);
+    }
+    if !r.growth.is_empty() {
+        push(charts::growth_chart(dir, &r.growth)?);
+    }
+    if !r.ao_error.is_empty() {
+        push(charts::ao_error_chart(dir, &r.ao_error)?);
+    }
+    if !r.builders.is_empty() {
+        push(charts::builders_chart(dir, &r.builders)?);
+    }
+    if !r.leaks.is_empty() {
+        push(charts::leaks_chart(dir, &r.leaks)?);
+    }
+    Ok(files)
+}
+
+/// The Markdown of the whole report: the study's tables, then one table per
+/// extra experiment.
+pub fn markdown(r: &BenchReport) -> String {
+    let m = &r.machine;
+    let mut out = format!(
+        "## raylab bench\n\nMachine: {} ({} hardware threads{}), {} bench threads; {}; Embree {}. Image {}x{}, {} rep(s) {} (slow variants capped at {} s per cell), views {}.\n\n",
+        m.cpu,
+        m.hardware_threads,
+        m.physical_cores.map_or(String::new(), |c| format!(", {c} cores")),
+        m.bench_threads,
+        m.os,
+        m.embree_version,
+        r.size.0,
+        r.size.1,
+        r.reps,
+        if r.quick { "without warm-up (--quick)" } else { "after a warm-up" },
+        r.max_variant_s,
+        r.views.join(" ")
+    );
+    if !r.measurements.is_empty() {
+        out.push_str(&tables::markdown(&r.measurements));
+        let bad: Vec<String> = r
+            .measurements
+            .iter()
+            .filter(|m| !m.deterministic)
+            .map(|m| format!("{} on {} {} ao {}", m.variant, m.scene, m.view, m.ao))
+            .collect();
+        if !bad.is_empty() {
+            out.push_str(&format!("\nWARNING: runs gave different images: {}\n\n", bad.join("; ")));
+        }
+    }
+    if !r.scaling.is_empty() {
+        out.push_str("### Thread scaling (render only, median ms and speedup over 1 thread)\n\n| variant | threads | render ms | speedup |\n|---|---:|---:|---:|\n");
+        for p in &r.scaling {
+            out.push_str(&format!(
+                "| {} | {} | {:.1} | {:.2}x |\n",
+                p.variant, p.threads, p.render_ms.median, p.speedup
+            ));
+        }
+        out.push('\n');
+    }
+    if !r.growth.is_empty() {
+        out.push_str("### Cost growth on mesh:N (build ms, ns per ray on one thread)\n\n| backend | triangles | build ms | render ms | ns/ray |\n|---|---:|---:|---:|---:|\n");
+        for p in &r.growth {
+            out.push_str(&format!(
+                "| {} | {} | {:.2} | {:.1} | {:.1} |\n",
+                p.backend, p.triangles, p.build_ms, p.render_ms, p.ns_per_ray
+            ));
+        }
+        out.push('\n');
+    }
+    if !r.ao_error.is_empty() {
+        out.push_str("### AO error against a cosine reference (display values)\n\n| scene | ao | AO rays/pixel | render ms | RMSE | PSNR dB |\n|---|---|---:|---:|---:|---:|\n");
+        for p in &r.ao_error {
+            out.push_str(&format!(
+                "| {} | {} | {} | {:.1} | {:.5} | {:.2} |\n",
+                p.scene, p.ao, p.samples, p.render_ms.median, p.rmse, p.psnr_db
+            ));
+        }
+        out.push('\n');
+    }
+    if !r.builders.is_empty() {
+        out.push_str("### Builder quality\n\n| scene | builder | build ms | SAH cost | nodes/ray | tris/ray | bytes/tri | render ms |\n|---|---|---:|---:|---:|---:|---:|---:|\n");
+        for p in &r.builders {
+            out.push_str(&format!(
+                "| {} | {} | {:.2} | {:.2} | {:.1} | {:.1} | {:.1} | {:.1} |\n",
+                p.scene,
+                p.builder,
+                p.build_ms,
+                p.sah_cost,
+                p.nodes_per_ray,
+                p.triangles_per_ray,
+                p.bytes_per_triangle,
+                p.render_ms.median
+            ));
+        }
+        out.push('\n');
+    }
+    if !r.leaks.is_empty() {
+        out.push_str("### Leaks against speed\n\n| mesh | backend | intersector | rays | leaks | leak % | ns/ray |\n|---|---|---|---:|---:|---:|---:|\n");
+        for l in &r.leaks {
+            out.push_str(&format!(
+                "| {} | {} | {} | {} | {} | {:.3} | {:.0} |\n",
+                l.mesh,
+                l.backend,
+                l.intersector,
+                l.rays,
+                l.leaks,
+                l.leak_rate * 100.0,
+                l.ns_per_ray
+            ));
+        }
+        out.push('\n');
+    }
+    if !r.validation.is_empty() {
+        out.push_str("### Validation (primary, shadow, AO and random rays)\n\n| scene | tested | reference | rays | ties | genuine |\n|---|---|---|---:|---:|---:|\n");
+        for v in &r.validation {
+            out.push_str(&format!(
+                "| {} | {} | {} | {} | {} | {} |\n",
+                v.scene, v.tested, v.reference, v.rays, v.ties, v.genuine
+            ));
+        }
+        out.push('\n');
+    }
+    out
+}
+
+fn write_files(dir: &Path, r: &BenchReport) -> Result<()> {
+    let write = |name: &str, text: &str| {
+        let path = dir.join(name);
+        std::fs::write(&path, text).map_err(|e| Error::io(&path, e))
+    };
+    let md = markdown(r);
+    write("bench.md", &md)?;
+    write("bench.csv", &tables::csv(&r.measurements))?;
+    let json = serde_json::to_string_pretty(r).map_err(|e| Error::Other(e.to_string()))?;
+    write("bench.json", &json)?;
+    write("index.html", &report_html(r, &md))?;
+    Ok(())
+}
+
+fn report_html(r: &BenchReport, md: &str) -> String {
+    use html::{escape, figure, markdown_to_html, Section};
+    let m = &r.machine;
+    let meta = vec![
+        ("CPU".to_string(), m.cpu.clone()),
+        (
+            "threads".to_string(),
+            format!(
+                "{} hardware{}, {} used by the bench",
+                m.hardware_threads,
+                m.physical_cores.map_or(String::new(), |c| format!(" ({c} cores)")),
+                m.bench_threads
+            ),
+        ),
+        ("system".to_string(), m.os.clone()),
+        ("Embree".to_string(), m.embree_version.clone()),
+        ("raylab".to_string(), m.raylab_version.clone()),
+        (
+            "settings".to_string(),
+            format!(
+                "{}x{}, views {}, AO {}, {} rep(s){}, slow variants capped at {} s per cell; ran {:.0} s",
+                r.size.0,
+                r.size.1,
+                r.views.join(" "),
+                r.ao_modes.join(", "),
+                r.reps,
+                if r.quick { " without warm-up (--quick)" } else { " after a warm-up" },
+                r.max_variant_s,
+                r.elapsed_s
+            ),
+        ),
+    ];
+    let chart = |stem: &str, caption: &str| -> String {
+        r.charts
+            .iter()
+            .filter(|c| c.starts_with(&format!("charts/{stem}")) && c.ends_with(".png"))
+            .map(|c| figure(c, Some(&c.replace(".png", ".svg")), caption))
+            .collect()
+    };
+    let mut sections = Vec::new();
+    if !r.measurements.is_empty() {
+        let variants: String = r
+            .variants
+            .iter()
+            .map(|(n, d)| format!("<tr><td>{}</td><td>{}</td></tr>", escape(n), escape(d)))
+            .collect();
+        sections.push(Section {
+            id: "speedups".into(),
+            title: "Speedups".into(),
+            body: format!(
+                "{}<table>{variants}</table>",
+                chart("speedup", "Speedup of each variant over the baseline, per scene and view (log scale).")
+            ),
+        });
+    }
+    let extras = [
+        ("scaling", "Thread scaling", "thread-scaling", "Render speedup over one thread per schedule; the grey line is ideal scaling."),
+        ("growth", "Cost growth", "cost-growth", "Build time and time per ray against triangle count (log-log): naive grows as O(N) per ray, the hierarchies as O(log N)."),
+        ("ao-error", "AO error against time", "ao-error", "Error of the study's 14 fixed AO directions and of N random cosine samples against a cosine reference, against render time."),
+        ("builders", "Builder quality", "builders", "Tree quality (SAH cost, nodes visited per ray) against build and render time."),
+        ("leaks", "Leaks against speed", "leaks", "Rays that pass through closed meshes at vertices and edges, against query time, per intersection method."),
+    ];
+    for (id, title, stem, caption) in extras {
+        let body = chart(stem, caption);
+        if !body.is_empty() {
+            sections.push(Section {
+                id: id.into(),
+                title: title.into(),
+                body,
+            });
+        }
+    }
+    if !r.images.is_empty() {
+        let mut body = String::from("<p>First view, one render per backend kind; the difference image is the largest difference of any render from the first, amplified 8 times (black: identical).</p>\n");
+        for img in &r.images {
+            body.push_str(&format!("<h3>{}</h3><div class=\"row\">", escape(&img.scene)));
+            for (variant, path) in &img.renders {
+                body.push_str(&figure(path, None, variant));
+            }
+            if let Some(d) = &img.difference {
+                let counts: Vec<String> = img
+                    .differing_pixels
+                    .iter()
+                    .map(|(v, n)| format!("{v}: {n} pixels differ"))
+                    .collect();
+                body.push_str(&figure(d, None, &format!("difference ({})", counts.join(", "))));
+            }
+            body.push_str("</div>\n");
+        }
+        sections.push(Section {
+            id: "images".into(),
+            title: "Renders".into(),
+            body,
+        });
+    }
+    sections.push(Section {
+        id: "tables".into(),
+        title: "Tables".into(),
+        body: markdown_to_html(md),
+    });
+    html::page("raylab bench", &meta, &sections)
+}

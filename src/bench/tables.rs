@@ -1,0 +1,257 @@
+//! The study's tables from the bench's measurements: times in ms per scene
+//! (columns, by triangle count) and view (rows), one table per variant and AO
+//! mode, and speedups over the baseline (`naive-serial`); as Markdown and CSV.
+
+use super::measure::Measurement;
+use super::variants::BASELINE;
+
+/// Distinct values of `key` in first-seen order.
+fn distinct<'a>(ms: &'a [Measurement], key: impl Fn(&'a Measurement) -> &'a str) -> Vec<&'a str> {
+    let mut out: Vec<&str> = Vec::new();
+    for m in ms {
+        let k = key(m);
+        if !out.contains(&k) {
+            out.push(k);
+        }
+    }
+    out
+}
+
+/// The variant speedups are relative to: `naive-serial` when it was measured,
+/// else the first variant.
+pub fn baseline_name(ms: &[Measurement]) -> &str {
+    if ms.iter().any(|m| m.variant == BASELINE) {
+        BASELINE
+    } else {
+        ms.first().map_or(BASELINE, |m| m.variant.as_str())
+    }
+}
+
+/// The measurement of `variant` on the cell of `m`.
+pub fn find<'a>(ms: &'a [Measurement], m: &Measurement, variant: &str) -> Option<&'a Measurement> {
+    ms.iter()
+        .find(|o| o.variant == variant && o.scene == m.scene && o.view == m.view && o.ao == m.ao)
+}
+
+/// Median total time of the baseline over `m`'s, on `m`'s cell.
+pub fn speedup(ms: &[Measurement], m: &Measurement) -> Option<f64> {
+    let base = find(ms, m, baseline_name(ms))?;
+    (m.total_ms.median > 0.0 && base.total_ms.n > 0)
+        .then(|| base.total_ms.median / m.total_ms.median)
+}
+
+fn fmt_ms(x: f64) -> String {
+    if x >= 100.0 {
+        format!("{x:.0}")
+    } else if x >= 10.0 {
+        format!("{x:.1}")
+    } else {
+        format!("{x:.2}")
+    }
+}
+
+/// Column headers: scene names with their triangle counts.
+fn scene_headers(ms: &[Measurement]) -> Vec<(String, String)> {
+    distinct(ms, |m| &m.scene)
+        .into_iter()
+        .map(|s| {
+            let tris = ms.iter().find(|m| m.scene == s).map_or(0, |m| m.triangles);
+            (s.to_string(), format!("{s} ({tris})"))
+        })
+        .collect()
+}
+
+/// Per AO mode: a summary of all variants' speedups, then one table per variant
+/// with the median total ms (min..max, runs) and the speedup per view and scene.
+pub fn markdown(ms: &[Measurement]) -> String {
+    let mut out = String::new();
+    let base = baseline_name(ms);
+    let scenes = scene_headers(ms);
+    let views = distinct(ms, |m| &m.view);
+    for ao in distinct(ms, |m| &m.ao) {
+        let here: Vec<&Measurement> = ms.iter().filter(|m| m.ao == ao).collect();
+        out.push_str(&format!(
+            "### AO {ao}: speedup over {base} (median total time, build included)\n\n| variant | view |"
+        ));
+        for (_, h) in &scenes {
+            out.push_str(&format!(" {h} |"));
+        }
+        out.push_str("\n|---|---|");
+        out.push_str(&"---:|".repeat(scenes.len()));
+        out.push('\n');
+        for variant in distinct(ms, |m| &m.variant) {
+            for view in &views {
+                out.push_str(&format!("| {variant} | {view} |"));
+                for (scene, _) in &scenes {
+                    let cell = here
+                        .iter()
+                        .find(|m| m.variant == variant && m.view == *view && m.scene == *scene);
+                    let text = cell
+                        .and_then(|m| speedup(ms, m))
+                        .map_or("-".to_string(), |s| format!("{s:.2}x"));
+                    out.push_str(&format!(" {text} |"));
+                }
+                out.push('\n');
+            }
+        }
+        out.push('\n');
+        for variant in distinct(ms, |m| &m.variant) {
+            let first = here.iter().find(|m| m.variant == variant);
+            let Some(first) = first else { continue };
+            out.push_str(&format!(
+                "#### {variant}, AO {ao} ({} build thread(s), {} render thread(s))\n\n| view | |",
+                first.build_threads, first.render_threads
+            ));
+            for (_, h) in &scenes {
+                out.push_str(&format!(" {h} |"));
+            }
+            out.push_str("\n|---|---|");
+            out.push_str(&"---:|".repeat(scenes.len()));
+            out.push('\n');
+            for view in &views {
+                let cells: Vec<Option<&&Measurement>> = scenes
+                    .iter()
+                    .map(|(scene, _)| {
+                        here.iter()
+                            .find(|m| m.variant == variant && m.view == *view && m.scene == *scene)
+                    })
+                    .collect();
+                let row = |label: &str, f: &dyn Fn(&Measurement) -> String| {
+                    let mut line = format!("| {view} | {label} |");
+                    for c in &cells {
+                        line.push_str(&format!(" {} |", c.map_or("-".to_string(), |m| f(m))));
+                    }
+                    line.push('\n');
+                    line
+                };
+                out.push_str(&row("total ms", &|m| {
+                    format!(
+                        "{} ({}..{}, n={})",
+                        fmt_ms(m.total_ms.median),
+                        fmt_ms(m.total_ms.min),
+                        fmt_ms(m.total_ms.max),
+                        m.total_ms.n
+                    )
+                }));
+                out.push_str(&row("build ms", &|m| fmt_ms(m.build_ms.median)));
+                out.push_str(&row("speedup", &|m| {
+                    speedup(ms, m).map_or("-".to_string(), |s| format!("{s:.2}x"))
+                }));
+            }
+            out.push('\n');
+        }
+    }
+    out
+}
+
+/// One row per measurement, with its speedup; the header names every column.
+pub const CSV_HEADER: &str = "ao,variant,backend,schedule,scene,triangles,view,runs,build_threads,render_threads,build_ms_median,render_ms_median,total_ms_median,total_ms_min,total_ms_max,spread,speedup,mrays_per_s,image_hash,deterministic";
+
+pub fn csv(ms: &[Measurement]) -> String {
+    let mut out = String::from(CSV_HEADER);
+    out.push('\n');
+    for m in ms {
+        out.push_str(&format!(
+            "{},{},{},{},{},{},\"{}\",{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{:.4},{},{}\n",
+            m.ao,
+            m.variant,
+            m.backend,
+            m.schedule,
+            m.scene,
+            m.triangles,
+            m.view,
+            m.total_ms.n,
+            m.build_threads,
+            m.render_threads,
+            m.build_ms.median,
+            m.render_ms.median,
+            m.total_ms.median,
+            m.total_ms.min,
+            m.total_ms.max,
+            m.total_ms.spread(),
+            speedup(ms, m).map_or(String::new(), |s| format!("{s:.4}")),
+            m.mrays_per_s,
+            m.image_hash,
+            m.deterministic
+        ));
+    }
+    out
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::bench::measure::Stat;
+
+    /// A measurement with a fixed total time, for table tests.
+    pub fn fake(scene: &str, view: &str, ao: &str, variant: &str, total: f64) -> Measurement {
+        let t = Stat {
+            n: 3,
+            median: total,
+            min: total * 0.9,
+            max: total * 1.2,
+        };
+        Measurement {
+            scene: scene.into(),
+            triangles: scene.len(),
+            view: view.into(),
+            ao: ao.into(),
+            variant: variant.into(),
+            backend: "x".into(),
+            schedule: "serial".into(),
+            build_threads: 1,
+            render_threads: 1,
+            build_ms: Stat { median: 1.0, ..t },
+            render_ms: t,
+            total_ms: t,
+            warmup_counted: false,
+            rays: 10,
+            mrays_per_s: 1.0,
+            image_hash: "0".into(),
+            deterministic: true,
+        }
+    }
+
+    #[test]
+    fn speedups_divide_the_baseline_of_the_same_cell() {
+        let ms = vec![
+            fake("a", "(0,1,3)", "paper", "naive-serial", 1000.0),
+            fake("a", "(2,1,3)", "paper", "naive-serial", 500.0),
+            fake("a", "(0,1,3)", "off", "naive-serial", 100.0),
+            fake("a", "(0,1,3)", "paper", "bvh-sah-tiles", 10.0),
+            fake("a", "(2,1,3)", "paper", "bvh-sah-tiles", 10.0),
+            fake("a", "(0,1,3)", "off", "bvh-sah-tiles", 20.0),
+            fake("b", "(0,1,3)", "paper", "bvh-sah-tiles", 20.0),
+        ];
+        assert_eq!(baseline_name(&ms), "naive-serial");
+        let s: Vec<Option<f64>> = ms.iter().map(|m| speedup(&ms, m)).collect();
+        assert_eq!(
+            s,
+            [Some(1.0), Some(1.0), Some(1.0), Some(100.0), Some(50.0), Some(5.0), None]
+        );
+        let md = markdown(&ms);
+        assert!(md.contains("| bvh-sah-tiles | (0,1,3) | 100.00x | - |"), "{md}");
+        assert!(md.contains("### AO off"));
+        assert!(md.contains("#### bvh-sah-tiles, AO paper"));
+        let csv = csv(&ms);
+        let lines: Vec<&str> = csv.lines().collect();
+        assert_eq!(lines.len(), ms.len() + 1);
+        let cols = CSV_HEADER.split(',').count();
+        for line in &lines {
+            // The view is quoted because it holds commas.
+            let unquoted = line.replace("\"(0,1,3)\"", "v").replace("\"(2,1,3)\"", "v");
+            assert_eq!(unquoted.split(',').count(), cols, "{line}");
+        }
+        assert!(lines[4].contains(",100.0000,"), "{}", lines[4]);
+    }
+
+    #[test]
+    fn without_naive_serial_the_first_variant_is_the_baseline() {
+        let ms = vec![
+            fake("a", "v", "off", "bvh-median-serial", 40.0),
+            fake("a", "v", "off", "bvh-sah-tiles", 10.0),
+        ];
+        assert_eq!(baseline_name(&ms), "bvh-median-serial");
+        assert_eq!(speedup(&ms, &ms[1]), Some(4.0));
+    }
+}

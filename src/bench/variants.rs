@@ -1,0 +1,201 @@
+//! The bench's variants: each a (backend, builder, schedule) triple with a stable
+//! name, as the study combined its optimisations.
+//!
+//! Build threads: the study built its BVH serially and, as a separate
+//! optimisation, in parallel; the `bvh-median-*` variants keep that distinction
+//! (`-pbuild` builds on all bench threads). The SAH and Embree variants build on
+//! all bench threads whenever they render in parallel, as a modern renderer would.
+
+use crate::accel::bvh::{BuildParams, BuilderKind};
+use crate::accel::embree::Quality;
+use crate::accel::{BackendKind, BackendSpec};
+use crate::error::{Error, Result};
+use crate::geometry::Intersector;
+use crate::render::Schedule;
+
+/// One column of the study's tables.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Variant {
+    pub name: &'static str,
+    pub kind: BackendKind,
+    /// For `bvh` variants.
+    pub builder: BuilderKind,
+    pub schedule: Schedule,
+    /// Build on all bench threads (else on one).
+    pub parallel_build: bool,
+}
+
+const fn v(
+    name: &'static str,
+    kind: BackendKind,
+    builder: BuilderKind,
+    schedule: Schedule,
+    parallel_build: bool,
+) -> Variant {
+    Variant {
+        name,
+        kind,
+        builder,
+        schedule,
+        parallel_build,
+    }
+}
+
+use BackendKind::{Bvh, Embree, Naive};
+use BuilderKind::{Median, Sah};
+use Schedule::{Rayon, Rows, Serial, Tiles};
+
+/// Every variant, in the order tables list them. `naive-serial` is the baseline.
+pub const VARIANTS: [Variant; 15] = [
+    v("naive-serial", Naive, Sah, Serial, false),
+    v("naive-rows", Naive, Sah, Rows, false),
+    v("naive-tiles", Naive, Sah, Tiles, false),
+    v("bvh-median-serial", Bvh, Median, Serial, false),
+    v("bvh-median-rows", Bvh, Median, Rows, false),
+    v("bvh-median-tiles", Bvh, Median, Tiles, false),
+    v("bvh-median-pbuild-serial", Bvh, Median, Serial, true),
+    v("bvh-median-pbuild-rows", Bvh, Median, Rows, true),
+    v("bvh-median-pbuild-tiles", Bvh, Median, Tiles, true),
+    v("bvh-sah-serial", Bvh, Sah, Serial, false),
+    v("bvh-sah-tiles", Bvh, Sah, Tiles, true),
+    v("bvh-sah-rayon", Bvh, Sah, Rayon, true),
+    v("embree-serial", Embree, Sah, Serial, false),
+    v("embree-tiles", Embree, Sah, Tiles, true),
+    v("embree-rayon", Embree, Sah, Rayon, true),
+];
+
+/// The study's own combinations (naive, median BVH, rows, tiles, parallel build).
+pub const PAPER: [&str; 9] = [
+    "naive-serial",
+    "naive-rows",
+    "naive-tiles",
+    "bvh-median-serial",
+    "bvh-median-rows",
+    "bvh-median-tiles",
+    "bvh-median-pbuild-serial",
+    "bvh-median-pbuild-rows",
+    "bvh-median-pbuild-tiles",
+];
+
+/// The name speedups are relative to.
+pub const BASELINE: &str = "naive-serial";
+
+impl Variant {
+    /// The variant called `name`.
+    pub fn named(name: &str) -> Option<Variant> {
+        VARIANTS.iter().copied().find(|v| v.name == name)
+    }
+
+    pub fn build_threads(&self, threads: usize) -> usize {
+        if self.parallel_build {
+            threads
+        } else {
+            1
+        }
+    }
+
+    /// How to build this variant's backend with `threads` bench threads.
+    pub fn spec(&self, threads: usize) -> BackendSpec {
+        BackendSpec {
+            kind: self.kind,
+            bvh: BuildParams::for_builder(self.builder).with_threads(self.build_threads(threads)),
+            intersector: Intersector::Mt,
+            embree_quality: Quality::Medium,
+            embree_robust: false,
+        }
+    }
+
+    /// A one-line description for reports.
+    pub fn describe(&self) -> String {
+        let backend = match self.kind {
+            Naive => "all triangles per ray".to_string(),
+            Bvh => format!("{} BVH", self.builder.name()),
+            Embree => "Embree MEDIUM, rtcIntersect1/rtcOccluded1".to_string(),
+        };
+        let build = match (self.kind, self.parallel_build) {
+            (Naive, _) => String::new(),
+            (_, true) => ", parallel build".into(),
+            (_, false) => ", serial build".into(),
+        };
+        format!("{backend}{build}, {} schedule", self.schedule.name())
+    }
+}
+
+/// Parses `--variants`: `all`, `paper`, or a comma-separated list of names (the
+/// two sets may appear in the list too). Embree variants are left out of `all`
+/// in builds without Embree, and are an error when named.
+pub fn parse_variants(list: &str) -> Result<Vec<Variant>> {
+    let mut out: Vec<Variant> = Vec::new();
+    let mut push = |v: Variant| {
+        if !out.contains(&v) {
+            out.push(v);
+        }
+    };
+    for item in list.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+        match item {
+            "all" => VARIANTS
+                .iter()
+                .filter(|v| v.kind != Embree || crate::accel::embree::AVAILABLE)
+                .for_each(|v| push(*v)),
+            "paper" => PAPER
+                .iter()
+                .filter_map(|n| Variant::named(n))
+                .for_each(&mut push),
+            name => {
+                let v = Variant::named(name).ok_or_else(|| {
+                    let names: Vec<&str> = VARIANTS.iter().map(|v| v.name).collect();
+                    Error::usage(
+                        "--variants",
+                        format!(
+                            "unknown variant '{name}' (known: all, paper, {})",
+                            names.join(", ")
+                        ),
+                    )
+                })?;
+                if v.kind == Embree && !crate::accel::embree::AVAILABLE {
+                    return Err(crate::accel::embree::unavailable());
+                }
+                push(v);
+            }
+        }
+    }
+    if out.is_empty() {
+        return Err(Error::usage("--variants", "no variant given"));
+    }
+    // The baseline first, so a table's first column is what the others divide.
+    out.sort_by_key(|v| VARIANTS.iter().position(|w| w == v));
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_are_unique_and_parse() {
+        for (i, a) in VARIANTS.iter().enumerate() {
+            assert!(VARIANTS[i + 1..].iter().all(|b| b.name != a.name));
+        }
+        let paper = parse_variants("paper").unwrap();
+        assert_eq!(paper.len(), PAPER.len());
+        assert_eq!(paper[0].name, BASELINE);
+        let some = parse_variants("bvh-sah-tiles, naive-serial,bvh-sah-tiles").unwrap();
+        assert_eq!(
+            some.iter().map(|v| v.name).collect::<Vec<_>>(),
+            ["naive-serial", "bvh-sah-tiles"]
+        );
+        let err = parse_variants("naive-serial,bogus").unwrap_err().to_string();
+        assert!(err.contains("--variants") && err.contains("bogus"), "{err}");
+        assert!(parse_variants(" , ").is_err());
+    }
+
+    #[test]
+    fn build_threads_follow_the_variant() {
+        let v = Variant::named("bvh-median-tiles").unwrap();
+        assert_eq!(v.spec(8).bvh.threads, 1);
+        let v = Variant::named("bvh-median-pbuild-tiles").unwrap();
+        assert_eq!(v.spec(8).bvh.threads, 8);
+        assert_eq!(v.spec(8).bvh.builder, BuilderKind::Median);
+        assert_eq!(v.spec(8).bvh.max_leaf_size, 1);
+    }
+}
