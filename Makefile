@@ -2,11 +2,12 @@
 # Debian packages are installed with apt-get (through sudo when not root).
 
 CARGO ?= cargo
-DEB_PACKAGES := build-essential pkg-config libclang-dev libembree-dev
+# fonts-dejavu-core: the TrueType font the bench's charts write their text with.
+DEB_PACKAGES := build-essential pkg-config libclang-dev libembree-dev fonts-dejavu-core
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 RAYLAB := target/release/raylab
 
-.PHONY: deps build run test bench lint clean
+.PHONY: deps browser build run test bench bench-quick criterion lint clean
 
 deps:
 	@missing=""; \
@@ -18,6 +19,13 @@ deps:
 	fi
 	@command -v $(CARGO) >/dev/null || { echo "cargo not found: install Rust (https://rustup.rs)"; exit 1; }
 
+# Headless Chromium, with which the tests open the bench's HTML report (CI installs it).
+browser:
+	@command -v chromium >/dev/null || { \
+	  echo "installing Debian package: chromium"; \
+	  $(SUDO) apt-get update -qq && \
+	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium; }
+
 build: deps
 	$(CARGO) build --release
 
@@ -28,7 +36,17 @@ run: build
 test: deps
 	$(CARGO) test --release --all-targets
 
+# The full bench (10 reps, 1024x768, AO off and paper; about 45 minutes on 2 cores):
+# tables, charts and bench-report/index.html.
 bench: build
+	$(RAYLAB) bench --out bench-report
+
+# The same in under a minute, with small images and one rep.
+bench-quick: build
+	$(RAYLAB) bench --quick --out bench-report
+
+# criterion benches of the kernels (ray/box, ray/triangle, traversal, builds).
+criterion: deps
 	$(CARGO) bench
 
 lint:

@@ -1,6 +1,7 @@
 //! Criterion benches of the hot kernels on fixed ray sets, so regressions show in
-//! `cargo bench`: the ray/triangle test, and closest-hit and any-hit queries per
-//! backend on the study's scenes.
+//! `cargo bench`: the ray/box and ray/triangle tests, closest-hit and any-hit
+//! queries per backend on the study's scenes (coherent camera rays and the
+//! incoherent AO rays a render casts), and builds per builder against size.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::Vec3;
@@ -8,8 +9,74 @@ use raylab::accel::bvh::{BuildParams, Bvh};
 use raylab::accel::naive::Naive;
 use raylab::accel::Backend;
 use raylab::camera::Camera;
-use raylab::geometry::{intersect_triangle, Ray};
+use raylab::geometry::{intersect_triangle, safe_reciprocal, Aabb, Ray, TriangleTest, Watertight};
 use raylab::scene::builtin::builtin;
+
+/// The AO rays of a 48x36 render of `scene` (paper AO): an incoherent fixed set.
+fn ao_rays(scene: &raylab::scene::Scene) -> Vec<Ray> {
+    let settings = raylab::render::RenderSettings {
+        width: 48,
+        height: 36,
+        camera: Camera::new(
+            Vec3::new(0.0, 1.0, 3.0),
+            Vec3::new(0.0, 1.0, 0.0),
+            Vec3::Y,
+            60.0,
+            48,
+            36,
+        )
+        .unwrap(),
+        ao: raylab::render::AoMode::Paper,
+        ao_dist: 0.2,
+        light_samples: 1,
+        seed: 1,
+    };
+    let bvh = raylab::accel::bvh::BvhBackend::new(scene, &BuildParams::sah()).unwrap();
+    raylab::validate::recorded_rays(scene, &bvh, &settings)
+        .unwrap()
+        .1
+}
+
+fn ray_box(c: &mut Criterion) {
+    let rays = camera_rays();
+    let prepared: Vec<(Vec3, Vec3)> = rays
+        .iter()
+        .map(|r| (r.origin, safe_reciprocal(r.dir)))
+        .collect();
+    let boxes = [
+        (
+            "hit",
+            Aabb {
+                min: Vec3::new(-0.5, 0.5, -0.5),
+                max: Vec3::new(0.5, 1.5, 0.5),
+            },
+        ),
+        (
+            "thin",
+            Aabb {
+                min: Vec3::new(-1.0, 0.0, -1.0),
+                max: Vec3::new(1.0, 0.0, 1.0),
+            },
+        ),
+    ];
+    let mut g = c.benchmark_group("ray_box");
+    g.throughput(Throughput::Elements(rays.len() as u64));
+    for (name, aabb) in boxes {
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                prepared
+                    .iter()
+                    .filter(|(o, inv)| {
+                        std::hint::black_box(&aabb)
+                            .intersect(*o, *inv, 0.0, f32::INFINITY)
+                            .is_some()
+                    })
+                    .count()
+            })
+        });
+    }
+    g.finish();
+}
 
 /// Primary rays of a 32x24 image from the study's default view: a fixed set.
 fn camera_rays() -> Vec<Ray> {
@@ -40,6 +107,16 @@ fn ray_triangle(c: &mut Criterion) {
         b.iter(|| {
             rays.iter()
                 .filter(|r| intersect_triangle(std::hint::black_box(r), &tri).is_some())
+                .count()
+        })
+    });
+    g.bench_function("watertight", |b| {
+        b.iter(|| {
+            rays.iter()
+                .filter(|r| {
+                    let r = std::hint::black_box(*r);
+                    Watertight::test(&Watertight::prepare(r), r, &tri).is_some()
+                })
                 .count()
         })
     });
@@ -84,6 +161,57 @@ fn bvh_queries(c: &mut Criterion) {
     g.finish();
 }
 
+/// Every backend on the same incoherent AO rays of cornell-water.
+fn ao_queries(c: &mut Criterion) {
+    let scene = builtin("cornell-water").unwrap();
+    let rays = ao_rays(&scene);
+    let mut g = c.benchmark_group("ao_rays");
+    g.throughput(Throughput::Elements(rays.len() as u64));
+    let mut backends: Vec<(String, Box<dyn Backend>)> = Vec::new();
+    for params in [BuildParams::median(), BuildParams::sah()] {
+        let b = raylab::accel::bvh::BvhBackend::new(&scene, &params).unwrap();
+        backends.push((b.name(), Box::new(b)));
+    }
+    #[cfg(feature = "embree")]
+    {
+        use raylab::accel::embree::{EmbreeBackend, Quality};
+        let e = EmbreeBackend::new(&scene, Quality::Medium, false, 1).unwrap();
+        backends.push((e.name(), Box::new(e)));
+    }
+    for (name, backend) in &backends {
+        g.bench_with_input(BenchmarkId::new("occluded", name), &rays, |b, rays| {
+            b.iter(|| rays.iter().filter(|r| backend.occluded(r)).count())
+        });
+        g.bench_with_input(BenchmarkId::new("intersect", name), &rays, |b, rays| {
+            b.iter(|| rays.iter().filter_map(|r| backend.intersect(r)).count())
+        });
+    }
+    g.finish();
+}
+
+/// Embree's single-ray queries on the camera rays, as the bvh group measures ours.
+#[cfg(feature = "embree")]
+fn embree_queries(c: &mut Criterion) {
+    use raylab::accel::embree::{EmbreeBackend, Quality};
+    let rays = camera_rays();
+    let mut g = c.benchmark_group("embree");
+    g.throughput(Throughput::Elements(rays.len() as u64));
+    for name in ["cornell-sphere", "cornell-water"] {
+        let scene = builtin(name).unwrap();
+        let e = EmbreeBackend::new(&scene, Quality::Medium, false, 1).unwrap();
+        g.bench_with_input(BenchmarkId::new("intersect", name), &rays, |b, rays| {
+            b.iter(|| rays.iter().filter_map(|r| e.intersect(r)).count())
+        });
+        g.bench_with_input(BenchmarkId::new("occluded", name), &rays, |b, rays| {
+            b.iter(|| rays.iter().filter(|r| e.occluded(r)).count())
+        });
+    }
+    g.finish();
+}
+
+#[cfg(not(feature = "embree"))]
+fn embree_queries(_: &mut Criterion) {}
+
 /// Build time against triangle count on the procedural meshes, serial and on 2 threads.
 fn bvh_builds(c: &mut Criterion) {
     let mut g = c.benchmark_group("bvh_build");
@@ -91,7 +219,14 @@ fn bvh_builds(c: &mut Criterion) {
     for n in [1_000u64, 10_000, 100_000] {
         let tris = builtin(&format!("mesh:{n}")).unwrap().triangle_vertices();
         g.throughput(Throughput::Elements(tris.len() as u64));
-        for params in [BuildParams::median(), BuildParams::sah()] {
+        let mut builders = vec![BuildParams::median(), BuildParams::sah()];
+        if raylab::accel::embree::AVAILABLE {
+            // Embree's builder (rtcBuildBVH) into our layout, and Embree's own scene build.
+            builders.push(BuildParams::for_builder(
+                raylab::accel::bvh::BuilderKind::EmbreeMedium,
+            ));
+        }
+        for params in builders {
             for threads in [1, 2] {
                 let p = params.with_threads(threads);
                 let id = format!("{}-{threads}t", params.builder.name());
@@ -106,9 +241,12 @@ fn bvh_builds(c: &mut Criterion) {
 
 criterion_group!(
     benches,
+    ray_box,
     ray_triangle,
     naive_queries,
     bvh_queries,
+    embree_queries,
+    ao_queries,
     bvh_builds
 );
 criterion_main!(benches);

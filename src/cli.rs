@@ -57,7 +57,12 @@ struct BenchArgs {
     scenes: Vec<String>,
     /// Camera positions looking at (0,1,0): `paper` for the study's (0,1,3) and
     /// (2,1,3), or eye positions separated by spaces or semicolons ("0,1,3;2,1,3").
-    #[arg(long, value_name = "paper|X,Y,Z...", default_value = "paper", allow_hyphen_values = true)]
+    #[arg(
+        long,
+        value_name = "paper|X,Y,Z...",
+        default_value = "paper",
+        allow_hyphen_values = true
+    )]
     views: String,
     /// Variants: all, paper (the study's combinations), or names separated by commas.
     #[arg(long, value_name = "LIST", default_value = "all")]
@@ -110,9 +115,15 @@ fn parse_views(s: &str) -> Result<Vec<crate::bench::measure::View>> {
         .map(|p| {
             let eye = parse_vec3(p).map_err(|e| Error::usage("--views", format!("'{p}': {e}")))?;
             if eye == Vec3::new(0.0, 1.0, 0.0) {
-                return Err(Error::usage("--views", format!("'{p}' is the point looked at")));
+                return Err(Error::usage(
+                    "--views",
+                    format!("'{p}' is the point looked at"),
+                ));
             }
-            Ok(View { eye, look: Vec3::new(0.0, 1.0, 0.0) })
+            Ok(View {
+                eye,
+                look: Vec3::new(0.0, 1.0, 0.0),
+            })
         })
         .collect::<Result<Vec<_>>>()?;
     if views.is_empty() {
@@ -146,7 +157,10 @@ fn parse_parts(s: &str) -> Result<Vec<&'static str>> {
 fn run_bench(args: &BenchArgs) -> Result<()> {
     use crate::bench::{self, BenchConfig};
     if !(args.max_variant_s.is_finite() && args.max_variant_s > 0.0) {
-        return Err(Error::usage("--max-variant-s", "must be a positive number of seconds"));
+        return Err(Error::usage(
+            "--max-variant-s",
+            "must be a positive number of seconds",
+        ));
     }
     let views = parse_views(&args.views)?;
     let variants = bench::variants::parse_variants(&args.variants)?;
@@ -161,7 +175,9 @@ fn run_bench(args: &BenchArgs) -> Result<()> {
         variants,
         ao_modes,
         reps: args.reps.unwrap_or(if args.quick { 1 } else { 10 }) as usize,
-        size: args.size.unwrap_or(if args.quick { (96, 72) } else { (1024, 768) }),
+        size: args
+            .size
+            .unwrap_or(if args.quick { (96, 72) } else { (1024, 768) }),
         threads: args.threads.unwrap_or_else(default_threads),
         quick: args.quick,
         max_variant_s: args.max_variant_s,
@@ -507,13 +523,8 @@ fn run_validate(args: &ValidateArgs) -> Result<()> {
         for (set, rays) in &set_rays {
             let (label, rays) = (set.name(), rays);
             let is_primary = *set == RaySet::Primary;
-            let (report, agreements) = compare(
-                label,
-                rays,
-                tested.as_ref(),
-                reference.as_ref(),
-                &triangles,
-            );
+            let (report, agreements) =
+                compare(label, rays, tested.as_ref(), reference.as_ref(), &triangles);
             if is_primary {
                 if let Some(base) = &args.diff_image {
                     let path = diff_image_path(base, name, names.len() > 1);

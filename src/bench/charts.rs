@@ -130,7 +130,11 @@ fn lin_range(values: impl Iterator<Item = f64>, include_zero: bool) -> std::ops:
         hi = lo + 1.0;
     }
     let pad = (hi - lo) * 0.08;
-    (if include_zero && lo >= 0.0 { lo } else { lo - pad })..hi + pad
+    (if include_zero && lo >= 0.0 {
+        lo
+    } else {
+        lo - pad
+    })..hi + pad
 }
 
 /// Speedup over the baseline per scene and view, one bar per variant (log scale).
@@ -141,7 +145,13 @@ pub struct SpeedupData<'a> {
 
 pub fn speedup_chart(dir: &Path, data: &SpeedupData) -> Result<String> {
     let name = format!("speedup-ao-{}", data.ao.replace(':', "-"));
-    save(dir, &name, (1200, 560), |a| draw_speedup(a, data), |a| draw_speedup(a, data))
+    save(
+        dir,
+        &name,
+        (1200, 560),
+        |a| draw_speedup(a, data),
+        |a| draw_speedup(a, data),
+    )
 }
 
 fn draw_speedup<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, d: &SpeedupData) -> DrawResult
@@ -203,7 +213,10 @@ where
                     .find(|m| m.variant == *variant && m.scene == *scene && m.view == *view)?;
                 let s = speedup(d.ms, m)?;
                 let x0 = gi as f64 + 0.1 + vi as f64 * width;
-                Some(Rectangle::new([(x0, y.start), (x0 + width * 0.9, s)], c.filled()))
+                Some(Rectangle::new(
+                    [(x0, y.start), (x0 + width * 0.9, s)],
+                    c.filled(),
+                ))
             })
             .collect();
         chart
@@ -223,17 +236,30 @@ where
         let style = TextStyle::from((FONT, 13).into_font()).pos(Pos::new(HPos::Center, VPos::Top));
         let short = scene.strip_prefix("cornell-").unwrap_or(scene);
         root.draw(&Text::new(short.to_string(), (px, py + 6), style.clone()))?;
-        root.draw(&Text::new(format!("{tris} tris {view}"), (px, py + 23), style))?;
+        root.draw(&Text::new(
+            format!("{tris} tris {view}"),
+            (px, py + 23),
+            style,
+        ))?;
     }
     root.present()?;
     Ok(())
 }
 
 pub fn scaling_chart(dir: &Path, points: &[ScalingPoint]) -> Result<String> {
-    save(dir, "thread-scaling", (800, 520), |a| draw_scaling(a, points), |a| draw_scaling(a, points))
+    save(
+        dir,
+        "thread-scaling",
+        (800, 520),
+        |a| draw_scaling(a, points),
+        |a| draw_scaling(a, points),
+    )
 }
 
-fn draw_scaling<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, pts: &[ScalingPoint]) -> DrawResult
+fn draw_scaling<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    pts: &[ScalingPoint],
+) -> DrawResult
 where
     DB::ErrorType: 'static,
 {
@@ -290,7 +316,13 @@ where
 }
 
 pub fn growth_chart(dir: &Path, points: &[GrowthPoint]) -> Result<String> {
-    save(dir, "cost-growth", (1200, 520), |a| draw_growth(a, points), |a| draw_growth(a, points))
+    save(
+        dir,
+        "cost-growth",
+        (1200, 520),
+        |a| draw_growth(a, points),
+        |a| draw_growth(a, points),
+    )
 }
 
 fn draw_growth<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, pts: &[GrowthPoint]) -> DrawResult
@@ -344,7 +376,9 @@ where
             chart
                 .draw_series(LineSeries::new(line.clone(), c.stroke_width(2)))?
                 .label(*b)
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2))
+                });
             chart.draw_series(line.iter().map(|p| Circle::new(*p, 4, c.filled())))?;
         }
         chart
@@ -360,10 +394,19 @@ where
 }
 
 pub fn ao_error_chart(dir: &Path, points: &[AoErrorPoint]) -> Result<String> {
-    save(dir, "ao-error", (1200, 520), |a| draw_ao_error(a, points), |a| draw_ao_error(a, points))
+    save(
+        dir,
+        "ao-error",
+        (1200, 520),
+        |a| draw_ao_error(a, points),
+        |a| draw_ao_error(a, points),
+    )
 }
 
-fn draw_ao_error<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, pts: &[AoErrorPoint]) -> DrawResult
+fn draw_ao_error<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    pts: &[AoErrorPoint],
+) -> DrawResult
 where
     DB::ErrorType: 'static,
 {
@@ -436,10 +479,19 @@ where
 }
 
 pub fn builders_chart(dir: &Path, points: &[BuilderPoint]) -> Result<String> {
-    save(dir, "builders", (1200, 520), |a| draw_builders(a, points), |a| draw_builders(a, points))
+    save(
+        dir,
+        "builders",
+        (1200, 520),
+        |a| draw_builders(a, points),
+        |a| draw_builders(a, points),
+    )
 }
 
-fn draw_builders<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, pts: &[BuilderPoint]) -> DrawResult
+fn draw_builders<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    pts: &[BuilderPoint],
+) -> DrawResult
 where
     DB::ErrorType: 'static,
 {
@@ -523,7 +575,13 @@ where
 }
 
 pub fn leaks_chart(dir: &Path, rows: &[LeakRow]) -> Result<String> {
-    save(dir, "leaks", (900, 520), |a| draw_leaks(a, rows), |a| draw_leaks(a, rows))
+    save(
+        dir,
+        "leaks",
+        (900, 520),
+        |a| draw_leaks(a, rows),
+        |a| draw_leaks(a, rows),
+    )
 }
 
 fn draw_leaks<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, rows: &[LeakRow]) -> DrawResult
@@ -535,7 +593,11 @@ where
         if r.backend.starts_with("embree") {
             r.backend.clone()
         } else {
-            format!("{} ({})", r.backend.split("-watertight").next().unwrap_or(""), r.intersector)
+            format!(
+                "{} ({})",
+                r.backend.split("-watertight").next().unwrap_or(""),
+                r.intersector
+            )
         }
     };
     let mut methods: Vec<String> = Vec::new();
@@ -546,7 +608,10 @@ where
         }
     }
     let mut chart = ChartBuilder::on(&root)
-        .caption("Leak rate against speed, per intersection method", (FONT, 20))
+        .caption(
+            "Leak rate against speed, per intersection method",
+            (FONT, 20),
+        )
         .margin(12)
         .x_label_area_size(45)
         .y_label_area_size(60)

@@ -34,7 +34,14 @@ fn timed_renders(
     let mut frame = None;
     for _ in 0..reps.max(1) {
         let start = Instant::now();
-        let (f, _) = render(scene, backend, settings, schedule, threads, &Progress::new())?;
+        let (f, _) = render(
+            scene,
+            backend,
+            settings,
+            schedule,
+            threads,
+            &Progress::new(),
+        )?;
         times.push(ms_since(start));
         frame = Some(f);
     }
@@ -55,11 +62,16 @@ pub struct ScalingPoint {
 /// The variants whose render time is measured on 1..N threads: the parallel
 /// schedules of the best BVH and of Embree.
 pub fn scaling_variants() -> Vec<Variant> {
-    ["bvh-sah-tiles", "bvh-sah-rayon", "embree-tiles", "embree-rayon"]
-        .iter()
-        .filter_map(|n| Variant::named(n))
-        .filter(|v| v.kind != BackendKind::Embree || crate::accel::embree::AVAILABLE)
-        .collect()
+    [
+        "bvh-sah-tiles",
+        "bvh-sah-rayon",
+        "embree-tiles",
+        "embree-rayon",
+    ]
+    .iter()
+    .filter_map(|n| Variant::named(n))
+    .filter(|v| v.kind != BackendKind::Embree || crate::accel::embree::AVAILABLE)
+    .collect()
 }
 
 /// Render time of each variant on each of `thread_counts`, repetitions
@@ -74,13 +86,23 @@ pub fn thread_scaling(
     let mut out = Vec::new();
     let max_threads = thread_counts.iter().copied().max().unwrap_or(1);
     for variant in scaling_variants() {
-        bar.set_message(format!("thread scaling: {} on {}", variant.name, scene.name));
+        bar.set_message(format!(
+            "thread scaling: {} on {}",
+            variant.name, scene.name
+        ));
         let backend = build_backend(&variant.spec(max_threads), scene)?;
         let mut times: Vec<Vec<f64>> = vec![Vec::new(); thread_counts.len()];
         for _ in 0..reps.max(1) {
             for (slot, &t) in times.iter_mut().zip(thread_counts) {
                 let start = Instant::now();
-                render(scene, backend.as_ref(), settings, variant.schedule, t, &Progress::new())?;
+                render(
+                    scene,
+                    backend.as_ref(),
+                    settings,
+                    variant.schedule,
+                    t,
+                    &Progress::new(),
+                )?;
                 slot.push(ms_since(start));
             }
         }
@@ -115,11 +137,16 @@ pub struct GrowthPoint {
 
 /// The backends of the cost-growth chart.
 fn growth_variants() -> Vec<Variant> {
-    ["naive-tiles", "bvh-median-pbuild-tiles", "bvh-sah-tiles", "embree-tiles"]
-        .iter()
-        .filter_map(|n| Variant::named(n))
-        .filter(|v| v.kind != BackendKind::Embree || crate::accel::embree::AVAILABLE)
-        .collect()
+    [
+        "naive-tiles",
+        "bvh-median-pbuild-tiles",
+        "bvh-sah-tiles",
+        "embree-tiles",
+    ]
+    .iter()
+    .filter_map(|n| Variant::named(n))
+    .filter(|v| v.kind != BackendKind::Embree || crate::accel::embree::AVAILABLE)
+    .collect()
 }
 
 /// Build and render cost of each backend on `mesh:N` scenes; naive only up to
@@ -200,19 +227,34 @@ pub fn fastest_variant() -> Variant {
     Variant::named(name).expect("a known variant")
 }
 
+/// What the AO error experiment renders.
+#[derive(Clone, Debug)]
+pub struct AoErrorSetup {
+    pub view: View,
+    pub size: (u32, u32),
+    /// The N of each `cosine:N` measured.
+    pub samples: Vec<u32>,
+    /// The N of the `cosine:N` reference.
+    pub reference: u32,
+}
+
 /// Error of `paper` and `cosine:N` for each N against a `cosine:reference`
 /// render of the same view, seed and light samples (so direct light is the
 /// same in every image and only AO differs), with the render time of each.
 pub fn ao_error(
     scene: &Scene,
-    view: &View,
-    size: (u32, u32),
-    samples: &[u32],
-    reference: u32,
+    setup: &AoErrorSetup,
     threads: usize,
     reps: usize,
     bar: &StepBar,
 ) -> Result<Vec<AoErrorPoint>> {
+    let AoErrorSetup {
+        view,
+        size,
+        samples,
+        reference,
+    } = setup;
+    let (size, reference) = (*size, *reference);
     let variant = fastest_variant();
     let backend = build_backend(&variant.spec(threads), scene)?;
     bar.set_message(format!(
@@ -350,15 +392,30 @@ pub fn validation(
         BackendKind::Naive
     };
     let reference = build_backend(
-        &crate::accel::BackendSpec::bvh(BuildParams::sah().with_threads(threads)).with_kind(against),
+        &crate::accel::BackendSpec::bvh(BuildParams::sah().with_threads(threads))
+            .with_kind(against),
         scene,
     )?;
     let triangles = scene.triangle_vertices();
-    let sets = ray_sets(scene, reference.as_ref(), settings, &RaySet::ALL, count, false)?;
+    let sets = ray_sets(
+        scene,
+        reference.as_ref(),
+        settings,
+        &RaySet::ALL,
+        count,
+        false,
+    )?;
     let mut out = Vec::new();
     for builder in [BuilderKind::Median, BuilderKind::Sah] {
-        bar.set_message(format!("validate: bvh-{} on {}", builder.name(), scene.name));
-        let tested = BvhBackend::new(scene, &BuildParams::for_builder(builder).with_threads(threads))?;
+        bar.set_message(format!(
+            "validate: bvh-{} on {}",
+            builder.name(),
+            scene.name
+        ));
+        let tested = BvhBackend::new(
+            scene,
+            &BuildParams::for_builder(builder).with_threads(threads),
+        )?;
         let mut row = ValidationRow {
             scene: scene.name.clone(),
             tested: tested.name(),

@@ -100,16 +100,29 @@ el.textContent=bad.length?('images that did not load: '+bad.map(function(i){retu
 /// The whole page.
 pub fn page(title: &str, meta: &[(String, String)], sections: &[Section]) -> String {
     let mut out = String::from("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">");
-    out.push_str(&format!("<title>{}</title><style>{STYLE}</style></head><body>\n", escape(title)));
+    out.push_str(&format!(
+        "<title>{}</title><style>{STYLE}</style></head><body>\n",
+        escape(title)
+    ));
     out.push_str(&format!("<h1>{}</h1>\n", escape(title)));
-    out.push_str("<p><span id=\"check\" data-images-ok=\"pending\">checking images...</span></p>\n");
+    out.push_str(
+        "<p><span id=\"check\" data-images-ok=\"pending\">checking images...</span></p>\n",
+    );
     out.push_str("<table class=\"meta\">\n");
     for (k, v) in meta {
-        out.push_str(&format!("<tr><th>{}</th><td>{}</td></tr>\n", escape(k), escape(v)));
+        out.push_str(&format!(
+            "<tr><th>{}</th><td>{}</td></tr>\n",
+            escape(k),
+            escape(v)
+        ));
     }
     out.push_str("</table>\n<nav><ul>");
     for s in sections {
-        out.push_str(&format!("<li><a href=\"#{}\">{}</a></li>", s.id, escape(&s.title)));
+        out.push_str(&format!(
+            "<li><a href=\"#{}\">{}</a></li>",
+            s.id,
+            escape(&s.title)
+        ));
     }
     out.push_str("</ul></nav>\n");
     for s in sections {
@@ -131,7 +144,8 @@ mod tests {
 
     #[test]
     fn markdown_tables_and_headings_become_html() {
-        let html = markdown_to_html("### A <b>\n\n| x | y |\n|---|---:|\n| 1 | 2 |\n\ntext & more\n");
+        let html =
+            markdown_to_html("### A <b>\n\n| x | y |\n|---|---:|\n| 1 | 2 |\n\ntext & more\n");
         assert!(html.contains("<h3>A &lt;b&gt;</h3>"), "{html}");
         assert!(html.contains("<tr><th>x</th><th>y</th></tr>"), "{html}");
         assert!(html.contains("<tr><td>1</td><td>2</td></tr>"), "{html}");

@@ -272,7 +272,8 @@ impl Matrix<'_> {
                         format!("rep {rep}/{}", self.reps)
                     }
                 ));
-                let (build_ms, render_ms, frame, stats) = run_once(scene, variant, settings, self.threads)?;
+                let (build_ms, render_ms, frame, stats) =
+                    run_once(scene, variant, settings, self.threads)?;
                 bar.inc(1);
                 let seconds = (build_ms + render_ms) / 1e3;
                 a.last_s = seconds;

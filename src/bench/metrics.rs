@@ -88,7 +88,10 @@ mod tests {
         for amplitude in [0.001, 0.01, 0.05, 0.2] {
             let noisy = frame(
                 base.iter()
-                    .map(|p| *p + (Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5) * amplitude)
+                    .map(|p| {
+                        *p + (Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5)
+                            * amplitude
+                    })
                     .collect(),
             );
             let e = rmse(&noisy, &reference).unwrap();

@@ -82,7 +82,10 @@ impl BenchConfig {
 
     /// An image size `divisor` times smaller than the bench's (at least 16 x 12).
     fn smaller(&self, divisor: u32) -> (u32, u32) {
-        ((self.size.0 / divisor).max(16), (self.size.1 / divisor).max(12))
+        (
+            (self.size.0 / divisor).max(16),
+            (self.size.1 / divisor).max(12),
+        )
     }
 
     /// The thread counts of the scaling part: 1..=threads, then twice that.
@@ -245,27 +248,47 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
         Vec::new()
     };
     let growth = if cfg.wants("growth") {
-        let settings = View::PAPER[0].settings(if cfg.quick { (32, 24) } else { (96, 72) }, AoMode::Paper, 1)?;
+        let settings = View::PAPER[0].settings(
+            if cfg.quick { (32, 24) } else { (96, 72) },
+            AoMode::Paper,
+            1,
+        )?;
         let naive_max = if cfg.quick { 10_000 } else { 100_000 };
-        extras::cost_growth(&cfg.growth_sizes(), &settings, cfg.threads, reps, naive_max, &bar)?
+        extras::cost_growth(
+            &cfg.growth_sizes(),
+            &settings,
+            cfg.threads,
+            reps,
+            naive_max,
+            &bar,
+        )?
     } else {
         Vec::new()
     };
     let mut ao_error = Vec::new();
     if cfg.wants("ao-error") {
         let (samples, reference) = cfg.ao_samples();
-        let size = if cfg.quick { (48, 36) } else { (256, 192) };
+        let setup = extras::AoErrorSetup {
+            view: paper_view,
+            size: if cfg.quick { (48, 36) } else { (256, 192) },
+            samples,
+            reference,
+        };
         for scene in &last_two {
-            ao_error.extend(extras::ao_error(
-                scene, &paper_view, size, &samples, reference, cfg.threads, reps, &bar,
-            )?);
+            ao_error.extend(extras::ao_error(scene, &setup, cfg.threads, reps, &bar)?);
         }
     }
     let mut builders = Vec::new();
     if cfg.wants("builders") {
         let settings = paper_view.settings(cfg.smaller(2), AoMode::Paper, 1)?;
         for scene in &last_two {
-            builders.extend(extras::builder_quality(scene, &settings, cfg.threads, reps, &bar)?);
+            builders.extend(extras::builder_quality(
+                scene,
+                &settings,
+                cfg.threads,
+                reps,
+                &bar,
+            )?);
         }
     }
     let leaks = if cfg.wants("leaks") {
@@ -284,7 +307,13 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
         let count = if cfg.quick { 2_000 } else { 20_000 };
         for scene in scenes {
             let settings = paper_view.settings(cfg.smaller(4), AoMode::Paper, 1)?;
-            validation.extend(extras::validation(scene, &settings, count, cfg.threads, &bar)?);
+            validation.extend(extras::validation(
+                scene,
+                &settings,
+                count,
+                cfg.threads,
+                &bar,
+            )?);
         }
     }
     bar.finish();
@@ -327,11 +356,21 @@ fn file_tag(name: &str) -> String {
         .file_stem()
         .map_or(name.to_string(), |s| s.to_string_lossy().to_string());
     stem.chars()
-        .map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' })
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
         .collect()
 }
 
-fn write_images(dir: &Path, scenes: &[Scene], kept: &[measure::KeptFrame]) -> Result<Vec<SceneImages>> {
+fn write_images(
+    dir: &Path,
+    scenes: &[Scene],
+    kept: &[measure::KeptFrame],
+) -> Result<Vec<SceneImages>> {
     let mut out = Vec::new();
     for (si, scene) in scenes.iter().enumerate() {
         let frames: Vec<&measure::KeptFrame> = kept.iter().filter(|k| k.scene == si).collect();
@@ -431,7 +470,10 @@ pub fn markdown(r: &BenchReport) -> String {
             .map(|m| format!("{} on {} {} ao {}", m.variant, m.scene, m.view, m.ao))
             .collect();
         if !bad.is_empty() {
-            out.push_str(&format!("\nWARNING: runs gave different images: {}\n\n", bad.join("; ")));
+            out.push_str(&format!(
+                "\nWARNING: runs gave different images: {}\n\n",
+                bad.join("; ")
+            ));
         }
     }
     if !r.scaling.is_empty() {
@@ -575,7 +617,10 @@ fn report_html(r: &BenchReport, md: &str) -> String {
             title: "Speedups".into(),
             body: format!(
                 "{}<table>{variants}</table>",
-                chart("speedup", "Speedup of each variant over the baseline, per scene and view (log scale).")
+                chart(
+                    "speedup",
+                    "Speedup of each variant over the baseline, per scene and view (log scale)."
+                )
             ),
         });
     }
@@ -599,7 +644,10 @@ fn report_html(r: &BenchReport, md: &str) -> String {
     if !r.images.is_empty() {
         let mut body = String::from("<p>First view, one render per backend kind; the difference image is the largest difference of any render from the first, amplified 8 times (black: identical).</p>\n");
         for img in &r.images {
-            body.push_str(&format!("<h3>{}</h3><div class=\"row\">", escape(&img.scene)));
+            body.push_str(&format!(
+                "<h3>{}</h3><div class=\"row\">",
+                escape(&img.scene)
+            ));
             for (variant, path) in &img.renders {
                 body.push_str(&figure(path, None, variant));
             }
@@ -609,7 +657,11 @@ fn report_html(r: &BenchReport, md: &str) -> String {
                     .iter()
                     .map(|(v, n)| format!("{v}: {n} pixels differ"))
                     .collect();
-                body.push_str(&figure(d, None, &format!("difference ({})", counts.join(", "))));
+                body.push_str(&figure(
+                    d,
+                    None,
+                    &format!("difference ({})", counts.join(", ")),
+                ));
             }
             body.push_str("</div>\n");
         }

@@ -227,10 +227,21 @@ pub(crate) mod tests {
         let s: Vec<Option<f64>> = ms.iter().map(|m| speedup(&ms, m)).collect();
         assert_eq!(
             s,
-            [Some(1.0), Some(1.0), Some(1.0), Some(100.0), Some(50.0), Some(5.0), None]
+            [
+                Some(1.0),
+                Some(1.0),
+                Some(1.0),
+                Some(100.0),
+                Some(50.0),
+                Some(5.0),
+                None
+            ]
         );
         let md = markdown(&ms);
-        assert!(md.contains("| bvh-sah-tiles | (0,1,3) | 100.00x | - |"), "{md}");
+        assert!(
+            md.contains("| bvh-sah-tiles | (0,1,3) | 100.00x | - |"),
+            "{md}"
+        );
         assert!(md.contains("### AO off"));
         assert!(md.contains("#### bvh-sah-tiles, AO paper"));
         let csv = csv(&ms);

@@ -184,7 +184,9 @@ mod tests {
             some.iter().map(|v| v.name).collect::<Vec<_>>(),
             ["naive-serial", "bvh-sah-tiles"]
         );
-        let err = parse_variants("naive-serial,bogus").unwrap_err().to_string();
+        let err = parse_variants("naive-serial,bogus")
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("--variants") && err.contains("bogus"), "{err}");
         assert!(parse_variants(" , ").is_err());
     }

@@ -1,0 +1,397 @@
+//! `raylab bench --quick` as CI runs it: the whole matrix and every part, with
+//! the files checked for content (rows, columns, parsable JSON, decodable
+//! charts), and the HTML report opened in headless Chromium when it is installed
+//! (CI installs it and sets RAYLAB_REQUIRE_CHROMIUM=1 so that it cannot be skipped).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::OnceLock;
+
+fn raylab(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_raylab"))
+        .args(args)
+        .output()
+        .expect("run raylab")
+}
+
+fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("raylab-bench-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Runs the quick bench once for all tests of this file; returns its folder and stdout.
+fn quick_report() -> &'static (PathBuf, String) {
+    static REPORT: OnceLock<(PathBuf, String)> = OnceLock::new();
+    REPORT.get_or_init(|| {
+        let dir = temp_dir("quick").join("report");
+        let out = raylab(&["bench", "--quick", "-q", "--out", dir.to_str().unwrap()]);
+        let stdout = String::from_utf8_lossy(&out.stdout).to_string();
+        assert!(
+            out.status.success(),
+            "bench --quick failed: {}\n{stdout}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        (dir, stdout)
+    })
+}
+
+fn embree() -> bool {
+    raylab::accel::embree::AVAILABLE
+}
+
+fn variants() -> usize {
+    if embree() {
+        15
+    } else {
+        12
+    }
+}
+
+#[test]
+fn quick_bench_writes_tables_with_every_cell() {
+    let (dir, stdout) = quick_report();
+    assert!(
+        stdout.contains("### AO off: speedup over naive-serial"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("### AO paper: speedup over naive-serial"));
+    assert!(stdout.contains("#### bvh-median-pbuild-tiles, AO paper"));
+
+    let csv = std::fs::read_to_string(dir.join("bench.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let rows: Vec<Vec<String>> = lines
+        .map(|l| {
+            // The view is the one quoted field ("(0,1,3)").
+            let (a, rest) = l.split_once('"').unwrap();
+            let (view, b) = rest.split_once('"').unwrap();
+            let mut f: Vec<String> = a
+                .trim_end_matches(',')
+                .split(',')
+                .map(String::from)
+                .collect();
+            f.push(view.to_string());
+            f.extend(b.trim_start_matches(',').split(',').map(String::from));
+            f
+        })
+        .collect();
+    // 4 scenes x 2 views x 2 AO modes x every variant.
+    assert_eq!(rows.len(), 4 * 2 * 2 * variants());
+    for r in &rows {
+        assert_eq!(r.len(), header.len(), "{r:?}");
+        let total: f64 = r[col("total_ms_median")].parse().unwrap();
+        let build: f64 = r[col("build_ms_median")].parse().unwrap();
+        let render: f64 = r[col("render_ms_median")].parse().unwrap();
+        assert!(
+            total > 0.0 && (total - build - render).abs() < 1e-3 * total + 1e-3,
+            "{r:?}"
+        );
+        let speedup: f64 = r[col("speedup")].parse().unwrap();
+        if r[col("variant")] == "naive-serial" {
+            assert!((speedup - 1.0).abs() < 1e-9);
+        }
+        assert!(speedup > 0.0);
+        assert_eq!(r[col("deterministic")], "true");
+    }
+    // Same hits, same image: naive and both BVHs give identical pictures.
+    for scene in ["cornell-original", "cornell-water"] {
+        let hashes: Vec<&String> = rows
+            .iter()
+            .filter(|r| {
+                r[col("scene")] == scene
+                    && r[col("ao")] == "paper"
+                    && r[col("view")] == "(0,1,3)"
+                    && r[col("backend")] != "embree"
+            })
+            .map(|r| &r[col("image_hash")])
+            .collect();
+        assert!(hashes.len() >= 12);
+        assert!(
+            hashes.iter().all(|h| *h == hashes[0]),
+            "{scene}: {hashes:?}"
+        );
+    }
+
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("bench.json")).unwrap()).unwrap();
+    assert_eq!(json["measurements"].as_array().unwrap().len(), rows.len());
+    assert!(json["machine"]["cpu"]
+        .as_str()
+        .is_some_and(|s| !s.is_empty()));
+    assert!(json["machine"]["embree_version"].is_string());
+    assert_eq!(json["baseline"], "naive-serial");
+    let md = std::fs::read_to_string(dir.join("bench.md")).unwrap();
+    assert!(md.contains("| naive-serial | (0,1,3) | 1.00x |"), "{md}");
+}
+
+#[test]
+fn quick_bench_runs_every_experiment() {
+    let (dir, _) = quick_report();
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("bench.json")).unwrap()).unwrap();
+    let len = |k: &str| json[k].as_array().map_or(0, Vec::len);
+    // Thread scaling: each parallel variant on 1..N threads and 2N.
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let scaling_variants = if embree() { 4 } else { 2 };
+    assert_eq!(len("scaling"), scaling_variants * (threads + 1));
+    for p in json["scaling"].as_array().unwrap() {
+        if p["threads"] == 1 {
+            assert!((p["speedup"].as_f64().unwrap() - 1.0).abs() < 1e-9);
+        }
+    }
+    // Cost growth: 2 mesh sizes x (naive, median, sah, embree).
+    assert_eq!(len("growth"), 2 * if embree() { 4 } else { 3 });
+    // AO error: paper and cosine:1,4,16 on two scenes; more samples, less error.
+    let ao = json["ao_error"].as_array().unwrap();
+    assert_eq!(ao.len(), 2 * 4);
+    for scene in ["cornell-sphere", "cornell-water"] {
+        let rmse = |mode: &str| {
+            ao.iter()
+                .find(|p| p["scene"] == scene && p["ao"] == mode)
+                .and_then(|p| p["rmse"].as_f64())
+                .unwrap()
+        };
+        assert!(rmse("cosine:1") > rmse("cosine:4"));
+        assert!(rmse("cosine:4") > rmse("cosine:16"));
+        assert!(rmse("paper") > 0.0);
+    }
+    assert_eq!(len("builders"), 2 * if embree() { 5 } else { 2 });
+    assert!(len("leaks") >= 4 * 6);
+    assert_eq!(len("validation"), 4 * 2);
+    for v in json["validation"].as_array().unwrap() {
+        assert_eq!(v["genuine"], 0, "{v}");
+    }
+}
+
+#[test]
+fn quick_bench_draws_charts_and_images() {
+    let (dir, _) = quick_report();
+    let mut charts = vec![
+        "speedup-ao-off",
+        "speedup-ao-paper",
+        "thread-scaling",
+        "cost-growth",
+        "ao-error",
+        "builders",
+        "leaks",
+    ];
+    charts.sort();
+    for c in charts {
+        let png = image::open(dir.join("charts").join(format!("{c}.png")))
+            .unwrap_or_else(|e| panic!("{c}.png: {e}"))
+            .to_rgb8();
+        assert!(png.width() >= 800 && png.height() >= 500, "{c}");
+        // A drawn chart: mostly white, with some coloured (not grey) pixels.
+        let coloured = png
+            .pixels()
+            .filter(|p| {
+                let [r, g, b] = p.0;
+                r.max(g).max(b) - r.min(g).min(b) > 60
+            })
+            .count();
+        assert!(coloured > 200, "{c}: {coloured} coloured pixels");
+        let svg = std::fs::read_to_string(dir.join("charts").join(format!("{c}.svg"))).unwrap();
+        assert!(svg.contains("<svg") && svg.contains("</svg>"), "{c}.svg");
+    }
+    for scene in ["cornell-empty", "cornell-water"] {
+        for img in ["naive-serial", "bvh-sah-serial", "difference"] {
+            let p = dir.join("images").join(format!("{scene}-{img}.png"));
+            let i = image::open(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+            assert_eq!((i.width(), i.height()), (96, 72));
+        }
+    }
+    let html = std::fs::read_to_string(dir.join("index.html")).unwrap();
+    for needle in [
+        "charts/speedup-ao-paper.png",
+        "charts/ao-error.svg",
+        "images/cornell-water-difference.png",
+        "<h2 id=\"tables\">",
+        "data-images-ok",
+    ] {
+        assert!(html.contains(needle), "index.html lacks {needle}");
+    }
+    // Every image the page references exists, by relative path.
+    for src in html.split("src=\"").skip(1) {
+        let src = src.split('"').next().unwrap();
+        assert!(dir.join(src).is_file(), "missing {src}");
+    }
+}
+
+fn chromium() -> Option<PathBuf> {
+    [
+        "/usr/bin/chromium",
+        "/usr/bin/chromium-browser",
+        "/usr/bin/google-chrome",
+    ]
+    .iter()
+    .map(PathBuf::from)
+    .find(|p| p.is_file())
+}
+
+fn run_chromium(exe: &Path, profile: &Path, extra: &[&str], page: &Path) -> Output {
+    Command::new(exe)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--virtual-time-budget=10000",
+        ])
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .args(extra)
+        .arg(format!("file://{}", page.display()))
+        .output()
+        .expect("run chromium")
+}
+
+#[test]
+fn report_opens_in_headless_chromium() {
+    let Some(exe) = chromium() else {
+        assert!(
+            std::env::var_os("RAYLAB_REQUIRE_CHROMIUM").is_none(),
+            "RAYLAB_REQUIRE_CHROMIUM is set but no Chromium is installed"
+        );
+        eprintln!("skipped: no Chromium (apt install chromium)");
+        return;
+    };
+    let (dir, _) = quick_report();
+    let page = dir.join("index.html").canonicalize().unwrap();
+    let work = temp_dir("chromium");
+    // The page's own check: every <img> decoded with a non-zero size.
+    let dom = run_chromium(&exe, &work.join("p1"), &["--dump-dom"], &page);
+    let dom = String::from_utf8_lossy(&dom.stdout);
+    assert!(
+        dom.contains("data-images-ok=\"true\""),
+        "images did not all load: {}",
+        dom.split("id=\"check\"")
+            .nth(1)
+            .unwrap_or("no check element")
+            .chars()
+            .take(300)
+            .collect::<String>()
+    );
+    let shot = work.join("shot.png");
+    let out = run_chromium(
+        &exe,
+        &work.join("p2"),
+        &[
+            "--window-size=1300,2400",
+            &format!("--screenshot={}", shot.display()),
+        ],
+        &page,
+    );
+    assert!(
+        shot.is_file(),
+        "no screenshot: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let img = image::open(&shot).unwrap().to_rgb8();
+    assert_eq!((img.width(), img.height()), (1300, 2400));
+    // Charts were drawn into the page: many coloured pixels, not a blank or error page.
+    let coloured = img
+        .pixels()
+        .filter(|p| {
+            let [r, g, b] = p.0;
+            r.max(g).max(b) - r.min(g).min(b) > 60
+        })
+        .count();
+    assert!(
+        coloured > 5000,
+        "screenshot looks empty: {coloured} coloured pixels"
+    );
+    std::fs::remove_dir_all(&work).ok();
+}
+
+#[test]
+fn bad_bench_flags_fail_with_one_line() {
+    let d = temp_dir("flags");
+    let out = d.join("r");
+    let out = out.to_str().unwrap();
+    let cases: [(&[&str], &str); 7] = [
+        (
+            &["bench", "--variants", "naive-serial,warp-drive"],
+            "--variants",
+        ),
+        (&["bench", "--views", "1,2"], "--views"),
+        (&["bench", "--views", "0,1,0"], "--views"),
+        (&["bench", "--parts", "tables,magic"], "--parts"),
+        (&["bench", "--max-variant-s", "0"], "--max-variant-s"),
+        (&["bench", "--size", "0x5"], "--size"),
+        (&["bench", "no-such-scene"], "no-such-scene"),
+    ];
+    for (args, needle) in cases {
+        let mut args = args.to_vec();
+        args.extend(["--quick", "-q", "--out", out]);
+        let o = raylab(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?} succeeded");
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+        assert!(
+            err.contains(needle) && !err.contains("panicked"),
+            "{args:?}: {err}"
+        );
+    }
+    // An output folder that cannot be made: a file stands where it should be.
+    let file = d.join("a-file");
+    std::fs::write(&file, "x").unwrap();
+    let o = raylab(&[
+        "bench",
+        "--quick",
+        "-q",
+        "--parts",
+        "leaks",
+        "--out",
+        file.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.trim_end().lines().count() == 1 && err.contains("a-file"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn a_chosen_part_and_variants_run_alone() {
+    let d = temp_dir("parts");
+    let out = d.join("r");
+    let o = raylab(&[
+        "bench",
+        "cornell-empty",
+        "--variants",
+        "bvh-sah-serial,naive-serial",
+        "--views",
+        "0,1,3;1,1,3",
+        "--ao",
+        "off",
+        "--parts",
+        "tables",
+        "--reps",
+        "3",
+        "--size",
+        "32x24",
+        "--json",
+        "-q",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let ms = json["measurements"].as_array().unwrap();
+    assert_eq!(ms.len(), 2 * 2);
+    assert_eq!(ms[0]["variant"], "naive-serial");
+    assert_eq!(ms[2]["view"], "(1,1,3)");
+    for m in ms {
+        assert_eq!(m["total_ms"]["n"], 3);
+    }
+    assert!(json["scaling"].as_array().unwrap().is_empty());
+    assert!(out.join("charts/speedup-ao-off.png").is_file());
+    assert!(!out.join("charts/leaks.png").exists());
+    std::fs::remove_dir_all(&d).ok();
+}
