@@ -123,38 +123,40 @@ fn ray_triangle(c: &mut Criterion) {
     g.finish();
 }
 
-fn naive_queries(c: &mut Criterion) {
-    let rays = camera_rays();
-    let mut g = c.benchmark_group("naive");
-    g.throughput(Throughput::Elements(rays.len() as u64));
-    for name in ["cornell-original", "cornell-sphere"] {
-        let scene = builtin(name).unwrap();
-        let naive = Naive::new(&scene);
-        g.bench_with_input(BenchmarkId::new("intersect", name), &rays, |b, rays| {
-            b.iter(|| rays.iter().filter_map(|r| naive.intersect(r)).count())
-        });
-        g.bench_with_input(BenchmarkId::new("occluded", name), &rays, |b, rays| {
-            b.iter(|| rays.iter().filter(|r| naive.occluded(r)).count())
-        });
+/// The backends compared on one scene: naive (only where it finishes in
+/// reasonable time), both BVH builders and Embree.
+fn backends(scene: &raylab::scene::Scene, with_naive: bool) -> Vec<(String, Box<dyn Backend>)> {
+    let mut out: Vec<(String, Box<dyn Backend>)> = Vec::new();
+    if with_naive {
+        out.push(("naive".into(), Box::new(Naive::new(scene))));
     }
-    g.finish();
+    for params in [BuildParams::median(), BuildParams::sah()] {
+        let b = raylab::accel::bvh::BvhBackend::new(scene, &params).unwrap();
+        out.push((b.name(), Box::new(b)));
+    }
+    #[cfg(feature = "embree")]
+    {
+        use raylab::accel::embree::{EmbreeBackend, Quality};
+        let e = EmbreeBackend::new(scene, Quality::Medium, false, 1).unwrap();
+        out.push((e.name(), Box::new(e)));
+    }
+    out
 }
 
-/// Closest-hit and any-hit per BVH builder on the study's scenes, same ray set.
-fn bvh_queries(c: &mut Criterion) {
+/// Closest hit and any hit per backend on the same coherent camera rays.
+fn camera_queries(c: &mut Criterion) {
     let rays = camera_rays();
-    let mut g = c.benchmark_group("bvh");
+    let mut g = c.benchmark_group("camera_rays");
     g.throughput(Throughput::Elements(rays.len() as u64));
-    for name in ["cornell-sphere", "cornell-water"] {
-        let tris = builtin(name).unwrap().triangle_vertices();
-        for params in [BuildParams::median(), BuildParams::sah()] {
-            let bvh = Bvh::build(&tris, &params).unwrap();
-            let id = format!("{}/{name}", params.builder.name());
+    for name in ["cornell-original", "cornell-sphere", "cornell-water"] {
+        let scene = builtin(name).unwrap();
+        for (backend_name, backend) in backends(&scene, name != "cornell-water") {
+            let id = format!("{backend_name}/{name}");
             g.bench_with_input(BenchmarkId::new("intersect", &id), &rays, |b, rays| {
-                b.iter(|| rays.iter().filter_map(|r| bvh.intersect(r)).count())
+                b.iter(|| rays.iter().filter_map(|r| backend.intersect(r)).count())
             });
             g.bench_with_input(BenchmarkId::new("occluded", &id), &rays, |b, rays| {
-                b.iter(|| rays.iter().filter(|r| bvh.occluded(r)).count())
+                b.iter(|| rays.iter().filter(|r| backend.occluded(r)).count())
             });
         }
     }
@@ -167,18 +169,7 @@ fn ao_queries(c: &mut Criterion) {
     let rays = ao_rays(&scene);
     let mut g = c.benchmark_group("ao_rays");
     g.throughput(Throughput::Elements(rays.len() as u64));
-    let mut backends: Vec<(String, Box<dyn Backend>)> = Vec::new();
-    for params in [BuildParams::median(), BuildParams::sah()] {
-        let b = raylab::accel::bvh::BvhBackend::new(&scene, &params).unwrap();
-        backends.push((b.name(), Box::new(b)));
-    }
-    #[cfg(feature = "embree")]
-    {
-        use raylab::accel::embree::{EmbreeBackend, Quality};
-        let e = EmbreeBackend::new(&scene, Quality::Medium, false, 1).unwrap();
-        backends.push((e.name(), Box::new(e)));
-    }
-    for (name, backend) in &backends {
+    for (name, backend) in &backends(&scene, false) {
         g.bench_with_input(BenchmarkId::new("occluded", name), &rays, |b, rays| {
             b.iter(|| rays.iter().filter(|r| backend.occluded(r)).count())
         });
@@ -188,29 +179,6 @@ fn ao_queries(c: &mut Criterion) {
     }
     g.finish();
 }
-
-/// Embree's single-ray queries on the camera rays, as the bvh group measures ours.
-#[cfg(feature = "embree")]
-fn embree_queries(c: &mut Criterion) {
-    use raylab::accel::embree::{EmbreeBackend, Quality};
-    let rays = camera_rays();
-    let mut g = c.benchmark_group("embree");
-    g.throughput(Throughput::Elements(rays.len() as u64));
-    for name in ["cornell-sphere", "cornell-water"] {
-        let scene = builtin(name).unwrap();
-        let e = EmbreeBackend::new(&scene, Quality::Medium, false, 1).unwrap();
-        g.bench_with_input(BenchmarkId::new("intersect", name), &rays, |b, rays| {
-            b.iter(|| rays.iter().filter_map(|r| e.intersect(r)).count())
-        });
-        g.bench_with_input(BenchmarkId::new("occluded", name), &rays, |b, rays| {
-            b.iter(|| rays.iter().filter(|r| e.occluded(r)).count())
-        });
-    }
-    g.finish();
-}
-
-#[cfg(not(feature = "embree"))]
-fn embree_queries(_: &mut Criterion) {}
 
 /// Build time against triangle count on the procedural meshes, serial and on 2 threads.
 fn bvh_builds(c: &mut Criterion) {
@@ -243,9 +211,7 @@ criterion_group!(
     benches,
     ray_box,
     ray_triangle,
-    naive_queries,
-    bvh_queries,
-    embree_queries,
+    camera_queries,
     ao_queries,
     bvh_builds
 );

@@ -75,25 +75,28 @@ impl Progress {
     }
 }
 
-/// Progress through a list of steps of uneven length (the bench matrix): a bar
-/// with the running step's name and an estimate of the time left on a terminal,
-/// and otherwise one line on stderr per new message, so logs show the same.
+/// Progress through a list of steps of uneven length (the bench matrix), counted
+/// in units of expected work (the bench uses expected milliseconds), so that the
+/// estimate of the time left holds when a naive run takes a thousand times
+/// longer than a BVH run. On a terminal: a bar with the running step's name and
+/// the estimate; otherwise one line on stderr per step, so logs show the same.
 pub struct StepBar {
     bar: Option<ProgressBar>,
     quiet: bool,
     start: Instant,
     total: u64,
     done: AtomicU64,
+    step_units: u64,
 }
 
 impl StepBar {
-    pub fn new(total: u64, quiet: bool) -> Self {
+    pub fn new(total_units: u64, quiet: bool) -> Self {
         let target = ProgressDrawTarget::stderr();
         let bar = (!quiet && !target.is_hidden()).then(|| {
-            let b = ProgressBar::with_draw_target(Some(total), target);
+            let b = ProgressBar::with_draw_target(Some(total_units), target);
             b.set_style(
                 ProgressStyle::with_template(
-                    "[{bar:30}] {pos}/{len} {elapsed} eta {eta} {wide_msg}",
+                    "[{bar:30}] {percent:>3}% {elapsed} eta {eta} {wide_msg}",
                 )
                 .unwrap_or_else(|_| ProgressStyle::default_bar())
                 .progress_chars("=> "),
@@ -105,9 +108,21 @@ impl StepBar {
             bar,
             quiet,
             start: Instant::now(),
-            total,
+            total: total_units,
             done: AtomicU64::new(0),
+            step_units: 1,
         }
+    }
+
+    /// The units [`StepBar::step`] marks done.
+    pub fn with_step(mut self, units: u64) -> Self {
+        self.step_units = units;
+        self
+    }
+
+    /// Marks one step of the default size done.
+    pub fn step(&self) {
+        self.inc(self.step_units);
     }
 
     /// Names the step now running.
@@ -115,26 +130,28 @@ impl StepBar {
         match &self.bar {
             Some(b) => b.set_message(msg),
             None if !self.quiet => {
-                let done = self.done.load(Ordering::Relaxed);
+                let done = self.done.load(Ordering::Relaxed).min(self.total);
                 let elapsed = self.start.elapsed().as_secs_f64();
+                let percent = 100.0 * done as f64 / self.total.max(1) as f64;
                 let eta = if done > 0 {
                     format!(
                         ", ~{:.0} s left",
-                        elapsed / done as f64 * (self.total - done.min(self.total)) as f64
+                        elapsed / done as f64 * (self.total - done) as f64
                     )
                 } else {
                     String::new()
                 };
-                eprintln!("bench [{done}/{}, {elapsed:.0} s{eta}] {msg}", self.total);
+                eprintln!("bench [{percent:.0}%, {elapsed:.0} s{eta}] {msg}");
             }
             None => {}
         }
     }
 
-    pub fn inc(&self, n: u64) {
-        self.done.fetch_add(n, Ordering::Relaxed);
+    /// Marks `units` of expected work done.
+    pub fn inc(&self, units: u64) {
+        self.done.fetch_add(units, Ordering::Relaxed);
         if let Some(b) = &self.bar {
-            b.inc(n);
+            b.inc(units);
         }
     }
 

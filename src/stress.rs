@@ -791,6 +791,18 @@ pub struct StressReport {
     pub hostile: Option<HostileReport>,
 }
 
+/// The leak rows as a Markdown table.
+pub fn leak_table(rows: &[LeakRow]) -> String {
+    let mut out = String::from("| mesh | triangles | backend | rays | leaks | leak rate | ns/ray |\n|---|---:|---|---:|---:|---:|---:|\n");
+    for r in rows {
+        out.push_str(&format!(
+            "| {} | {} | {} | {} | {} | {:.2e} | {:.0} |\n",
+            r.mesh, r.triangles, r.backend, r.rays, r.leaks, r.leak_rate, r.ns_per_ray
+        ));
+    }
+    out
+}
+
 impl StressReport {
     /// The report as Markdown tables.
     pub fn markdown(&self) -> String {
@@ -799,13 +811,7 @@ impl StressReport {
             out.push_str(
                 "## Leaks: rays aimed at vertices and edges of closed meshes that miss them\n\n",
             );
-            out.push_str("| mesh | triangles | backend | rays | leaks | leak rate | ns/ray |\n|---|---:|---|---:|---:|---:|---:|\n");
-            for r in &self.leaks {
-                out.push_str(&format!(
-                    "| {} | {} | {} | {} | {} | {:.2e} | {:.0} |\n",
-                    r.mesh, r.triangles, r.backend, r.rays, r.leaks, r.leak_rate, r.ns_per_ray
-                ));
-            }
+            out.push_str(&leak_table(&self.leaks));
             out.push('\n');
         }
         if !self.offset.is_empty() {

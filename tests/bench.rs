@@ -3,22 +3,13 @@
 //! charts), and the HTML report opened in headless Chromium when it is installed
 //! (CI installs it and sets RAYLAB_REQUIRE_CHROMIUM=1 so that it cannot be skipped).
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::OnceLock;
 
-fn raylab(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_raylab"))
-        .args(args)
-        .output()
-        .expect("run raylab")
-}
-
-fn temp_dir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("raylab-bench-{tag}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
+use common::{assert_one_line_error, raylab, temp_dir};
 
 /// Runs the quick bench once for all tests of this file; returns its folder and stdout.
 fn quick_report() -> &'static (PathBuf, String) {
@@ -328,14 +319,7 @@ fn bad_bench_flags_fail_with_one_line() {
     for (args, needle) in cases {
         let mut args = args.to_vec();
         args.extend(["--quick", "-q", "--out", out]);
-        let o = raylab(&args);
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert!(!o.status.success(), "{args:?} succeeded");
-        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
-        assert!(
-            err.contains(needle) && !err.contains("panicked"),
-            "{args:?}: {err}"
-        );
+        assert_one_line_error(&args, needle);
     }
     // An output folder that cannot be made: a file stands where it should be.
     let file = d.join("a-file");

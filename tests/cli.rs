@@ -1,38 +1,9 @@
 //! The `raylab` binary as a user runs it: results on stdout, one-line errors on
 //! stderr, non-zero exit status on bad input, never a panic.
 
-use std::path::PathBuf;
-use std::process::{Command, Output};
+mod common;
 
-fn raylab(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_raylab"))
-        .args(args)
-        .output()
-        .expect("run raylab")
-}
-
-fn temp_dir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("raylab-cli-{tag}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-/// Asserts a failed run with exactly one line on stderr containing `needle`.
-fn assert_one_line_error(args: &[&str], needle: &str) {
-    let out = raylab(args);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "{args:?} succeeded");
-    assert_eq!(
-        err.trim_end().lines().count(),
-        1,
-        "{args:?}: stderr was:\n{err}"
-    );
-    assert!(!err.contains("panicked"), "{args:?}: {err}");
-    assert!(
-        err.contains(needle),
-        "{args:?}: expected '{needle}' in: {err}"
-    );
-}
+use common::{assert_one_line_error, raylab, temp_dir};
 
 #[test]
 fn bad_flags_fail_with_one_line_naming_the_flag() {

@@ -52,6 +52,51 @@ pub fn init_font() -> Result<()> {
     .map_err(Error::Other)
 }
 
+/// The series legend, in the same style on every chart.
+fn legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    position: SeriesLabelPosition,
+) -> DrawResult
+where
+    DB::ErrorType: 'static,
+{
+    chart
+        .configure_series_labels()
+        .position(position)
+        .background_style(WHITE.mix(0.9))
+        .border_style(BLACK)
+        .label_font((FONT, 13))
+        .draw()?;
+    Ok(())
+}
+
+/// A labelled line through `points` with a dot on each.
+fn line_with_points<'a, DB, CT>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    points: &[(f64, f64)],
+    c: RGBAColor,
+    label: &str,
+) -> DrawResult
+where
+    DB: DrawingBackend + 'a,
+    DB::ErrorType: 'static,
+    CT: plotters::coord::CoordTranslate<From = (f64, f64)>,
+{
+    chart
+        .draw_series(LineSeries::new(points.to_vec(), c.stroke_width(2)))?
+        .label(label)
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+    chart.draw_series(points.iter().map(|p| Circle::new(*p, 4, c.filled())))?;
+    Ok(())
+}
+
+/// Draws `$draw(area, $data)` as `$name.svg` and `$name.png` in `$dir`.
+macro_rules! save_chart {
+    ($dir:expr, $name:expr, $size:expr, $draw:ident, $data:expr) => {
+        save($dir, $name, $size, |a| $draw(a, $data), |a| $draw(a, $data))
+    };
+}
+
 /// Draws one chart as `dir/name.svg` and `dir/name.png`; returns the PNG's name.
 fn save(
     dir: &Path,
@@ -145,13 +190,7 @@ pub struct SpeedupData<'a> {
 
 pub fn speedup_chart(dir: &Path, data: &SpeedupData) -> Result<String> {
     let name = format!("speedup-ao-{}", data.ao.replace(':', "-"));
-    save(
-        dir,
-        &name,
-        (1200, 560),
-        |a| draw_speedup(a, data),
-        |a| draw_speedup(a, data),
-    )
+    save_chart!(dir, &name, (1200, 560), draw_speedup, data)
 }
 
 fn draw_speedup<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, d: &SpeedupData) -> DrawResult
@@ -224,13 +263,7 @@ where
             .label(variant.as_str())
             .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 12, y + 5)], c.filled()));
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .background_style(WHITE.mix(0.9))
-        .border_style(BLACK)
-        .label_font((FONT, 13))
-        .draw()?;
+    legend(&mut chart, SeriesLabelPosition::UpperLeft)?;
     for (gi, (scene, view, tris)) in groups.iter().enumerate() {
         let (px, py) = chart.backend_coord(&(gi as f64 + 0.5, y.start));
         let style = TextStyle::from((FONT, 13).into_font()).pos(Pos::new(HPos::Center, VPos::Top));
@@ -247,13 +280,7 @@ where
 }
 
 pub fn scaling_chart(dir: &Path, points: &[ScalingPoint]) -> Result<String> {
-    save(
-        dir,
-        "thread-scaling",
-        (800, 520),
-        |a| draw_scaling(a, points),
-        |a| draw_scaling(a, points),
-    )
+    save_chart!(dir, "thread-scaling", (800, 520), draw_scaling, points)
 }
 
 fn draw_scaling<DB: DrawingBackend>(
@@ -298,31 +325,15 @@ where
             .filter(|p| p.variant == *v)
             .map(|p| (p.threads as f64, p.speedup))
             .collect();
-        chart
-            .draw_series(LineSeries::new(line.clone(), c.stroke_width(2)))?
-            .label(*v)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
-        chart.draw_series(line.iter().map(|p| Circle::new(*p, 4, c.filled())))?;
+        line_with_points(&mut chart, &line, c, v)?;
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .background_style(WHITE.mix(0.9))
-        .border_style(BLACK)
-        .label_font((FONT, 13))
-        .draw()?;
+    legend(&mut chart, SeriesLabelPosition::UpperLeft)?;
     root.present()?;
     Ok(())
 }
 
 pub fn growth_chart(dir: &Path, points: &[GrowthPoint]) -> Result<String> {
-    save(
-        dir,
-        "cost-growth",
-        (1200, 520),
-        |a| draw_growth(a, points),
-        |a| draw_growth(a, points),
-    )
+    save_chart!(dir, "cost-growth", (1200, 520), draw_growth, points)
 }
 
 fn draw_growth<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, pts: &[GrowthPoint]) -> DrawResult
@@ -373,34 +384,16 @@ where
                 .filter(|p| p.backend == *b)
                 .map(|p| (p.triangles as f64, get(p)))
                 .collect();
-            chart
-                .draw_series(LineSeries::new(line.clone(), c.stroke_width(2)))?
-                .label(*b)
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2))
-                });
-            chart.draw_series(line.iter().map(|p| Circle::new(*p, 4, c.filled())))?;
+            line_with_points(&mut chart, &line, c, b)?;
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperLeft)
-            .background_style(WHITE.mix(0.9))
-            .border_style(BLACK)
-            .label_font((FONT, 13))
-            .draw()?;
+        legend(&mut chart, SeriesLabelPosition::UpperLeft)?;
     }
     root.present()?;
     Ok(())
 }
 
 pub fn ao_error_chart(dir: &Path, points: &[AoErrorPoint]) -> Result<String> {
-    save(
-        dir,
-        "ao-error",
-        (1200, 520),
-        |a| draw_ao_error(a, points),
-        |a| draw_ao_error(a, points),
-    )
+    save_chart!(dir, "ao-error", (1200, 520), draw_ao_error, points)
 }
 
 fn draw_ao_error<DB: DrawingBackend>(
@@ -466,26 +459,14 @@ where
             }))?
             .label("paper (14 fixed directions)")
             .legend(move |(x, y)| TriangleMarker::new((x + 8, y), 6, red.filled()));
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .background_style(WHITE.mix(0.9))
-            .border_style(BLACK)
-            .label_font((FONT, 13))
-            .draw()?;
+        legend(&mut chart, SeriesLabelPosition::UpperRight)?;
     }
     root.present()?;
     Ok(())
 }
 
 pub fn builders_chart(dir: &Path, points: &[BuilderPoint]) -> Result<String> {
-    save(
-        dir,
-        "builders",
-        (1200, 520),
-        |a| draw_builders(a, points),
-        |a| draw_builders(a, points),
-    )
+    save_chart!(dir, "builders", (1200, 520), draw_builders, points)
 }
 
 fn draw_builders<DB: DrawingBackend>(
@@ -556,13 +537,7 @@ where
                 .label(*b)
                 .legend(move |(x, y)| Circle::new((x + 6, y), 5, c.filled()));
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .background_style(WHITE.mix(0.9))
-            .border_style(BLACK)
-            .label_font((FONT, 13))
-            .draw()?;
+        legend(&mut chart, SeriesLabelPosition::UpperRight)?;
     }
     let note = format!(
         "circles: {}   triangles: {}",
@@ -575,13 +550,7 @@ where
 }
 
 pub fn leaks_chart(dir: &Path, rows: &[LeakRow]) -> Result<String> {
-    save(
-        dir,
-        "leaks",
-        (900, 520),
-        |a| draw_leaks(a, rows),
-        |a| draw_leaks(a, rows),
-    )
+    save_chart!(dir, "leaks", (900, 520), draw_leaks, rows)
 }
 
 fn draw_leaks<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, rows: &[LeakRow]) -> DrawResult
@@ -636,13 +605,7 @@ where
             .label(m.as_str())
             .legend(move |(x, y)| Circle::new((x + 6, y), 5, c.filled()));
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .background_style(WHITE.mix(0.9))
-        .border_style(BLACK)
-        .label_font((FONT, 13))
-        .draw()?;
+    legend(&mut chart, SeriesLabelPosition::UpperRight)?;
     root.present()?;
     Ok(())
 }

@@ -106,7 +106,7 @@ pub fn thread_scaling(
                 slot.push(ms_since(start));
             }
         }
-        bar.inc(1);
+        bar.step();
         let one = Stat::of(&times[0]).median;
         for (t, ts) in thread_counts.iter().zip(&times) {
             let s = Stat::of(ts);
@@ -165,29 +165,20 @@ pub fn cost_growth(
         for variant in growth_variants() {
             bar.set_message(format!("cost growth: {} on mesh:{n}", variant.name));
             if variant.kind == BackendKind::Naive && n > naive_max {
-                bar.inc(1);
+                bar.step();
                 continue;
             }
             let mut builds = Vec::new();
             let mut renders = Vec::new();
             let mut rays = 0;
             for _ in 0..reps.max(1) {
-                let start = Instant::now();
-                let backend = build_backend(&variant.spec(threads), &scene)?;
-                builds.push(ms_since(start));
-                let start = Instant::now();
-                let (_, stats) = render(
-                    &scene,
-                    backend.as_ref(),
-                    settings,
-                    variant.schedule,
-                    threads,
-                    &Progress::new(),
-                )?;
-                renders.push(ms_since(start));
+                let (build_ms, render_ms, _, stats) =
+                    super::measure::run_once(&scene, &variant, settings, threads)?;
+                builds.push(build_ms);
+                renders.push(render_ms);
                 rays = stats.total_rays();
             }
-            bar.inc(1);
+            bar.step();
             let render_ms = Stat::of(&renders).median;
             out.push(GrowthPoint {
                 backend: variant.name.trim_end_matches("-tiles").to_string(),
@@ -270,7 +261,7 @@ pub fn ao_error(
         threads,
         1,
     )?;
-    bar.inc(1);
+    bar.step();
     let mut modes = vec![AoMode::Paper];
     modes.extend(samples.iter().map(|&n| AoMode::Cosine(n)));
     let mut out = Vec::new();
@@ -284,7 +275,7 @@ pub fn ao_error(
             threads,
             reps,
         )?;
-        bar.inc(1);
+        bar.step();
         let e = rmse(&frame, &truth)?;
         out.push(AoErrorPoint {
             scene: scene.name.clone(),
@@ -343,7 +334,7 @@ pub fn builder_quality(
         let backend = BvhBackend::new(scene, &params)?;
         let (render_ms, _) =
             timed_renders(scene, &backend, settings, Schedule::Tiles, threads, reps)?;
-        bar.inc(1);
+        bar.step();
         let work = [report.primary, report.shadow, report.ao];
         let rays: u64 = work.iter().map(|w| w.rays).sum();
         let per_ray = |f: fn(&crate::accel::bvh::quality::KindWork) -> f64| {
@@ -430,7 +421,7 @@ pub fn validation(
             row.ties += r.ties;
             row.genuine += r.genuine;
         }
-        bar.inc(1);
+        bar.step();
         out.push(row);
     }
     Ok(out)

@@ -161,10 +161,26 @@ pub struct KeptFrame {
 }
 
 impl Matrix<'_> {
-    /// Runs of the whole matrix, warm-ups included (the progress bar's length).
-    pub fn planned_runs(&self) -> u64 {
-        (self.scenes.len() * self.views.len() * self.ao_modes.len() * self.variants.len()) as u64
-            * (self.reps as u64 + self.warmup as u64)
+    /// Expected milliseconds of one variant on one cell, all its runs, with the
+    /// time cap applied: the progress bar's units.
+    fn planned_ms(&self, variant: &Variant, scene: &Scene, ao: AoMode) -> u64 {
+        let one = expected_ms(variant, scene, self.size, ao, self.threads);
+        let runs = (self.reps + self.warmup as usize) as f64;
+        let capped = (self.max_variant_s * 1e3).max(one) + one;
+        (one * runs).min(capped).max(1.0) as u64
+    }
+
+    /// Expected milliseconds of the whole matrix.
+    pub fn planned_units(&self) -> u64 {
+        let mut total = 0;
+        for scene in self.scenes {
+            for &ao in self.ao_modes {
+                for v in self.variants {
+                    total += self.planned_ms(v, scene, ao) * self.views.len() as u64;
+                }
+            }
+        }
+        total
     }
 
     /// Whether `variant` is the one whose frames stand for its backend kind.
@@ -253,14 +269,19 @@ impl Matrix<'_> {
                 done: false,
             })
             .collect();
+        let planned: Vec<u64> = self
+            .variants
+            .iter()
+            .map(|v| self.planned_ms(v, scene, settings.ao))
+            .collect();
+        let mut given = vec![0u64; self.variants.len()];
         for rep in (!self.warmup as usize)..=self.reps {
-            for (variant, a) in self.variants.iter().zip(acc.iter_mut()) {
+            for (i, (variant, a)) in self.variants.iter().zip(acc.iter_mut()).enumerate() {
                 let counted = a.build.len();
                 let over_budget = (counted >= 1 && a.spent_s + a.last_s > self.max_variant_s)
                     || counted >= self.reps;
                 if a.done || over_budget {
                     a.done = true;
-                    bar.inc(1);
                     continue;
                 }
                 bar.set_message(format!(
@@ -274,7 +295,10 @@ impl Matrix<'_> {
                 ));
                 let (build_ms, render_ms, frame, stats) =
                     run_once(scene, variant, settings, self.threads)?;
-                bar.inc(1);
+                let expected = expected_ms(variant, scene, self.size, settings.ao, self.threads);
+                let units = (expected.max(1.0) as u64).min(planned[i] - given[i]);
+                given[i] += units;
+                bar.inc(units);
                 let seconds = (build_ms + render_ms) / 1e3;
                 a.last_s = seconds;
                 let hash = output::image_hash(&output::to_srgb8(&frame));
@@ -295,6 +319,8 @@ impl Matrix<'_> {
                 a.spent_s += seconds;
             }
         }
+        // What the plan expected but the cap skipped.
+        bar.inc(planned.iter().zip(&given).map(|(p, g)| p - g).sum());
         Ok(self
             .variants
             .iter()
@@ -330,6 +356,39 @@ impl Matrix<'_> {
             })
             .collect())
     }
+}
+
+/// A rough model of one run's milliseconds, for the progress estimate only:
+/// rays per pixel by AO mode times a per-ray cost (linear in triangles for
+/// naive, logarithmic for the hierarchies), divided by the render threads.
+pub fn expected_ms(
+    variant: &Variant,
+    scene: &Scene,
+    size: (u32, u32),
+    ao: AoMode,
+    threads: usize,
+) -> f64 {
+    let rays_per_pixel = match ao {
+        AoMode::Off => 2.0,
+        AoMode::Paper => 9.0,
+        AoMode::Cosine(n) => 2.0 + n as f64,
+    };
+    let rays = size.0 as f64 * size.1 as f64 * rays_per_pixel;
+    let n = scene.triangle_count() as f64;
+    let levels = n.log2().max(0.0) + 1.0;
+    let ns_per_ray = match variant.kind {
+        BackendKind::Naive => 2.7 * n + 50.0,
+        BackendKind::Bvh if variant.builder == crate::accel::bvh::BuilderKind::Median => {
+            30.0 * levels + 50.0
+        }
+        BackendKind::Bvh => 12.0 * levels + 50.0,
+        BackendKind::Embree => 6.0 * levels + 50.0,
+    };
+    let parallel = match variant.schedule {
+        crate::render::Schedule::Serial => 1.0,
+        _ => threads.max(1) as f64,
+    };
+    rays * ns_per_ray / parallel / 1e6
 }
 
 /// One timed run: (build ms, render ms, the frame, ray statistics).

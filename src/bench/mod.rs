@@ -209,10 +209,10 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
     };
     let last_two: Vec<&Scene> = scenes.iter().rev().take(2).rev().collect();
     let (ao_n, _) = cfg.ao_samples();
+    // Progress units are expected milliseconds; each step of the other parts
+    // counts as `step` of them.
+    let step: u64 = if cfg.quick { 100 } else { 3000 };
     let mut steps = 0;
-    if cfg.wants("tables") {
-        steps += matrix.planned_runs();
-    }
     if cfg.wants("scaling") {
         steps += extras::scaling_variants().len() as u64;
     }
@@ -231,7 +231,11 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
     if cfg.wants("validate") {
         steps += 2 * scenes.len() as u64;
     }
-    let bar = StepBar::new(steps, cfg.quiet);
+    let mut units = steps * step;
+    if cfg.wants("tables") {
+        units += matrix.planned_units();
+    }
+    let bar = StepBar::new(units, cfg.quiet).with_step(step);
 
     let (measurements, kept) = if cfg.wants("tables") {
         matrix.run(&bar)?
@@ -297,7 +301,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
             &crate::stress::leak_meshes(cfg.quick),
             if cfg.quick { 2 } else { 4 },
         )?;
-        bar.inc(1);
+        bar.step();
         rows
     } else {
         Vec::new()
@@ -524,19 +528,8 @@ pub fn markdown(r: &BenchReport) -> String {
         out.push('\n');
     }
     if !r.leaks.is_empty() {
-        out.push_str("### Leaks against speed\n\n| mesh | backend | intersector | rays | leaks | leak % | ns/ray |\n|---|---|---|---:|---:|---:|---:|\n");
-        for l in &r.leaks {
-            out.push_str(&format!(
-                "| {} | {} | {} | {} | {} | {:.3} | {:.0} |\n",
-                l.mesh,
-                l.backend,
-                l.intersector,
-                l.rays,
-                l.leaks,
-                l.leak_rate * 100.0,
-                l.ns_per_ray
-            ));
-        }
+        out.push_str("### Leaks against speed (rays through closed meshes)\n\n");
+        out.push_str(&crate::stress::leak_table(&r.leaks));
         out.push('\n');
     }
     if !r.validation.is_empty() {

@@ -1,6 +1,9 @@
 //! Fixtures shared by the integration tests.
 #![allow(dead_code)]
 
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
 use glam::Vec3;
 use raylab::camera::Camera;
 use raylab::render::{AoMode, RenderSettings};
@@ -71,4 +74,36 @@ impl TestRng {
             }
         }
     }
+}
+
+/// Runs the `raylab` binary with `args`.
+pub fn raylab(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_raylab"))
+        .args(args)
+        .output()
+        .expect("run raylab")
+}
+
+/// A fresh folder for one test (process id in the name).
+pub fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("raylab-test-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Asserts a failed run with exactly one line on stderr containing `needle`.
+pub fn assert_one_line_error(args: &[&str], needle: &str) {
+    let out = raylab(args);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{args:?} succeeded");
+    assert_eq!(
+        err.trim_end().lines().count(),
+        1,
+        "{args:?}: stderr was:\n{err}"
+    );
+    assert!(!err.contains("panicked"), "{args:?}: {err}");
+    assert!(
+        err.contains(needle),
+        "{args:?}: expected '{needle}' in: {err}"
+    );
 }
