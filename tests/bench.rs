@@ -33,9 +33,9 @@ fn embree() -> bool {
 
 fn variants() -> usize {
     if embree() {
-        15
+        18
     } else {
-        12
+        15
     }
 }
 
@@ -132,8 +132,8 @@ fn quick_bench_runs_every_experiment() {
             assert!((p["speedup"].as_f64().unwrap() - 1.0).abs() < 1e-9);
         }
     }
-    // Cost growth: 2 mesh sizes x (naive, median, sah, embree).
-    assert_eq!(len("growth"), 2 * if embree() { 4 } else { 3 });
+    // Cost growth: 2 mesh sizes x (naive, median, sah, sah 4-wide, embree).
+    assert_eq!(len("growth"), 2 * if embree() { 5 } else { 4 });
     // AO error: paper and cosine:1,4,16 on two scenes; more samples, less error.
     let ao = json["ao_error"].as_array().unwrap();
     assert_eq!(ao.len(), 2 * 4);

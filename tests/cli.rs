@@ -205,7 +205,7 @@ fn intersector_flag_selects_the_watertight_test() {
         String::from_utf8_lossy(&out.stderr)
     );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!(v["backend"], "bvh-sah-watertight");
+    assert_eq!(v["backend"], "bvh4-sah-watertight");
     std::fs::remove_dir_all(&d).ok();
 }
 

@@ -59,12 +59,13 @@ pub struct ScalingPoint {
     pub speedup: f64,
 }
 
-/// The variants whose render time is measured on 1..N threads: the parallel
-/// schedules of the best BVH and of Embree.
+/// The variants whose render time is measured on 1..N threads: the binary and
+/// 4-wide SAH BVHs and Embree, over the locked tile queue (and Embree's also
+/// over rayon).
 pub fn scaling_variants() -> Vec<Variant> {
     [
         "bvh-sah-tiles",
-        "bvh-sah-rayon",
+        "bvh4-sah-tiles",
         "embree-tiles",
         "embree-rayon",
     ]
@@ -141,6 +142,7 @@ fn growth_variants() -> Vec<Variant> {
         "naive-tiles",
         "bvh-median-pbuild-tiles",
         "bvh-sah-tiles",
+        "bvh4-sah-tiles",
         "embree-tiles",
     ]
     .iter()

@@ -337,6 +337,9 @@ impl Matrix<'_> {
                     variant: variant.name.to_string(),
                     backend: match variant.kind {
                         BackendKind::Naive => "naive".to_string(),
+                        BackendKind::Bvh if variant.width == 4 => {
+                            format!("bvh4-{}", variant.builder.name())
+                        }
                         BackendKind::Bvh => format!("bvh-{}", variant.builder.name()),
                         BackendKind::Embree => "embree".to_string(),
                     },

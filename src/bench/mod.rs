@@ -217,7 +217,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
         steps += extras::scaling_variants().len() as u64;
     }
     if cfg.wants("growth") {
-        steps += (cfg.growth_sizes().len() * 4) as u64;
+        steps += (cfg.growth_sizes().len() * 5) as u64;
     }
     if cfg.wants("ao-error") {
         steps += (last_two.len() * (ao_n.len() + 2)) as u64;

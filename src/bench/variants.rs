@@ -23,6 +23,8 @@ pub struct Variant {
     pub schedule: Schedule,
     /// Build on all bench threads (else on one).
     pub parallel_build: bool,
+    /// Children per node traversed (2, or 4 for the collapsed SIMD tree).
+    pub width: usize,
 }
 
 const fn v(
@@ -38,7 +40,12 @@ const fn v(
         builder,
         schedule,
         parallel_build,
+        width: 2,
     }
+}
+
+const fn wide(v: Variant) -> Variant {
+    Variant { width: 4, ..v }
 }
 
 use BackendKind::{Bvh, Embree, Naive};
@@ -46,7 +53,7 @@ use BuilderKind::{Median, Sah};
 use Schedule::{Rayon, Rows, Serial, Tiles};
 
 /// Every variant, in the order tables list them. `naive-serial` is the baseline.
-pub const VARIANTS: [Variant; 15] = [
+pub const VARIANTS: [Variant; 18] = [
     v("naive-serial", Naive, Sah, Serial, false),
     v("naive-rows", Naive, Sah, Rows, false),
     v("naive-tiles", Naive, Sah, Tiles, false),
@@ -59,6 +66,9 @@ pub const VARIANTS: [Variant; 15] = [
     v("bvh-sah-serial", Bvh, Sah, Serial, false),
     v("bvh-sah-tiles", Bvh, Sah, Tiles, true),
     v("bvh-sah-rayon", Bvh, Sah, Rayon, true),
+    wide(v("bvh4-sah-serial", Bvh, Sah, Serial, false)),
+    wide(v("bvh4-sah-tiles", Bvh, Sah, Tiles, true)),
+    wide(v("bvh4-sah-rayon", Bvh, Sah, Rayon, true)),
     v("embree-serial", Embree, Sah, Serial, false),
     v("embree-tiles", Embree, Sah, Tiles, true),
     v("embree-rayon", Embree, Sah, Rayon, true),
@@ -98,7 +108,9 @@ impl Variant {
     pub fn spec(&self, threads: usize) -> BackendSpec {
         BackendSpec {
             kind: self.kind,
-            bvh: BuildParams::for_builder(self.builder).with_threads(self.build_threads(threads)),
+            bvh: BuildParams::for_builder(self.builder)
+                .with_threads(self.build_threads(threads))
+                .with_width(self.width),
             intersector: Intersector::Mt,
             embree_quality: Quality::Medium,
             embree_robust: false,
@@ -109,6 +121,9 @@ impl Variant {
     pub fn describe(&self) -> String {
         let backend = match self.kind {
             Naive => "all triangles per ray".to_string(),
+            Bvh if self.width == 4 => {
+                format!("{} BVH collapsed to 4-wide SIMD nodes", self.builder.name())
+            }
             Bvh => format!("{} BVH", self.builder.name()),
             Embree => "Embree MEDIUM, rtcIntersect1/rtcOccluded1".to_string(),
         };

@@ -12,6 +12,7 @@
 pub mod build;
 pub mod quality;
 pub mod traverse;
+pub mod wide;
 
 use std::time::{Duration, Instant};
 
@@ -80,6 +81,8 @@ impl Bvh {
 /// The BVH as a render [`Backend`].
 pub struct BvhBackend {
     pub bvh: Bvh,
+    /// The 4-wide tree traversed instead of `bvh` when built with width 4.
+    pub wide: Option<wide::Bvh4>,
     builder: BuilderKind,
     intersector: Intersector,
     build_time: Duration,
@@ -92,8 +95,10 @@ impl BvhBackend {
         let start = Instant::now();
         let triangles = scene.triangle_vertices();
         let bvh = Bvh::build(&triangles, params)?;
+        let wide = (params.width == 4).then(|| wide::Bvh4::collapse(&bvh));
         Ok(BvhBackend {
             bvh,
+            wide,
             builder: params.builder,
             intersector: Intersector::Mt,
             build_time: start.elapsed(),
@@ -104,8 +109,10 @@ impl BvhBackend {
     pub fn from_triangles(triangles: &[[Vec3; 3]], params: &BuildParams) -> crate::Result<Self> {
         let start = Instant::now();
         let bvh = Bvh::build(triangles, params)?;
+        let wide = (params.width == 4).then(|| wide::Bvh4::collapse(&bvh));
         Ok(BvhBackend {
             bvh,
+            wide,
             builder: params.builder,
             intersector: Intersector::Mt,
             build_time: start.elapsed(),
@@ -120,11 +127,13 @@ impl BvhBackend {
 }
 
 impl Backend for BvhBackend {
-    /// `bvh-<builder>`, with `-watertight` for the watertight triangle test.
+    /// `bvh-<builder>` (`bvh4-` for the 4-wide tree), with `-watertight` for the
+    /// watertight triangle test.
     fn name(&self) -> String {
+        let kind = if self.wide.is_some() { "bvh4" } else { "bvh" };
         match self.intersector {
-            Intersector::Mt => format!("bvh-{}", self.builder.name()),
-            other => format!("bvh-{}-{}", self.builder.name(), other.name()),
+            Intersector::Mt => format!("{kind}-{}", self.builder.name()),
+            other => format!("{kind}-{}-{}", self.builder.name(), other.name()),
         }
     }
 
@@ -134,11 +143,17 @@ impl Backend for BvhBackend {
 
     #[inline]
     fn intersect(&self, ray: &Ray) -> Option<Hit> {
-        self.bvh.intersect_using(ray, self.intersector)
+        match &self.wide {
+            Some(w) => w.intersect_using(ray, self.intersector),
+            None => self.bvh.intersect_using(ray, self.intersector),
+        }
     }
 
     #[inline]
     fn occluded(&self, ray: &Ray) -> bool {
-        self.bvh.occluded_using(ray, self.intersector)
+        match &self.wide {
+            Some(w) => w.occluded_using(ray, self.intersector),
+            None => self.bvh.occluded_using(ray, self.intersector),
+        }
     }
 }

@@ -71,6 +71,9 @@ pub struct BuildParams {
     pub max_leaf_size: usize,
     /// Threads for the build: 1 builds serially on the calling thread.
     pub threads: usize,
+    /// Children per node of the tree traversed: 2 (the built tree) or 4 (the
+    /// built tree collapsed into 4-wide SIMD nodes, [`super::wide`]).
+    pub width: usize,
 }
 
 impl BuildParams {
@@ -80,6 +83,7 @@ impl BuildParams {
             builder: BuilderKind::Median,
             max_leaf_size: 1,
             threads: 1,
+            width: 2,
         }
     }
 
@@ -89,6 +93,7 @@ impl BuildParams {
             builder: BuilderKind::Sah,
             max_leaf_size: sah::DEFAULT_MAX_LEAF_SIZE,
             threads: 1,
+            width: 2,
         }
     }
 
@@ -106,6 +111,12 @@ impl BuildParams {
 
     pub const fn with_threads(mut self, threads: usize) -> Self {
         self.threads = threads;
+        self
+    }
+
+    /// Traverse a `width`-wide tree (2 or 4).
+    pub const fn with_width(mut self, width: usize) -> Self {
+        self.width = width;
         self
     }
 
