@@ -36,7 +36,7 @@ run: build
 test: deps
 	$(CARGO) test --release --all-targets
 
-# The full bench (10 reps, 1024x768, AO off and paper; about 45 minutes on 2 cores):
+# The full bench (10 reps, 1024x768, AO off and paper; about an hour on 2 cores):
 # tables, charts and bench-report/index.html.
 bench: build
 	$(RAYLAB) bench --out bench-report
