@@ -8,7 +8,7 @@ mod common;
 use common::{settings, TestRng};
 use glam::Vec3;
 use raylab::accel::bvh::wide::Bvh4;
-use raylab::accel::bvh::{BuildParams, BuilderKind, Bvh, BvhBackend};
+use raylab::accel::bvh::{BuildParams, BuilderKind, Bvh, BvhBackend, Traversal};
 use raylab::accel::naive::Naive;
 use raylab::accel::Backend;
 use raylab::geometry::{Aabb, Intersector, Ray};

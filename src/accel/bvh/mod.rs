@@ -19,6 +19,7 @@ use std::time::{Duration, Instant};
 use glam::Vec3;
 
 pub use build::{BuildParams, BuilderKind};
+pub use traverse::Traversal;
 
 use super::Backend;
 use crate::geometry::{Aabb, Hit, Intersector, Ray};
@@ -93,21 +94,20 @@ impl BvhBackend {
     /// time runs from the scene to a ready structure (vertex gather included).
     pub fn new(scene: &Scene, params: &BuildParams) -> crate::Result<Self> {
         let start = Instant::now();
-        let triangles = scene.triangle_vertices();
-        let bvh = Bvh::build(&triangles, params)?;
-        let wide = (params.width == 4).then(|| wide::Bvh4::collapse(&bvh));
-        Ok(BvhBackend {
-            bvh,
-            wide,
-            builder: params.builder,
-            intersector: Intersector::Mt,
-            build_time: start.elapsed(),
-        })
+        Self::build_timed(&scene.triangle_vertices(), params, start)
     }
 
     /// Builds over raw triangles (degenerate ones included), for stress tests.
     pub fn from_triangles(triangles: &[[Vec3; 3]], params: &BuildParams) -> crate::Result<Self> {
-        let start = Instant::now();
+        Self::build_timed(triangles, params, Instant::now())
+    }
+
+    /// The build, with its time counted from `start`; width 4 adds the collapse.
+    fn build_timed(
+        triangles: &[[Vec3; 3]],
+        params: &BuildParams,
+        start: Instant,
+    ) -> crate::Result<Self> {
         let bvh = Bvh::build(triangles, params)?;
         let wide = (params.width == 4).then(|| wide::Bvh4::collapse(&bvh));
         Ok(BvhBackend {

@@ -8,6 +8,7 @@ use serde::Serialize;
 
 use super::build::sah::{C_INTERSECT, C_TRAVERSAL};
 use super::traverse::Counts;
+use super::traverse::Traversal;
 use super::Bvh;
 use crate::geometry::{Hit, Ray};
 use crate::render::Tracer;

@@ -58,6 +58,45 @@ impl Counter for Counts {
     }
 }
 
+/// The two queries of a hierarchy, generic over the triangle test and a work
+/// counter; the binary tree and the 4-wide tree implement `closest` and `any`,
+/// and share the dispatch below.
+pub trait Traversal {
+    /// Closest hit (ties: lowest triangle index) with triangle test `T`.
+    fn closest<T: TriangleTest, C: Counter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit>;
+
+    /// Any hit within the segment with triangle test `T`.
+    fn any<T: TriangleTest, C: Counter>(&self, ray: &Ray, counter: &mut C) -> bool;
+
+    /// Closest hit with the chosen ray/triangle test.
+    #[inline]
+    fn intersect_using(&self, ray: &Ray, intersector: Intersector) -> Option<Hit> {
+        match intersector {
+            Intersector::Mt => self.closest::<MollerTrumbore, _>(ray, &mut NoCount),
+            Intersector::Watertight => self.closest::<Watertight, _>(ray, &mut NoCount),
+        }
+    }
+
+    /// Any hit with the chosen ray/triangle test.
+    #[inline]
+    fn occluded_using(&self, ray: &Ray, intersector: Intersector) -> bool {
+        match intersector {
+            Intersector::Mt => self.any::<MollerTrumbore, _>(ray, &mut NoCount),
+            Intersector::Watertight => self.any::<Watertight, _>(ray, &mut NoCount),
+        }
+    }
+
+    /// Closest hit with Moller-Trumbore, counting work.
+    fn intersect_counted<C: Counter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
+        self.closest::<MollerTrumbore, C>(ray, counter)
+    }
+
+    /// Any hit with Moller-Trumbore, counting work.
+    fn occluded_counted<C: Counter>(&self, ray: &Ray, counter: &mut C) -> bool {
+        self.any::<MollerTrumbore, C>(ray, counter)
+    }
+}
+
 impl Bvh {
     /// Closest hit (ties: lowest triangle index), as [`crate::accel::Backend::intersect`],
     /// with Moller-Trumbore.
@@ -73,34 +112,6 @@ impl Bvh {
         self.occluded_counted(ray, &mut NoCount)
     }
 
-    /// Closest hit with the chosen ray/triangle test.
-    #[inline]
-    pub fn intersect_using(&self, ray: &Ray, intersector: Intersector) -> Option<Hit> {
-        match intersector {
-            Intersector::Mt => self.closest::<MollerTrumbore, _>(ray, &mut NoCount),
-            Intersector::Watertight => self.closest::<Watertight, _>(ray, &mut NoCount),
-        }
-    }
-
-    /// Any hit with the chosen ray/triangle test.
-    #[inline]
-    pub fn occluded_using(&self, ray: &Ray, intersector: Intersector) -> bool {
-        match intersector {
-            Intersector::Mt => self.any::<MollerTrumbore, _>(ray, &mut NoCount),
-            Intersector::Watertight => self.any::<Watertight, _>(ray, &mut NoCount),
-        }
-    }
-
-    /// Closest hit with Moller-Trumbore, counting work.
-    pub fn intersect_counted<C: Counter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
-        self.closest::<MollerTrumbore, C>(ray, counter)
-    }
-
-    /// Any hit with Moller-Trumbore, counting work.
-    pub fn occluded_counted<C: Counter>(&self, ray: &Ray, counter: &mut C) -> bool {
-        self.any::<MollerTrumbore, C>(ray, counter)
-    }
-
     /// The entry distance of node `i` if its box overlaps `(tmin, tmax)`.
     #[inline(always)]
     fn enter(&self, i: u32, ray: &Ray, inv_dir: glam::Vec3, tmax: f32) -> Option<f32> {
@@ -112,7 +123,9 @@ impl Bvh {
             tmax * (1.0 + SLAB_SLACK),
         )
     }
+}
 
+impl Traversal for Bvh {
     fn closest<T: TriangleTest, C: Counter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
         if self.nodes.is_empty() || !ray.is_valid() {
             return None;

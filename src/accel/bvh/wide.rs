@@ -13,11 +13,9 @@
 
 use glam::{Vec3, Vec4};
 
-use super::traverse::{Counter, NoCount};
+use super::traverse::{Counter, Traversal};
 use super::Bvh;
-use crate::geometry::{
-    safe_reciprocal, Aabb, Hit, Intersector, MollerTrumbore, Ray, TriangleTest, Watertight, GAMMA3,
-};
+use crate::geometry::{safe_reciprocal, Aabb, Hit, Ray, TriangleTest, GAMMA3};
 
 /// Children per node.
 pub const WIDTH: usize = 4;
@@ -221,35 +219,9 @@ impl Bvh4 {
             + self.tri_ids.len() * std::mem::size_of::<u32>()
             + self.tris.len() * std::mem::size_of::<[Vec3; 3]>()
     }
+}
 
-    /// Closest hit with the chosen test (ties: lowest triangle index).
-    #[inline]
-    pub fn intersect_using(&self, ray: &Ray, intersector: Intersector) -> Option<Hit> {
-        match intersector {
-            Intersector::Mt => self.closest::<MollerTrumbore, _>(ray, &mut NoCount),
-            Intersector::Watertight => self.closest::<Watertight, _>(ray, &mut NoCount),
-        }
-    }
-
-    /// Any hit within the segment with the chosen test.
-    #[inline]
-    pub fn occluded_using(&self, ray: &Ray, intersector: Intersector) -> bool {
-        match intersector {
-            Intersector::Mt => self.any::<MollerTrumbore, _>(ray, &mut NoCount),
-            Intersector::Watertight => self.any::<Watertight, _>(ray, &mut NoCount),
-        }
-    }
-
-    /// Closest hit with Moller-Trumbore, counting node visits and triangle tests.
-    pub fn intersect_counted<C: Counter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
-        self.closest::<MollerTrumbore, C>(ray, counter)
-    }
-
-    /// Any hit with Moller-Trumbore, counting work.
-    pub fn occluded_counted<C: Counter>(&self, ray: &Ray, counter: &mut C) -> bool {
-        self.any::<MollerTrumbore, C>(ray, counter)
-    }
-
+impl Traversal for Bvh4 {
     fn closest<T: TriangleTest, C: Counter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
         if self.nodes.is_empty() || !ray.is_valid() {
             return None;
@@ -352,6 +324,7 @@ impl Bvh4 {
 mod tests {
     use super::*;
     use crate::accel::bvh::BuildParams;
+    use crate::geometry::Intersector;
     use crate::render::rng::Rng;
 
     fn random_tris(n: usize, seed: u64) -> Vec<[Vec3; 3]> {
