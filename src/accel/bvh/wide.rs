@@ -26,8 +26,9 @@ use super::traverse::{CULL_SLACK, SLAB_SLACK};
 const STACK_SIZE: usize = 64 * 3 + 4;
 
 /// Four children: their boxes by axis and bound, and what each lane holds.
+/// 128 bytes, aligned to a cache line, so a node is exactly two lines.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[repr(C)]
+#[repr(C, align(64))]
 pub struct Node4 {
     pub min_x: Vec4,
     pub min_y: Vec4,
@@ -37,8 +38,8 @@ pub struct Node4 {
     pub max_z: Vec4,
     /// Interior lane: index of the child node. Leaf lane: first triangle slot.
     pub child: [u32; WIDTH],
-    /// Leaf lane: triangle count; interior lane: 0.
-    pub count: [u32; WIDTH],
+    /// Leaf lane: triangle count (leaves hold at most 255); interior lane: 0.
+    pub count: [u16; WIDTH],
     /// Bit i set when lane i holds a child.
     pub lanes: u32,
 }
@@ -204,7 +205,8 @@ impl Bvh4 {
             wide.lanes |= 1 << lane;
             if n.is_leaf() {
                 wide.child[lane] = n.offset;
-                wide.count[lane] = n.count;
+                // Leaves hold at most `max_leaf_size` <= 255 triangles.
+                wide.count[lane] = u16::try_from(n.count).expect("leaf of at most 65535 triangles");
             } else {
                 wide.child[lane] = self.collapse_node(bvh, c);
             }
@@ -269,7 +271,7 @@ impl Traversal for Bvh4 {
             while mask != 0 {
                 let lane = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
-                let entry = (node.child[lane], node.count[lane], nears[lane]);
+                let entry = (node.child[lane], node.count[lane] as u32, nears[lane]);
                 let mut j = sp;
                 while j > base && stack[j - 1].2 < entry.2 {
                     stack[j] = stack[j - 1];
@@ -311,7 +313,7 @@ impl Traversal for Bvh4 {
             while mask != 0 {
                 let lane = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
-                stack[sp] = (node.child[lane], node.count[lane]);
+                stack[sp] = (node.child[lane], node.count[lane] as u32);
                 sp += 1;
             }
             debug_assert!(sp <= STACK_SIZE);
@@ -374,6 +376,12 @@ mod tests {
     }
 
     #[test]
+    fn a_node_is_two_cache_lines() {
+        assert_eq!(std::mem::size_of::<Node4>(), 128);
+        assert_eq!(std::mem::align_of::<Node4>(), 64);
+    }
+
+    #[test]
     fn collapse_keeps_every_leaf_and_fills_nodes() {
         for n in [1, 2, 3, 5, 64, 1000] {
             let tris = random_tris(n, n as u64);
@@ -386,7 +394,7 @@ mod tests {
                 .map(|n| n.count.iter().filter(|&&c| c > 0).count())
                 .sum();
             assert_eq!(leaf_lanes, leaves_binary, "n = {n}");
-            let covered: u32 = wide.nodes.iter().flat_map(|n| n.count).sum();
+            let covered: u32 = wide.nodes.iter().flat_map(|n| n.count).map(u32::from).sum();
             assert_eq!(covered as usize, bvh.tris.len());
             // Fewer, fuller nodes: all but nodes near leaves have four children.
             if n >= 64 {
