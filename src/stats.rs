@@ -7,6 +7,7 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 
 use crate::accel::bvh::quality::{CountingTracer, KindWork, TreeStats};
+use crate::accel::bvh::wide::Bvh4;
 use crate::accel::bvh::{build::sah, BuildParams, Bvh};
 use crate::error::Result;
 use crate::progress::Progress;
@@ -31,6 +32,19 @@ pub struct BuilderReport {
     pub tree: TreeStats,
     pub sah_constants: SahConstants,
     /// Traversal work per ray kind over the render described by `settings`.
+    pub primary: KindWork,
+    pub shadow: KindWork,
+    pub ao: KindWork,
+    /// The same tree collapsed into 4-wide nodes (what `--backend bvh` traverses).
+    pub wide: WideReport,
+}
+
+/// The 4-wide form of a tree: size and traversal work over the same render.
+#[derive(Clone, Debug, Serialize)]
+pub struct WideReport {
+    pub nodes: usize,
+    pub memory_bytes: usize,
+    pub bytes_per_triangle: f64,
     pub primary: KindWork,
     pub shadow: KindWork,
     pub ao: KindWork,
@@ -89,6 +103,25 @@ pub fn builder_report(
         &Progress::new(),
     )?;
     let (primary, shadow, ao) = tracer.work();
+    let wide = Bvh4::collapse(&parallel);
+    let wide_tracer = CountingTracer::new(&wide);
+    render(
+        scene,
+        &wide_tracer,
+        settings,
+        Schedule::Rayon,
+        threads,
+        &Progress::new(),
+    )?;
+    let (wide_primary, wide_shadow, wide_ao) = wide_tracer.work();
+    let wide = WideReport {
+        nodes: wide.nodes.len(),
+        memory_bytes: wide.memory_bytes(),
+        bytes_per_triangle: wide.memory_bytes() as f64 / scene.triangle_count().max(1) as f64,
+        primary: wide_primary,
+        shadow: wide_shadow,
+        ao: wide_ao,
+    };
     Ok(BuilderReport {
         scene: scene.name.clone(),
         triangles: scene.triangle_count(),
@@ -103,6 +136,7 @@ pub fn builder_report(
         primary,
         shadow,
         ao,
+        wide,
     })
 }
 
@@ -110,13 +144,13 @@ pub fn builder_report(
 pub fn markdown_table(reports: &[BuilderReport]) -> String {
     let mut out = String::new();
     out.push_str(
-        "| scene | tris | builder | build ms 1 thr | build ms N thr | nodes | leaves | depth max/mean | leaf mean/max | bytes/tri | SAH cost | nodes/ray P/S/AO | tris/ray P/S/AO |\n",
+        "| scene | tris | builder | build ms 1 thr | build ms N thr | nodes | leaves | depth max/mean | leaf mean/max | bytes/tri | SAH cost | nodes/ray P/S/AO | tris/ray P/S/AO | 4-wide nodes | 4-wide bytes/tri | 4-wide nodes/ray P/S/AO |\n",
     );
-    out.push_str("|---|---:|---|---:|---:|---:|---:|---|---|---:|---:|---|---|\n");
+    out.push_str("|---|---:|---|---:|---:|---:|---:|---|---|---:|---:|---|---|---:|---:|---|\n");
     for r in reports {
         let t = &r.tree;
         out.push_str(&format!(
-            "| {} | {} | {} | {:.2} | {:.2} ({}) | {} | {} | {}/{:.1} | {:.2}/{} | {:.1} | {:.2} | {:.1}/{:.1}/{:.1} | {:.1}/{:.1}/{:.1} |\n",
+            "| {} | {} | {} | {:.2} | {:.2} ({}) | {} | {} | {}/{:.1} | {:.2}/{} | {:.1} | {:.2} | {:.1}/{:.1}/{:.1} | {:.1}/{:.1}/{:.1} | {} | {:.1} | {:.1}/{:.1}/{:.1} |\n",
             r.scene,
             r.triangles,
             r.builder,
@@ -137,6 +171,11 @@ pub fn markdown_table(reports: &[BuilderReport]) -> String {
             r.primary.triangles_per_ray,
             r.shadow.triangles_per_ray,
             r.ao.triangles_per_ray,
+            r.wide.nodes,
+            r.wide.bytes_per_triangle,
+            r.wide.primary.nodes_per_ray,
+            r.wide.shadow.nodes_per_ray,
+            r.wide.ao.nodes_per_ray,
         ));
     }
     out.push_str(&format!(

@@ -107,16 +107,16 @@ impl AtomicWork {
 }
 
 /// A tracer that counts nodes visited and triangles tested per ray kind while
-/// rendering through the same shading loop.
-pub struct CountingTracer<'a> {
-    bvh: &'a Bvh,
+/// rendering through the same shading loop, over a binary or a 4-wide tree.
+pub struct CountingTracer<'a, B: Traversal = Bvh> {
+    bvh: &'a B,
     primary: AtomicWork,
     shadow: AtomicWork,
     ao: AtomicWork,
 }
 
-impl<'a> CountingTracer<'a> {
-    pub fn new(bvh: &'a Bvh) -> Self {
+impl<'a, B: Traversal> CountingTracer<'a, B> {
+    pub fn new(bvh: &'a B) -> Self {
         CountingTracer {
             bvh,
             primary: AtomicWork::default(),
@@ -131,7 +131,7 @@ impl<'a> CountingTracer<'a> {
     }
 }
 
-impl Tracer for CountingTracer<'_> {
+impl<B: Traversal + Sync> Tracer for CountingTracer<'_, B> {
     fn primary(&self, ray: &Ray) -> Option<Hit> {
         let mut c = Counts::default();
         let hit = self.bvh.intersect_counted(ray, &mut c);
