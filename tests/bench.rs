@@ -48,6 +48,7 @@ fn quick_bench_writes_tables_with_every_cell() {
     );
     assert!(stdout.contains("### AO paper: speedup over naive-serial"));
     assert!(stdout.contains("#### bvh-median-pbuild-tiles, AO paper"));
+    assert!(stdout.contains("### Mrays/s per thread by ray kind"));
 
     let csv = std::fs::read_to_string(dir.join("bench.csv")).unwrap();
     let mut lines = csv.lines();
@@ -85,6 +86,8 @@ fn quick_bench_writes_tables_with_every_cell() {
         }
         assert!(speedup > 0.0);
         assert_eq!(r[col("deterministic")], "true");
+        let primary: f64 = r[col("primary_mrays_per_thread_s")].parse().unwrap();
+        assert!(primary > 0.0, "{r:?}");
     }
     // Same hits, same image: naive and both BVHs give identical pictures.
     for scene in ["cornell-original", "cornell-water"] {

@@ -237,13 +237,20 @@ fn stats_report_the_four_wide_tree_beside_the_binary_one() {
         "1",
         "--json",
     ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let r = &v[0];
     let nodes = r["nodes"].as_u64().unwrap();
     let wide_nodes = r["wide"]["nodes"].as_u64().unwrap();
     // Collapsing four ways leaves at most about a third of the binary nodes.
-    assert!(wide_nodes > 0 && wide_nodes * 3 < nodes, "{wide_nodes} of {nodes}");
+    assert!(
+        wide_nodes > 0 && wide_nodes * 3 < nodes,
+        "{wide_nodes} of {nodes}"
+    );
     assert!(r["wide"]["bytes_per_triangle"].as_f64().unwrap() > 0.0);
     for kind in ["primary", "shadow", "ao"] {
         let binary = r[kind]["nodes_per_ray"].as_f64().unwrap();

@@ -108,6 +108,27 @@ impl Stat {
     }
 }
 
+/// Throughput per ray kind.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct KindRates {
+    pub primary: f64,
+    pub shadow: f64,
+    pub ao: f64,
+}
+
+impl KindRates {
+    /// Rays over thread time per kind of `s`, in Mrays/s.
+    pub fn of(s: &RenderStats) -> KindRates {
+        let rate =
+            |rays: u64, t: std::time::Duration| rays as f64 / t.as_secs_f64().max(1e-12) / 1e6;
+        KindRates {
+            primary: rate(s.primary_rays, s.primary_time),
+            shadow: rate(s.shadow_rays, s.shadow_time),
+            ao: rate(s.ao_rays, s.ao_time),
+        }
+    }
+}
+
 /// One variant on one cell.
 #[derive(Clone, Debug, Serialize)]
 pub struct Measurement {
@@ -129,6 +150,9 @@ pub struct Measurement {
     pub rays: u64,
     /// All rays over the median render time.
     pub mrays_per_s: f64,
+    /// Per ray kind: rays over the thread time of that pass (shading included),
+    /// summed over the measured runs: Mrays/s on one thread.
+    pub thread_mrays_per_s: KindRates,
     /// FNV hash of the 8-bit image of the first run.
     pub image_hash: String,
     /// Whether every run of the variant gave the same image.
@@ -250,6 +274,7 @@ impl Matrix<'_> {
             hash: Option<String>,
             deterministic: bool,
             stats: RenderStats,
+            measured: RenderStats,
             frame: Option<Frame>,
             done: bool,
         }
@@ -265,6 +290,7 @@ impl Matrix<'_> {
                 hash: None,
                 deterministic: true,
                 stats: RenderStats::default(),
+                measured: RenderStats::default(),
                 frame: None,
                 done: false,
             })
@@ -314,6 +340,7 @@ impl Matrix<'_> {
                     continue;
                 }
                 a.warmup_counted |= rep == 0;
+                a.measured += a.stats;
                 a.build.push(build_ms);
                 a.render.push(render_ms);
                 a.spent_s += seconds;
@@ -352,6 +379,7 @@ impl Matrix<'_> {
                     warmup_counted: a.warmup_counted,
                     rays,
                     mrays_per_s: rays as f64 / (render_ms.median * 1e3).max(1e-9),
+                    thread_mrays_per_s: KindRates::of(&a.measured),
                     image_hash: a.hash.unwrap_or_default(),
                     deterministic: a.deterministic,
                 };

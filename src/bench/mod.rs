@@ -468,6 +468,14 @@ pub fn markdown(r: &BenchReport) -> String {
     );
     if !r.measurements.is_empty() {
         out.push_str(&tables::markdown(&r.measurements));
+        let ao = r
+            .ao_modes
+            .iter()
+            .find(|a| *a == "paper")
+            .or(r.ao_modes.first());
+        if let (Some(ao), Some(view)) = (ao, r.views.first()) {
+            out.push_str(&tables::kind_rates_markdown(&r.measurements, ao, view));
+        }
         let bad: Vec<String> = r
             .measurements
             .iter()

@@ -144,15 +144,47 @@ pub fn markdown(ms: &[Measurement]) -> String {
     out
 }
 
+/// Per variant and scene on one AO mode and view: Mrays/s per thread by ray kind
+/// (primary/shadow/AO, shading included), the figure the single-ray comparison
+/// with Embree is about.
+pub fn kind_rates_markdown(ms: &[Measurement], ao: &str, view: &str) -> String {
+    let scenes = scene_headers(ms);
+    let mut out = format!(
+        "### Mrays/s per thread by ray kind (primary/shadow/AO, shading included), AO {ao}, view {view}\n\n| variant |"
+    );
+    for (_, h) in &scenes {
+        out.push_str(&format!(" {h} |"));
+    }
+    out.push_str("\n|---|");
+    out.push_str(&"---:|".repeat(scenes.len()));
+    out.push('\n');
+    for variant in distinct(ms, |m| &m.variant) {
+        out.push_str(&format!("| {variant} |"));
+        for (scene, _) in &scenes {
+            let cell = ms
+                .iter()
+                .find(|m| m.variant == variant && m.scene == *scene && m.ao == ao && m.view == view)
+                .map_or("-".to_string(), |m| {
+                    let r = &m.thread_mrays_per_s;
+                    format!("{:.2}/{:.2}/{:.2}", r.primary, r.shadow, r.ao)
+                });
+            out.push_str(&format!(" {cell} |"));
+        }
+        out.push('\n');
+    }
+    out.push('\n');
+    out
+}
+
 /// One row per measurement, with its speedup; the header names every column.
-pub const CSV_HEADER: &str = "ao,variant,backend,schedule,scene,triangles,view,runs,build_threads,render_threads,build_ms_median,render_ms_median,total_ms_median,total_ms_min,total_ms_max,spread,speedup,mrays_per_s,image_hash,deterministic";
+pub const CSV_HEADER: &str = "ao,variant,backend,schedule,scene,triangles,view,runs,build_threads,render_threads,build_ms_median,render_ms_median,total_ms_median,total_ms_min,total_ms_max,spread,speedup,mrays_per_s,primary_mrays_per_thread_s,shadow_mrays_per_thread_s,ao_mrays_per_thread_s,image_hash,deterministic";
 
 pub fn csv(ms: &[Measurement]) -> String {
     let mut out = String::from(CSV_HEADER);
     out.push('\n');
     for m in ms {
         out.push_str(&format!(
-            "{},{},{},{},{},{},\"{}\",{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{:.4},{},{}\n",
+            "{},{},{},{},{},{},\"{}\",{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{:.4},{:.4},{:.4},{:.4},{},{}\n",
             m.ao,
             m.variant,
             m.backend,
@@ -171,6 +203,9 @@ pub fn csv(ms: &[Measurement]) -> String {
             m.total_ms.spread(),
             speedup(ms, m).map_or(String::new(), |s| format!("{s:.4}")),
             m.mrays_per_s,
+            m.thread_mrays_per_s.primary,
+            m.thread_mrays_per_s.shadow,
+            m.thread_mrays_per_s.ao,
             m.image_hash,
             m.deterministic
         ));
@@ -207,6 +242,7 @@ pub(crate) mod tests {
             warmup_counted: false,
             rays: 10,
             mrays_per_s: 1.0,
+            thread_mrays_per_s: Default::default(),
             image_hash: "0".into(),
             deterministic: true,
         }
