@@ -58,6 +58,37 @@ impl Counter for Counts {
     }
 }
 
+/// Tests the leaf slots `slots` for a hit closer than `best`; on one, updates
+/// `best` and shortens `test_ray` to just past it (so that a hit at the same t
+/// with a lower triangle index is still found; `is_closer_than` decides).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn closest_in_leaf<T: TriangleTest, C: Counter>(
+    tris: &[[glam::Vec3; 3]],
+    tri_ids: &[u32],
+    slots: std::ops::Range<usize>,
+    prepared: &T::Prepared,
+    test_ray: &mut Ray,
+    best: &mut Option<Hit>,
+    counter: &mut C,
+) {
+    for slot in slots {
+        counter.triangle();
+        if let Some((t, u, v)) = T::test(prepared, test_ray, &tris[slot]) {
+            let hit = Hit {
+                t,
+                u,
+                v,
+                tri: tri_ids[slot],
+            };
+            if best.is_none_or(|b| hit.is_closer_than(&b)) {
+                *best = Some(hit);
+                test_ray.tmax = t.next_up();
+            }
+        }
+    }
+}
+
 /// The two queries of a hierarchy, generic over the triangle test and a work
 /// counter; the binary tree and the 4-wide tree implement `closest` and `any`,
 /// and share the dispatch below.
@@ -159,21 +190,16 @@ impl Traversal for Bvh {
             let node = &self.nodes[index as usize];
             if node.is_leaf() {
                 let first = node.offset as usize;
-                for slot in first..first + node.count as usize {
-                    counter.triangle();
-                    if let Some((t, u, v)) = T::test(&prepared, &test_ray, &self.tris[slot]) {
-                        let hit = Hit {
-                            t,
-                            u,
-                            v,
-                            tri: self.tri_ids[slot],
-                        };
-                        if best.is_none_or(|b| hit.is_closer_than(&b)) {
-                            best = Some(hit);
-                            test_ray.tmax = t.next_up();
-                        }
-                    }
-                }
+                let leaf = first..first + node.count as usize;
+                closest_in_leaf::<T, C>(
+                    &self.tris,
+                    &self.tri_ids,
+                    leaf,
+                    &prepared,
+                    &mut test_ray,
+                    &mut best,
+                    counter,
+                );
                 continue;
             }
             let (left, right) = (index + 1, node.offset);

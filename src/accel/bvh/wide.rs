@@ -13,7 +13,7 @@
 
 use glam::{Vec3, Vec4};
 
-use super::traverse::{Counter, Traversal};
+use super::traverse::{closest_in_leaf, Counter, Traversal};
 use super::Bvh;
 use crate::geometry::{safe_reciprocal, Aabb, Hit, Ray, TriangleTest, GAMMA3};
 
@@ -245,22 +245,16 @@ impl Traversal for Bvh4 {
                 continue;
             }
             if count > 0 {
-                let first = child as usize;
-                for slot in first..first + count as usize {
-                    counter.triangle();
-                    if let Some((t, u, v)) = T::test(&prepared, &test_ray, &self.tris[slot]) {
-                        let hit = Hit {
-                            t,
-                            u,
-                            v,
-                            tri: self.tri_ids[slot],
-                        };
-                        if best.is_none_or(|b| hit.is_closer_than(&b)) {
-                            best = Some(hit);
-                            test_ray.tmax = t.next_up();
-                        }
-                    }
-                }
+                let leaf = child as usize..(child + count) as usize;
+                closest_in_leaf::<T, C>(
+                    &self.tris,
+                    &self.tri_ids,
+                    leaf,
+                    &prepared,
+                    &mut test_ray,
+                    &mut best,
+                    counter,
+                );
                 continue;
             }
             counter.node();
