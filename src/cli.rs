@@ -196,10 +196,7 @@ fn run_bench(args: &BenchArgs) -> Result<()> {
         .collect::<Result<Vec<_>>>()?;
     let report = bench::run(&cfg, &scenes)?;
     if args.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&report).map_err(|e| Error::Other(e.to_string()))?
-        );
+        println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
         print!("{}", bench::markdown(&report));
         println!(
@@ -606,10 +603,7 @@ fn run_validate(args: &ValidateArgs) -> Result<()> {
         });
     }
     if args.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&reports).map_err(|e| Error::Other(e.to_string()))?
-        );
+        println!("{}", serde_json::to_string_pretty(&reports)?);
     }
     let failed: Vec<&str> = reports
         .iter()
@@ -680,12 +674,9 @@ fn run_stress(args: &StressArgs) -> Result<()> {
         eprintln!("stress: hostile ...");
         report.hostile = Some(hostile_suite(if q { 500 } else { 5000 }, 1)?);
     }
-    let json = serde_json::to_string_pretty(&report).map_err(|e| Error::Other(e.to_string()))?;
+    let json = serde_json::to_string_pretty(&report)?;
     if let Some(dir) = &args.out {
-        let write = |name: &str, text: &str| {
-            let path = dir.join(name);
-            std::fs::write(&path, text).map_err(|e| Error::io(&path, e))
-        };
+        let write = |name: &str, text: &str| output::write_text(&dir.join(name), text);
         write("stress.md", &report.markdown())?;
         write("stress.json", &json)?;
         let mut csv =
@@ -761,10 +752,7 @@ fn run_stats(args: &StatsArgs) -> Result<()> {
         }
     }
     if args.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&reports).map_err(|e| Error::Other(e.to_string()))?
-        );
+        println!("{}", serde_json::to_string_pretty(&reports)?);
     } else {
         print!("{}", crate::stats::markdown_table(&reports));
         println!(
@@ -1031,7 +1019,7 @@ fn run_render(args: &RenderArgs) -> Result<()> {
             warnings: scene.warnings.clone(),
             embree_version: (args.backend == BackendKind::Embree).then(embree_version),
         };
-        let text = serde_json::to_string(&report).map_err(|e| Error::Other(e.to_string()))?;
+        let text = serde_json::to_string(&report)?;
         println!("{text}");
     }
     Ok(())

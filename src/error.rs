@@ -24,6 +24,10 @@ pub enum Error {
     /// A command-line value out of range; `flag` is the flag's name.
     #[error("{flag}: {msg}")]
     Usage { flag: String, msg: String },
+    /// A report that could not be serialised (never expected: reports are
+    /// plain data; non-finite numbers become null).
+    #[error("JSON: {0}")]
+    Json(#[from] serde_json::Error),
     /// Anything else worth one line.
     #[error("{0}")]
     Other(String),

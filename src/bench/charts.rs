@@ -112,8 +112,7 @@ fn save(
         let root = SVGBackend::with_string(&mut text, size).into_drawing_area();
         svg(root).map_err(fail)?;
     }
-    let path = dir.join(format!("{name}.svg"));
-    std::fs::write(&path, text).map_err(|e| Error::io(&path, e))?;
+    crate::render::output::write_text(&dir.join(format!("{name}.svg")), &text)?;
     let mut pixels = vec![255u8; size.0 as usize * size.1 as usize * 3];
     {
         let root = BitMapBackend::with_buffer(&mut pixels, size).into_drawing_area();

@@ -555,14 +555,11 @@ pub fn markdown(r: &BenchReport) -> String {
 }
 
 fn write_files(dir: &Path, r: &BenchReport) -> Result<()> {
-    let write = |name: &str, text: &str| {
-        let path = dir.join(name);
-        std::fs::write(&path, text).map_err(|e| Error::io(&path, e))
-    };
+    let write = |name: &str, text: &str| output::write_text(&dir.join(name), text);
     let md = markdown(r);
     write("bench.md", &md)?;
     write("bench.csv", &tables::csv(&r.measurements))?;
-    let json = serde_json::to_string_pretty(r).map_err(|e| Error::Other(e.to_string()))?;
+    let json = serde_json::to_string_pretty(r)?;
     write("bench.json", &json)?;
     write("index.html", &report_html(r, &md))?;
     Ok(())

@@ -70,6 +70,11 @@ fn temp_path(path: &Path) -> PathBuf {
     path.with_file_name(name)
 }
 
+/// Writes a text report file, naming the file in the error.
+pub fn write_text(path: &Path, text: &str) -> Result<()> {
+    std::fs::write(path, text).map_err(|e| Error::io(path, e))
+}
+
 /// Writes RGB8 pixels as a PNG: to a temporary file beside `path`, then renamed,
 /// so a failure never leaves a partial image under the final name.
 pub fn write_png(path: &Path, width: u32, height: u32, rgb8: &[u8]) -> Result<()> {
