@@ -87,8 +87,8 @@ struct BenchArgs {
     /// seconds (it keeps at least one run): caps the naive loop on big scenes.
     #[arg(long, value_name = "S", default_value_t = 60.0)]
     max_variant_s: f64,
-    /// Parts to run, separated by commas: all, or tables, scaling, growth,
-    /// ao-error, builders, leaks, validate.
+    /// Parts to run, separated by commas: all, or tables, trace, scaling,
+    /// growth, ao-error, builders, leaks, validate.
     #[arg(long, value_name = "LIST", default_value = "all")]
     parts: String,
     /// Folder for bench.md, bench.csv, bench.json, charts/, images/ and index.html.
@@ -337,7 +337,8 @@ fn parse_bvh_width(s: &str) -> std::result::Result<usize, String> {
     match s {
         "2" => Ok(2),
         "4" => Ok(4),
-        _ => Err(format!("'{s}' must be 2 or 4")),
+        "8" => Ok(8),
+        _ => Err(format!("'{s}' must be 2, 4 or 8")),
     }
 }
 

@@ -7,7 +7,8 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 
 use crate::accel::bvh::quality::{CountingTracer, KindWork, TreeStats};
-use crate::accel::bvh::wide::Bvh4;
+use crate::accel::bvh::traverse::Traversal;
+use crate::accel::bvh::wide::WideBvh;
 use crate::accel::bvh::{build::sah, BuildParams, Bvh};
 use crate::error::Result;
 use crate::progress::Progress;
@@ -35,14 +36,25 @@ pub struct BuilderReport {
     pub primary: KindWork,
     pub shadow: KindWork,
     pub ao: KindWork,
-    /// The same tree collapsed into 4-wide nodes (what `--backend bvh` traverses).
-    pub wide: WideReport,
+    /// The trees `--bvh-width 4` and `--bvh-width 8` traverse: the same
+    /// builder with leaf costs in blocks of four, collapsed.
+    pub wide4: WideReport,
+    pub wide8: WideReport,
 }
 
-/// The 4-wide form of a tree: size and traversal work over the same render.
+/// A wide tree: size, the SAH cost of the binary tree it was collapsed from
+/// (leaf tests in blocks of four), and traversal work over the same render.
 #[derive(Clone, Debug, Serialize)]
 pub struct WideReport {
+    pub width: usize,
+    /// Median build time on `build_threads` threads, collapse included.
+    pub build_ms: f64,
+    pub sah_cost: f64,
+    pub mean_leaf_size: f64,
     pub nodes: usize,
+    /// Blocks of four leaf triangles, and the share of their lanes in use.
+    pub blocks: usize,
+    pub block_fill: f64,
     pub memory_bytes: usize,
     pub bytes_per_triangle: f64,
     pub primary: KindWork,
@@ -103,25 +115,8 @@ pub fn builder_report(
         &Progress::new(),
     )?;
     let (primary, shadow, ao) = tracer.work();
-    let wide = Bvh4::collapse(&parallel);
-    let wide_tracer = CountingTracer::new(&wide);
-    render(
-        scene,
-        &wide_tracer,
-        settings,
-        Schedule::Rayon,
-        threads,
-        &Progress::new(),
-    )?;
-    let (wide_primary, wide_shadow, wide_ao) = wide_tracer.work();
-    let wide = WideReport {
-        nodes: wide.nodes.len(),
-        memory_bytes: wide.memory_bytes(),
-        bytes_per_triangle: wide.memory_bytes() as f64 / scene.triangle_count().max(1) as f64,
-        primary: wide_primary,
-        shadow: wide_shadow,
-        ao: wide_ao,
-    };
+    let wide4 = wide_report::<4>(scene, &triangles, params, settings, threads, reps)?;
+    let wide8 = wide_report::<8>(scene, &triangles, params, settings, threads, reps)?;
     Ok(BuilderReport {
         scene: scene.name.clone(),
         triangles: scene.triangle_count(),
@@ -131,12 +126,67 @@ pub fn builder_report(
         build_ms_parallel: parallel_time.as_secs_f64() * 1e3,
         build_threads: threads,
         deterministic,
-        tree: TreeStats::of(&parallel, scene.triangle_count()),
+        tree: TreeStats::with_block(&parallel, scene.triangle_count(), params.sah_block),
         sah_constants: SAH_CONSTANTS,
         primary,
         shadow,
         ao,
-        wide,
+        wide4,
+        wide8,
+    })
+}
+
+/// Builds the tree `--bvh-width N` traverses and counts its traversal work
+/// over a render.
+fn wide_report<const N: usize>(
+    scene: &Scene,
+    triangles: &[[glam::Vec3; 3]],
+    params: &BuildParams,
+    settings: &RenderSettings,
+    threads: usize,
+    reps: usize,
+) -> Result<WideReport>
+where
+    WideBvh<N>: Traversal,
+{
+    let params = params.with_width(N).with_threads(threads);
+    let mut times = Vec::new();
+    let mut built = None;
+    for _ in 0..reps.max(1) {
+        let start = Instant::now();
+        let bvh = Bvh::build(triangles, &params)?;
+        let wide = WideBvh::<N>::collapse(&bvh)?;
+        times.push(start.elapsed());
+        built = Some((bvh, wide));
+    }
+    times.sort();
+    let (bvh, wide) = built.expect("at least one build");
+    let tree = TreeStats::with_block(&bvh, scene.triangle_count(), params.sah_block);
+    drop(bvh);
+    let tracer = CountingTracer::new(&wide);
+    render(
+        scene,
+        &tracer,
+        settings,
+        Schedule::Rayon,
+        threads,
+        &Progress::new(),
+    )?;
+    let (primary, shadow, ao) = tracer.work();
+    let lanes = wide.blocks.len() * crate::accel::bvh::leaf::LANES;
+    Ok(WideReport {
+        width: N,
+        build_ms: times[times.len() / 2].as_secs_f64() * 1e3,
+        sah_cost: tree.sah_cost,
+        mean_leaf_size: tree.mean_leaf_size,
+        nodes: wide.nodes.len(),
+        blocks: wide.blocks.len(),
+        block_fill: wide.triangle_count() as f64 / lanes.max(1) as f64,
+        memory_bytes: wide.memory_bytes(),
+        bytes_per_triangle: wide.memory_bytes() as f64 / scene.triangle_count().max(1) as f64,
+        primary,
+        shadow,
+        ao,
     })
 }
 
@@ -144,13 +194,15 @@ pub fn builder_report(
 pub fn markdown_table(reports: &[BuilderReport]) -> String {
     let mut out = String::new();
     out.push_str(
-        "| scene | tris | builder | build ms 1 thr | build ms N thr | nodes | leaves | depth max/mean | leaf mean/max | bytes/tri | SAH cost | nodes/ray P/S/AO | tris/ray P/S/AO | 4-wide nodes | 4-wide bytes/tri | 4-wide nodes/ray P/S/AO |\n",
+        "| scene | tris | builder | build ms 1 thr | build ms N thr | nodes | leaves | depth max/mean | leaf mean/max | bytes/tri | SAH cost | nodes/ray P/S/AO | tris/ray P/S/AO | 4-wide nodes | 4-wide bytes/tri | 4-wide nodes/ray P/S/AO | 8-wide nodes | 8-wide bytes/tri | 8-wide nodes/ray P/S/AO | block fill |\n",
     );
-    out.push_str("|---|---:|---|---:|---:|---:|---:|---|---|---:|---:|---|---|---:|---:|---|\n");
+    out.push_str(
+        "|---|---:|---|---:|---:|---:|---:|---|---|---:|---:|---|---|---:|---:|---|---:|---:|---|---:|\n",
+    );
     for r in reports {
         let t = &r.tree;
         out.push_str(&format!(
-            "| {} | {} | {} | {:.2} | {:.2} ({}) | {} | {} | {}/{:.1} | {:.2}/{} | {:.1} | {:.2} | {:.1}/{:.1}/{:.1} | {:.1}/{:.1}/{:.1} | {} | {:.1} | {:.1}/{:.1}/{:.1} |\n",
+            "| {} | {} | {} | {:.2} | {:.2} ({}) | {} | {} | {}/{:.1} | {:.2}/{} | {:.1} | {:.2} | {:.1}/{:.1}/{:.1} | {:.1}/{:.1}/{:.1} | {} | {:.1} | {:.1}/{:.1}/{:.1} | {} | {:.1} | {:.1}/{:.1}/{:.1} | {:.0}% |\n",
             r.scene,
             r.triangles,
             r.builder,
@@ -171,11 +223,17 @@ pub fn markdown_table(reports: &[BuilderReport]) -> String {
             r.primary.triangles_per_ray,
             r.shadow.triangles_per_ray,
             r.ao.triangles_per_ray,
-            r.wide.nodes,
-            r.wide.bytes_per_triangle,
-            r.wide.primary.nodes_per_ray,
-            r.wide.shadow.nodes_per_ray,
-            r.wide.ao.nodes_per_ray,
+            r.wide4.nodes,
+            r.wide4.bytes_per_triangle,
+            r.wide4.primary.nodes_per_ray,
+            r.wide4.shadow.nodes_per_ray,
+            r.wide4.ao.nodes_per_ray,
+            r.wide8.nodes,
+            r.wide8.bytes_per_triangle,
+            r.wide8.primary.nodes_per_ray,
+            r.wide8.shadow.nodes_per_ray,
+            r.wide8.ao.nodes_per_ray,
+            r.wide8.block_fill * 100.0,
         ));
     }
     out.push_str(&format!(

@@ -31,12 +31,12 @@ fn embree() -> bool {
     raylab::accel::embree::AVAILABLE
 }
 
+/// Variants that `--variants all` runs in this build.
 fn variants() -> usize {
-    if embree() {
-        18
-    } else {
-        15
-    }
+    raylab::bench::variants::VARIANTS
+        .iter()
+        .filter(|v| embree() || v.kind != raylab::accel::BackendKind::Embree)
+        .count()
 }
 
 #[test]
@@ -150,6 +150,17 @@ fn quick_bench_runs_every_experiment() {
         assert!(rmse("cosine:1") > rmse("cosine:4"));
         assert!(rmse("cosine:4") > rmse("cosine:16"));
         assert!(rmse("paper") > 0.0);
+    }
+    // Trace: 4 scenes x 3 ray kinds x thread counts (1 and N) x the distinct
+    // non-naive backends (median, sah, sah 4-wide, sah 8-wide, Embree).
+    let trace_threads = if threads > 1 { 2 } else { 1 };
+    let backends = if embree() { 5 } else { 4 };
+    assert_eq!(len("trace"), 4 * 3 * trace_threads * backends);
+    for p in json["trace"].as_array().unwrap() {
+        assert!(p["mrays"]["median"].as_f64().unwrap() > 0.0, "{p}");
+        if !p["backend"].as_str().unwrap().starts_with("embree") {
+            assert_eq!(p["differing"], 0, "{p}");
+        }
     }
     assert_eq!(len("builders"), 2 * if embree() { 5 } else { 2 });
     assert!(len("leaks") >= 4 * 6);

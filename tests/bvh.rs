@@ -7,8 +7,9 @@ mod common;
 
 use common::{settings, TestRng};
 use glam::Vec3;
-use raylab::accel::bvh::wide::Bvh4;
-use raylab::accel::bvh::{BuildParams, BuilderKind, Bvh, BvhBackend, Traversal};
+use raylab::accel::bvh::simd::Kernel;
+use raylab::accel::bvh::wide::{Bvh4, Bvh8};
+use raylab::accel::bvh::{BuildParams, BuilderKind, Bvh, BvhBackend, Tree};
 use raylab::accel::naive::Naive;
 use raylab::accel::Backend;
 use raylab::geometry::{Aabb, Intersector, Ray};
@@ -23,6 +24,35 @@ const BUILDERS: [BuildParams; 3] = [
     // A multi-triangle-leaf median tree exercises leaf loops with ties inside a leaf.
     BuildParams::median().with_max_leaf_size(3),
 ];
+
+/// The wide trees checked beside the binary one: `bvh` collapsed 4 and 8 wide
+/// (each node kernel), and the tree built for 8-wide traversal (leaf costs in
+/// blocks of four) collapsed.
+fn wide_trees(tris: &[[Vec3; 3]], bvh: &Bvh, params: &BuildParams) -> Vec<(String, Tree)> {
+    let mut out = vec![
+        (
+            "4-wide".to_string(),
+            Tree::Wide4(Bvh4::collapse(bvh).unwrap()),
+        ),
+        (
+            "8-wide portable".to_string(),
+            Tree::Wide8(Bvh8::collapse_with(bvh, Kernel::Portable).unwrap()),
+        ),
+    ];
+    if let Kernel::Avx2(_) = Kernel::detect() {
+        out.push((
+            "8-wide avx2".to_string(),
+            Tree::Wide8(Bvh8::collapse_with(bvh, Kernel::detect()).unwrap()),
+        ));
+    }
+    if params.builder == BuilderKind::Sah {
+        out.push((
+            "8-wide built for blocks".to_string(),
+            Tree::build(tris, &params.with_width(8)).unwrap(),
+        ));
+    }
+    out
+}
 
 /// Random rays: origins in and around `bounds` (50% margin), uniform directions,
 /// with some axis-aligned directions (zero components) mixed in.
@@ -81,7 +111,7 @@ fn assert_same_hits(
         .length();
     for params in BUILDERS {
         let bvh = Bvh::build(tris, &params).unwrap();
-        let wide = Bvh4::collapse(&bvh);
+        let wide = wide_trees(tris, &bvh, &params);
         for (i, ray) in rays.iter().enumerate() {
             let want = naive.intersect(ray);
             let got = bvh.intersect(ray);
@@ -93,18 +123,20 @@ fn assert_same_hits(
                 );
                 ties += 1;
             }
-            // The 4-wide tree under the same rule. It may break a vertex tie
-            // differently from the binary tree: it visits boxes in another order, and
-            // MT's t at a vertex can lie beyond the slab test's slack, so which of two
-            // triangles meeting there is found first decides.
-            let got_wide = wide.intersect_using(ray, Intersector::Mt);
-            if got_wide != want {
-                let agreement = classify(ray, got_wide, want, tris);
-                assert!(
-                    allow_ties && agreement == Agreement::Tie,
-                    "{name} {params:?}: 4-wide ray {i} {ray:?}: {got_wide:?} naive {want:?} ({agreement:?})"
-                );
-                ties += 1;
+            // The wide trees under the same rule. They may break a vertex tie
+            // differently from the binary tree: they visit boxes in another order,
+            // and MT's t at a vertex can lie beyond the slab test's slack, so which
+            // of two triangles meeting there is found first decides.
+            for (label, tree) in &wide {
+                let got_wide = tree.intersect_using(ray, Intersector::Mt);
+                if got_wide != want {
+                    let agreement = classify(ray, got_wide, want, tris);
+                    assert!(
+                        allow_ties && agreement == Agreement::Tie,
+                        "{name} {params:?}: {label} ray {i} {ray:?}: {got_wide:?} naive {want:?} ({agreement:?})"
+                    );
+                    ties += 1;
+                }
             }
             let segment = Ray::segment(ray.origin, ray.dir, 0.0, rng.range(0.0, 2.0 * diag));
             let occluded = naive.occluded(&segment);
@@ -113,11 +145,13 @@ fn assert_same_hits(
                 occluded,
                 "{name} {params:?}: occlusion ray {i} {segment:?}"
             );
-            assert_eq!(
-                wide.occluded_using(&segment, Intersector::Mt),
-                occluded,
-                "{name} {params:?}: 4-wide occlusion ray {i} {segment:?}"
-            );
+            for (label, tree) in &wide {
+                assert_eq!(
+                    tree.occluded_using(&segment, Intersector::Mt),
+                    occluded,
+                    "{name} {params:?}: {label} occlusion ray {i} {segment:?}"
+                );
+            }
         }
     }
     ties

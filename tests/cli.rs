@@ -225,7 +225,7 @@ fn scenes_lists_the_builtins() {
 }
 
 #[test]
-fn stats_report_the_four_wide_tree_beside_the_binary_one() {
+fn stats_report_the_wide_trees_beside_the_binary_one() {
     let out = raylab(&[
         "stats",
         "cornell-water",
@@ -245,17 +245,28 @@ fn stats_report_the_four_wide_tree_beside_the_binary_one() {
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let r = &v[0];
     let nodes = r["nodes"].as_u64().unwrap();
-    let wide_nodes = r["wide"]["nodes"].as_u64().unwrap();
-    // Collapsing four ways leaves at most about a third of the binary nodes.
-    assert!(
-        wide_nodes > 0 && wide_nodes * 3 < nodes,
-        "{wide_nodes} of {nodes}"
-    );
-    assert!(r["wide"]["bytes_per_triangle"].as_f64().unwrap() > 0.0);
-    for kind in ["primary", "shadow", "ao"] {
-        let binary = r[kind]["nodes_per_ray"].as_f64().unwrap();
-        let wide = r["wide"][kind]["nodes_per_ray"].as_f64().unwrap();
-        assert!(wide > 0.0 && wide < binary, "{kind}: {wide} vs {binary}");
-        assert_eq!(r["wide"][kind]["rays"], r[kind]["rays"]);
+    for (key, width) in [("wide4", 4), ("wide8", 8)] {
+        let w = &r[key];
+        assert_eq!(w["width"], width);
+        let wide_nodes = w["nodes"].as_u64().unwrap();
+        // Collapsing N ways leaves at most about 1/(N-1) of the binary nodes.
+        assert!(
+            wide_nodes > 0 && wide_nodes * (width - 1) < nodes,
+            "{key}: {wide_nodes} of {nodes}"
+        );
+        assert!(w["bytes_per_triangle"].as_f64().unwrap() > 0.0);
+        // Blocks of four are mostly full: the SAH counts leaf tests by block.
+        let fill = w["block_fill"].as_f64().unwrap();
+        assert!(fill > 0.7 && fill <= 1.0, "{key}: fill {fill}");
+        assert!(w["mean_leaf_size"].as_f64().unwrap() > r["mean_leaf_size"].as_f64().unwrap());
+        for kind in ["primary", "shadow", "ao"] {
+            let binary = r[kind]["nodes_per_ray"].as_f64().unwrap();
+            let wide = w[kind]["nodes_per_ray"].as_f64().unwrap();
+            assert!(
+                wide > 0.0 && wide < binary,
+                "{key} {kind}: {wide} vs {binary}"
+            );
+            assert_eq!(w[kind]["rays"], r[kind]["rays"]);
+        }
     }
 }

@@ -147,28 +147,29 @@ fn embree_built_trees_are_traversed_by_ours_and_match_naive() {
             BuilderKind::EmbreeMedium,
             BuilderKind::EmbreeHigh,
         ] {
-            let bvh = BvhBackend::new(&scene, &BuildParams::for_builder(builder).with_threads(2))
-                .unwrap();
+            let params = BuildParams::for_builder(builder).with_threads(2);
+            let backend = BvhBackend::new(&scene, &params).unwrap();
+            let bvh = backend.binary().expect("width 2 traverses the binary tree");
             // Every triangle is referenced by some leaf (spatial splits may repeat it).
             let mut seen = vec![false; tris.len()];
-            for &id in &bvh.bvh.tri_ids {
+            for &id in &bvh.tri_ids {
                 seen[id as usize] = true;
             }
             assert!(
                 seen.iter().all(|&s| s),
                 "{name} {builder:?}: a triangle is in no leaf"
             );
-            for (i, n) in bvh.bvh.nodes.iter().enumerate() {
+            for (i, n) in bvh.nodes.iter().enumerate() {
                 if !n.is_leaf() {
                     for c in [i + 1, n.offset as usize] {
                         assert!(
-                            n.bounds().contains(&bvh.bvh.nodes[c].bounds()),
+                            n.bounds().contains(&bvh.nodes[c].bounds()),
                             "{name} {builder:?} node {i}"
                         );
                     }
                 }
             }
-            let (report, _) = compare("random", &rays, &bvh, &naive, &tris);
+            let (report, _) = compare("random", &rays, &backend, &naive, &tris);
             assert_eq!(report.genuine, 0, "{name} {builder:?}: {report:?}");
         }
     }

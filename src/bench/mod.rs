@@ -3,7 +3,8 @@
 //! PNG/SVG charts and one HTML page.
 //!
 //! Parts: `tables` (the variant matrix, [`measure`]), `scaling`, `growth`,
-//! `ao-error`, `builders`, `leaks` and `validate` ([`extras`]). Images for the
+//! `ao-error`, `builders`, `leaks` and `validate` ([`extras`]), and `trace`
+//! (query throughput without shading, [`trace`]). Images for the
 //! report come from the matrix's own renders.
 
 pub mod charts;
@@ -12,6 +13,7 @@ pub mod html;
 pub mod measure;
 pub mod metrics;
 pub mod tables;
+pub mod trace;
 pub mod variants;
 
 use std::path::{Path, PathBuf};
@@ -27,8 +29,8 @@ use measure::{Matrix, Measurement, View};
 use variants::Variant;
 
 /// The parts of a bench run, in the order they run.
-pub const PARTS: [&str; 7] = [
-    "tables", "scaling", "growth", "ao-error", "builders", "leaks", "validate",
+pub const PARTS: [&str; 8] = [
+    "tables", "trace", "scaling", "growth", "ao-error", "builders", "leaks", "validate",
 ];
 
 /// Everything a bench run needs; built by the CLI from its flags.
@@ -86,6 +88,15 @@ impl BenchConfig {
             (self.size.0 / divisor).max(16),
             (self.size.1 / divisor).max(12),
         )
+    }
+
+    /// The thread counts of the trace part: one, and all bench threads.
+    fn trace_threads(&self) -> Vec<usize> {
+        if self.threads > 1 {
+            vec![1, self.threads]
+        } else {
+            vec![1]
+        }
     }
 
     /// The thread counts of the scaling part: 1..=threads, then twice that.
@@ -163,6 +174,7 @@ pub struct BenchReport {
     pub variants: Vec<(String, String)>,
     pub baseline: String,
     pub measurements: Vec<Measurement>,
+    pub trace: Vec<trace::TracePoint>,
     pub scaling: Vec<ScalingPoint>,
     pub growth: Vec<GrowthPoint>,
     pub ao_error: Vec<AoErrorPoint>,
@@ -214,6 +226,10 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
     // counts as `step` of them.
     let step: u64 = if cfg.quick { 100 } else { 3000 };
     let mut steps = 0;
+    let trace_specs = trace::trace_specs(&cfg.variants, cfg.threads);
+    if cfg.wants("trace") {
+        steps += 3 * scenes.len() as u64;
+    }
     if cfg.wants("scaling") {
         steps += extras::scaling_variants().len() as u64;
     }
@@ -246,6 +262,21 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
     let reps = cfg.extra_reps();
     let last = scenes.last().expect("at least one scene");
     let paper_view = cfg.views.first().copied().unwrap_or(View::PAPER[0]);
+    let mut trace_points = Vec::new();
+    if cfg.wants("trace") && !trace_specs.is_empty() {
+        let settings = paper_view.settings(cfg.size, AoMode::Paper, 1)?;
+        let trace_reps = if cfg.quick { 1 } else { cfg.reps.clamp(1, 5) };
+        for scene in scenes {
+            trace_points.extend(trace::trace_throughput(
+                scene,
+                &settings,
+                &trace_specs,
+                &cfg.trace_threads(),
+                trace_reps,
+                &bar,
+            )?);
+        }
+    }
     let scaling = if cfg.wants("scaling") {
         let settings = paper_view.settings(cfg.smaller(2), AoMode::Paper, 1)?;
         extras::thread_scaling(last, &settings, &cfg.thread_counts(), reps, &bar)?
@@ -339,6 +370,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
             .collect(),
         baseline: tables::baseline_name(&measurements).to_string(),
         measurements,
+        trace: trace_points,
         scaling,
         growth,
         ao_error,
@@ -488,6 +520,9 @@ pub fn markdown(r: &BenchReport) -> String {
                 bad.join("; ")
             ));
         }
+    }
+    if !r.trace.is_empty() {
+        out.push_str(&trace::markdown(&r.trace));
     }
     if !r.scaling.is_empty() {
         out.push_str("### Thread scaling (render only, median ms and speedup over 1 thread)\n\n| variant | threads | render ms | speedup |\n|---|---:|---:|---:|\n");

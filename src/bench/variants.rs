@@ -44,8 +44,8 @@ const fn v(
     }
 }
 
-const fn wide(v: Variant) -> Variant {
-    Variant { width: 4, ..v }
+const fn wide(v: Variant, width: usize) -> Variant {
+    Variant { width, ..v }
 }
 
 use BackendKind::{Bvh, Embree, Naive};
@@ -53,7 +53,7 @@ use BuilderKind::{Median, Sah};
 use Schedule::{Rayon, Rows, Serial, Tiles};
 
 /// Every variant, in the order tables list them. `naive-serial` is the baseline.
-pub const VARIANTS: [Variant; 18] = [
+pub const VARIANTS: [Variant; 21] = [
     v("naive-serial", Naive, Sah, Serial, false),
     v("naive-rows", Naive, Sah, Rows, false),
     v("naive-tiles", Naive, Sah, Tiles, false),
@@ -66,9 +66,12 @@ pub const VARIANTS: [Variant; 18] = [
     v("bvh-sah-serial", Bvh, Sah, Serial, false),
     v("bvh-sah-tiles", Bvh, Sah, Tiles, true),
     v("bvh-sah-rayon", Bvh, Sah, Rayon, true),
-    wide(v("bvh4-sah-serial", Bvh, Sah, Serial, false)),
-    wide(v("bvh4-sah-tiles", Bvh, Sah, Tiles, true)),
-    wide(v("bvh4-sah-rayon", Bvh, Sah, Rayon, true)),
+    wide(v("bvh4-sah-serial", Bvh, Sah, Serial, false), 4),
+    wide(v("bvh4-sah-tiles", Bvh, Sah, Tiles, true), 4),
+    wide(v("bvh4-sah-rayon", Bvh, Sah, Rayon, true), 4),
+    wide(v("bvh8-sah-serial", Bvh, Sah, Serial, false), 8),
+    wide(v("bvh8-sah-tiles", Bvh, Sah, Tiles, true), 8),
+    wide(v("bvh8-sah-rayon", Bvh, Sah, Rayon, true), 8),
     v("embree-serial", Embree, Sah, Serial, false),
     v("embree-tiles", Embree, Sah, Tiles, true),
     v("embree-rayon", Embree, Sah, Rayon, true),
@@ -121,9 +124,11 @@ impl Variant {
     pub fn describe(&self) -> String {
         let backend = match self.kind {
             Naive => "all triangles per ray".to_string(),
-            Bvh if self.width == 4 => {
-                format!("{} BVH collapsed to 4-wide SIMD nodes", self.builder.name())
-            }
+            Bvh if self.width > 2 => format!(
+                "{} BVH collapsed to {}-wide SIMD nodes",
+                self.builder.name(),
+                self.width
+            ),
             Bvh => format!("{} BVH", self.builder.name()),
             Embree => "Embree MEDIUM, rtcIntersect1/rtcOccluded1".to_string(),
         };

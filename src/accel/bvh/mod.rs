@@ -10,7 +10,9 @@
 //! (an index may repeat when a builder splits triangles spatially).
 
 pub mod build;
+pub mod leaf;
 pub mod quality;
+pub mod simd;
 pub mod traverse;
 pub mod wide;
 
@@ -79,11 +81,80 @@ impl Bvh {
     }
 }
 
+/// The tree a [`BvhBackend`] traverses.
+#[derive(Clone, Debug)]
+pub enum Tree {
+    /// The binary tree as built.
+    Binary(Bvh),
+    /// Collapsed into 4-wide nodes.
+    Wide4(wide::Bvh4),
+    /// Collapsed into 8-wide nodes.
+    Wide8(wide::Bvh8),
+}
+
+impl Tree {
+    /// Bytes of nodes and leaf data.
+    pub fn memory_bytes(&self) -> usize {
+        match self {
+            Tree::Binary(t) => t.memory_bytes(),
+            Tree::Wide4(t) => t.memory_bytes(),
+            Tree::Wide8(t) => t.memory_bytes(),
+        }
+    }
+
+    /// Children per node.
+    pub fn width(&self) -> usize {
+        match self {
+            Tree::Binary(_) => 2,
+            Tree::Wide4(_) => 4,
+            Tree::Wide8(_) => 8,
+        }
+    }
+
+    /// The node kernel its queries use (`scalar` for the binary tree).
+    pub fn kernel(&self) -> &'static str {
+        match self {
+            Tree::Binary(_) => "scalar",
+            Tree::Wide4(t) => t.kernel.name(),
+            Tree::Wide8(t) => t.kernel.name(),
+        }
+    }
+
+    /// Closest hit with the chosen ray/triangle test.
+    #[inline]
+    pub fn intersect_using(&self, ray: &Ray, intersector: Intersector) -> Option<Hit> {
+        match self {
+            Tree::Binary(t) => t.intersect_using(ray, intersector),
+            Tree::Wide4(t) => t.intersect_using(ray, intersector),
+            Tree::Wide8(t) => t.intersect_using(ray, intersector),
+        }
+    }
+
+    /// Any hit with the chosen ray/triangle test.
+    #[inline]
+    pub fn occluded_using(&self, ray: &Ray, intersector: Intersector) -> bool {
+        match self {
+            Tree::Binary(t) => t.occluded_using(ray, intersector),
+            Tree::Wide4(t) => t.occluded_using(ray, intersector),
+            Tree::Wide8(t) => t.occluded_using(ray, intersector),
+        }
+    }
+
+    /// Builds over `triangles` with `params` and collapses to `params.width`
+    /// (the binary tree is dropped once collapsed).
+    pub fn build(triangles: &[[Vec3; 3]], params: &BuildParams) -> crate::Result<Tree> {
+        let bvh = Bvh::build(triangles, params)?;
+        Ok(match params.width {
+            4 => Tree::Wide4(wide::Bvh4::collapse(&bvh)?),
+            8 => Tree::Wide8(wide::Bvh8::collapse(&bvh)?),
+            _ => Tree::Binary(bvh),
+        })
+    }
+}
+
 /// The BVH as a render [`Backend`].
 pub struct BvhBackend {
-    pub bvh: Bvh,
-    /// The 4-wide tree traversed instead of `bvh` when built with width 4.
-    pub wide: Option<wide::Bvh4>,
+    pub tree: Tree,
     builder: BuilderKind,
     intersector: Intersector,
     build_time: Duration,
@@ -91,7 +162,8 @@ pub struct BvhBackend {
 
 impl BvhBackend {
     /// Builds a BVH over the scene's triangles; like every backend's, the build
-    /// time runs from the scene to a ready structure (vertex gather included).
+    /// time runs from the scene to a ready structure (vertex gather and
+    /// collapse to a wide tree included).
     pub fn new(scene: &Scene, params: &BuildParams) -> crate::Result<Self> {
         let start = Instant::now();
         Self::build_timed(&scene.triangle_vertices(), params, start)
@@ -102,17 +174,14 @@ impl BvhBackend {
         Self::build_timed(triangles, params, Instant::now())
     }
 
-    /// The build, with its time counted from `start`; width 4 adds the collapse.
     fn build_timed(
         triangles: &[[Vec3; 3]],
         params: &BuildParams,
         start: Instant,
     ) -> crate::Result<Self> {
-        let bvh = Bvh::build(triangles, params)?;
-        let wide = (params.width == 4).then(|| wide::Bvh4::collapse(&bvh));
+        let tree = Tree::build(triangles, params)?;
         Ok(BvhBackend {
-            bvh,
-            wide,
+            tree,
             builder: params.builder,
             intersector: Intersector::Mt,
             build_time: start.elapsed(),
@@ -124,13 +193,24 @@ impl BvhBackend {
         self.intersector = intersector;
         self
     }
+
+    /// The binary tree, when this backend traverses it (width 2).
+    pub fn binary(&self) -> Option<&Bvh> {
+        match &self.tree {
+            Tree::Binary(t) => Some(t),
+            _ => None,
+        }
+    }
 }
 
 impl Backend for BvhBackend {
-    /// `bvh-<builder>` (`bvh4-` for the 4-wide tree), with `-watertight` for the
-    /// watertight triangle test.
+    /// `bvh-<builder>` (`bvh4-`, `bvh8-` for the wide trees), with
+    /// `-watertight` for the watertight triangle test.
     fn name(&self) -> String {
-        let kind = if self.wide.is_some() { "bvh4" } else { "bvh" };
+        let kind = match self.tree.width() {
+            2 => "bvh".to_string(),
+            w => format!("bvh{w}"),
+        };
         match self.intersector {
             Intersector::Mt => format!("{kind}-{}", self.builder.name()),
             other => format!("{kind}-{}-{}", self.builder.name(), other.name()),
@@ -143,17 +223,11 @@ impl Backend for BvhBackend {
 
     #[inline]
     fn intersect(&self, ray: &Ray) -> Option<Hit> {
-        match &self.wide {
-            Some(w) => w.intersect_using(ray, self.intersector),
-            None => self.bvh.intersect_using(ray, self.intersector),
-        }
+        self.tree.intersect_using(ray, self.intersector)
     }
 
     #[inline]
     fn occluded(&self, ray: &Ray) -> bool {
-        match &self.wide {
-            Some(w) => w.occluded_using(ray, self.intersector),
-            None => self.bvh.occluded_using(ray, self.intersector),
-        }
+        self.tree.occluded_using(ray, self.intersector)
     }
 }

@@ -28,16 +28,26 @@ pub struct TreeStats {
     pub leaf_references: usize,
     pub memory_bytes: usize,
     pub bytes_per_triangle: f64,
-    /// `sum over interior nodes of C_t * A(n) + sum over leaves of C_i * N * A(n)`,
-    /// divided by `A(root)`, with `C_t = C_i = 1`.
+    /// `sum over interior nodes of C_t * A(n) + sum over leaves of C_i * B(N) * A(n)`,
+    /// divided by `A(root)`, with `C_t = C_i = 1` and `B(N)` the leaf's
+    /// triangle tests: `N`, or `ceil(N / sah_block)` for blocked leaves.
     pub sah_cost: f64,
+    /// Triangles tested together in the cost above (1, or 4 for wide trees).
+    pub sah_block: usize,
 }
 
 impl TreeStats {
     /// Measures `bvh`; `triangles` is the scene's triangle count (for bytes per
-    /// triangle).
+    /// triangle). The SAH cost counts one test per triangle.
     pub fn of(bvh: &Bvh, triangles: usize) -> TreeStats {
+        Self::with_block(bvh, triangles, 1)
+    }
+
+    /// As [`TreeStats::of`], with leaf tests counted in blocks of `sah_block`.
+    pub fn with_block(bvh: &Bvh, triangles: usize, sah_block: usize) -> TreeStats {
+        let sah_block = sah_block.max(1);
         let mut s = TreeStats {
+            sah_block,
             nodes: bvh.nodes.len(),
             leaf_references: bvh.tri_ids.len(),
             memory_bytes: bvh.memory_bytes(),
@@ -59,7 +69,7 @@ impl TreeStats {
                 s.max_depth = s.max_depth.max(depth);
                 s.max_leaf_size = s.max_leaf_size.max(n.count);
                 depth_sum += depth as u64;
-                cost += C_INTERSECT as f64 * n.count as f64 * area;
+                cost += C_INTERSECT as f64 * n.count.div_ceil(sah_block as u32) as f64 * area;
             } else {
                 cost += C_TRAVERSAL as f64 * area;
                 stack.push((i + 1, depth + 1));

@@ -5,6 +5,7 @@
 //! Both are generic over a [`Counter`]; the fast path uses [`NoCount`], whose
 //! empty methods compile away, and `raylab stats` uses [`Counts`].
 
+use super::leaf::BlockTest;
 use super::Bvh;
 use crate::geometry::{
     safe_reciprocal, Hit, Intersector, MollerTrumbore, Ray, TriangleTest, Watertight,
@@ -28,6 +29,13 @@ pub(crate) const CULL_SLACK: f32 = 1e-4;
 pub trait Counter {
     fn node(&mut self);
     fn triangle(&mut self);
+    /// `n` triangles tested at once (a block of the wide trees).
+    #[inline(always)]
+    fn triangles(&mut self, n: usize) {
+        for _ in 0..n {
+            self.triangle();
+        }
+    }
 }
 
 /// Counts nothing, at no cost.
@@ -55,6 +63,10 @@ impl Counter for Counts {
     #[inline]
     fn triangle(&mut self) {
         self.triangles += 1;
+    }
+    #[inline]
+    fn triangles(&mut self, n: usize) {
+        self.triangles += n as u64;
     }
 }
 
@@ -94,10 +106,10 @@ pub(crate) fn closest_in_leaf<T: TriangleTest, C: Counter>(
 /// and share the dispatch below.
 pub trait Traversal {
     /// Closest hit (ties: lowest triangle index) with triangle test `T`.
-    fn closest<T: TriangleTest, C: Counter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit>;
+    fn closest<T: BlockTest, C: Counter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit>;
 
     /// Any hit within the segment with triangle test `T`.
-    fn any<T: TriangleTest, C: Counter>(&self, ray: &Ray, counter: &mut C) -> bool;
+    fn any<T: BlockTest, C: Counter>(&self, ray: &Ray, counter: &mut C) -> bool;
 
     /// Closest hit with the chosen ray/triangle test.
     #[inline]
@@ -157,7 +169,7 @@ impl Bvh {
 }
 
 impl Traversal for Bvh {
-    fn closest<T: TriangleTest, C: Counter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
+    fn closest<T: BlockTest, C: Counter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
         if self.nodes.is_empty() || !ray.is_valid() {
             return None;
         }
@@ -226,7 +238,7 @@ impl Traversal for Bvh {
         best
     }
 
-    fn any<T: TriangleTest, C: Counter>(&self, ray: &Ray, counter: &mut C) -> bool {
+    fn any<T: BlockTest, C: Counter>(&self, ray: &Ray, counter: &mut C) -> bool {
         if self.nodes.is_empty() || !ray.is_valid() {
             return false;
         }

@@ -195,12 +195,14 @@ unsafe extern "C" fn split_primitive(
 }
 
 /// Builds a BVH over `triangles` with Embree's builder at `quality`, leaves of at
-/// most `max_leaf` triangles and the same SAH constants as raylab's SAH builder.
+/// most `max_leaf` triangles and the same SAH constants and block size
+/// (`sahBlockSize`) as raylab's SAH builder.
 pub fn build(
     device: &Arc<Device>,
     triangles: &[[Vec3; 3]],
     quality: Quality,
     max_leaf: usize,
+    sah_block: usize,
 ) -> Result<Bvh> {
     if triangles.is_empty() {
         return Ok(Bvh::default());
@@ -248,7 +250,7 @@ pub fn build(
         maxBranchingFactor: 2,
         // Within raylab's traversal stack of 64.
         maxDepth: 48,
-        sahBlockSize: 1,
+        sahBlockSize: sah_block.clamp(1, 64) as u32,
         minLeafSize: 1,
         maxLeafSize: max_leaf.clamp(1, 32) as u32,
         traversalCost: c_t,

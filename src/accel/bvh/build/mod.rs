@@ -71,9 +71,14 @@ pub struct BuildParams {
     pub max_leaf_size: usize,
     /// Threads for the build: 1 builds serially on the calling thread.
     pub threads: usize,
-    /// Children per node of the tree traversed: 2 (the built tree) or 4 (the
-    /// built tree collapsed into 4-wide SIMD nodes, [`super::wide`]).
+    /// Children per node of the tree traversed: 2 (the built tree), 4 or 8
+    /// (the built tree collapsed into wide SIMD nodes, [`super::wide`]).
     pub width: usize,
+    /// The SAH counts a leaf's triangle tests in blocks of this many: 1 for the
+    /// binary tree (one test per triangle), 4 for the wide trees, whose leaves
+    /// are tested four triangles at once ([`super::leaf`]), as Embree's
+    /// `sahBlockSize`. Set by [`BuildParams::with_width`].
+    pub sah_block: usize,
 }
 
 impl BuildParams {
@@ -84,6 +89,7 @@ impl BuildParams {
             max_leaf_size: 1,
             threads: 1,
             width: 2,
+            sah_block: 1,
         }
     }
 
@@ -94,6 +100,7 @@ impl BuildParams {
             max_leaf_size: sah::DEFAULT_MAX_LEAF_SIZE,
             threads: 1,
             width: 2,
+            sah_block: 1,
         }
     }
 
@@ -114,9 +121,17 @@ impl BuildParams {
         self
     }
 
-    /// Traverse a `width`-wide tree (2 or 4).
+    /// Traverse a `width`-wide tree (2, 4 or 8); wide trees are built with
+    /// the SAH counting leaf tests in blocks of four.
     pub const fn with_width(mut self, width: usize) -> Self {
         self.width = width;
+        self.sah_block = if width > 2 { super::leaf::LANES } else { 1 };
+        self
+    }
+
+    /// Counts leaf tests in blocks of `block` triangles in the SAH.
+    pub const fn with_sah_block(mut self, block: usize) -> Self {
+        self.sah_block = block;
         self
     }
 
@@ -224,7 +239,13 @@ pub fn build(triangles: &[[Vec3; 3]], params: &BuildParams) -> crate::Result<Bvh
         let parallel = params.threads > 1;
         match params.builder {
             BuilderKind::Median => recurse(prims, 0, 0, &median::Median { max_leaf }, parallel),
-            _ => recurse(prims, 0, 0, &sah::BinnedSah::new(max_leaf), parallel),
+            _ => recurse(
+                prims,
+                0,
+                0,
+                &sah::BinnedSah::new(max_leaf, params.sah_block),
+                parallel,
+            ),
         }
     };
     let mut prims: Vec<PrimRef> = triangles
@@ -285,7 +306,13 @@ fn build_with_embree(
             }
         }
     };
-    crate::accel::embree::builder::build(&device, triangles, quality, params.max_leaf_size)
+    crate::accel::embree::builder::build(
+        &device,
+        triangles,
+        quality,
+        params.max_leaf_size,
+        params.sah_block,
+    )
 }
 
 #[cfg(not(feature = "embree"))]

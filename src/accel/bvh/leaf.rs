@@ -1,0 +1,287 @@
+//! Leaf triangles of the wide trees in blocks of four, structure of arrays,
+//! so that one SIMD Moller-Trumbore tests four triangles at once.
+//!
+//! A block holds the three vertices lane by lane and the scene index of each
+//! triangle, so a leaf is one contiguous read (160 bytes) with nothing to look
+//! up elsewhere. Edges are not stored: `v1 - v0` in a SIMD lane is the same
+//! subtraction as in the scalar test, so the lane results are bit-identical to
+//! [`intersect_triangle`]'s, and the watertight test still gets the exact
+//! vertices. Unused lanes hold a point triangle at the origin (its determinant
+//! is zero, so it never hits) and the id [`EMPTY_ID`].
+
+use glam::{Vec3, Vec4};
+
+use crate::geometry::{intersect_triangle, Hit, MollerTrumbore, Ray, TriangleTest, Watertight};
+
+/// Triangles per block.
+pub const LANES: usize = 4;
+
+/// The id of an unused lane.
+pub const EMPTY_ID: u32 = u32::MAX;
+
+/// Four triangles, lane `i` of every array belonging to triangle `i`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(16))]
+pub struct Tri4 {
+    /// `v[k][axis]`: vertex `k`'s coordinate on `axis` for the four lanes.
+    pub v: [[Vec4; 3]; 3],
+    /// Scene index of each lane's triangle, [`EMPTY_ID`] for unused lanes.
+    pub ids: [u32; LANES],
+}
+
+impl Tri4 {
+    /// A block of up to four triangles (`tris` and `ids` of equal length, at
+    /// most [`LANES`]).
+    pub fn new(tris: &[[Vec3; 3]], ids: &[u32]) -> Tri4 {
+        debug_assert!(tris.len() <= LANES && tris.len() == ids.len());
+        let mut block = Tri4 {
+            v: [[Vec4::ZERO; 3]; 3],
+            ids: [EMPTY_ID; LANES],
+        };
+        for (lane, (tri, &id)) in tris.iter().zip(ids).enumerate() {
+            for (k, vertex) in tri.iter().enumerate() {
+                for axis in 0..3 {
+                    block.v[k][axis][lane] = vertex[axis];
+                }
+            }
+            block.ids[lane] = id;
+        }
+        block
+    }
+
+    /// The triangle of `lane`.
+    #[inline]
+    pub fn triangle(&self, lane: usize) -> [Vec3; 3] {
+        let v = |k: usize| Vec3::new(self.v[k][0][lane], self.v[k][1][lane], self.v[k][2][lane]);
+        [v(0), v(1), v(2)]
+    }
+
+    /// Number of used lanes.
+    #[inline]
+    pub fn len(&self) -> usize {
+        self.ids.iter().filter(|&&id| id != EMPTY_ID).count()
+    }
+
+    /// Whether no lane is used (never true of a block in a tree).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// The hits of a ray on the four lanes of a block.
+#[derive(Clone, Copy, Debug)]
+pub struct Hits4 {
+    /// Bit `i` set when lane `i` is hit within `(tmin, tmax)`.
+    pub mask: u32,
+    pub t: Vec4,
+    pub u: Vec4,
+    pub v: Vec4,
+}
+
+impl Hits4 {
+    /// The closest of the hit lanes by [`Hit::is_closer_than`] (lowest id on
+    /// equal `t`), if any.
+    #[inline]
+    pub fn closest(&self, ids: &[u32; LANES]) -> Option<Hit> {
+        let mut mask = self.mask;
+        let mut best: Option<Hit> = None;
+        while mask != 0 {
+            let lane = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            let hit = Hit {
+                t: self.t[lane],
+                u: self.u[lane],
+                v: self.v[lane],
+                tri: ids[lane],
+            };
+            if best.is_none_or(|b| hit.is_closer_than(&b)) {
+                best = Some(hit);
+            }
+        }
+        best
+    }
+}
+
+/// A ray broadcast to four lanes for [`intersect4`].
+#[derive(Clone, Copy, Debug)]
+pub struct Ray4 {
+    pub origin: [Vec4; 3],
+    pub dir: [Vec4; 3],
+}
+
+impl Ray4 {
+    #[inline]
+    pub fn new(ray: &Ray) -> Ray4 {
+        let s = |v: Vec3| [Vec4::splat(v.x), Vec4::splat(v.y), Vec4::splat(v.z)];
+        Ray4 {
+            origin: s(ray.origin),
+            dir: s(ray.dir),
+        }
+    }
+}
+
+/// Moller-Trumbore on four triangles at once: lane for lane the operations of
+/// [`intersect_triangle`] in the same order (no fused multiply-adds), so a hit
+/// lane's `(t, u, v)` is bit-identical to the scalar test's and a lane hits
+/// exactly when the scalar test reports a hit.
+#[inline(always)]
+pub fn intersect4(ray4: &Ray4, tmin: f32, tmax: f32, block: &Tri4) -> Hits4 {
+    let [ox, oy, oz] = ray4.origin;
+    let [dx, dy, dz] = ray4.dir;
+    let [v0, v1, v2] = &block.v;
+    let (e1x, e1y, e1z) = (v1[0] - v0[0], v1[1] - v0[1], v1[2] - v0[2]);
+    let (e2x, e2y, e2z) = (v2[0] - v0[0], v2[1] - v0[1], v2[2] - v0[2]);
+    // p = dir x e2
+    let px = dy * e2z - e2y * dz;
+    let py = dz * e2x - e2z * dx;
+    let pz = dx * e2y - e2x * dy;
+    let det = e1x * px + e1y * py + e1z * pz;
+    let inv_det = Vec4::ONE / det;
+    let (sx, sy, sz) = (ox - v0[0], oy - v0[1], oz - v0[2]);
+    let u = (sx * px + sy * py + sz * pz) * inv_det;
+    // q = s x e1
+    let qx = sy * e1z - e1y * sz;
+    let qy = sz * e1x - e1z * sx;
+    let qz = sx * e1y - e1x * sy;
+    let v = (dx * qx + dy * qy + dz * qz) * inv_det;
+    let t = (e2x * qx + e2y * qy + e2z * qz) * inv_det;
+    // Every test is written so that NaN fails it, as in the scalar test.
+    let ok = det.abs().cmpge(Vec4::splat(f32::MIN_POSITIVE))
+        & u.cmpge(Vec4::ZERO)
+        & u.cmple(Vec4::ONE)
+        & v.cmpge(Vec4::ZERO)
+        & (u + v).cmple(Vec4::ONE)
+        & t.cmpgt(Vec4::splat(tmin))
+        & t.cmplt(Vec4::splat(tmax));
+    Hits4 {
+        mask: ok.bitmask(),
+        t,
+        u,
+        v,
+    }
+}
+
+/// A ray/triangle test applied to a whole block: SIMD for Moller-Trumbore,
+/// lane by lane for the watertight test.
+pub trait BlockTest: TriangleTest {
+    /// The hits of `ray` (broadcast as `ray4`) on the lanes of `block` within
+    /// `(ray.tmin, ray.tmax)`, each as [`TriangleTest::test`] reports it.
+    fn test4(prepared: &Self::Prepared, ray4: &Ray4, ray: &Ray, block: &Tri4) -> Hits4;
+}
+
+impl BlockTest for MollerTrumbore {
+    #[inline(always)]
+    fn test4(_: &(), ray4: &Ray4, ray: &Ray, block: &Tri4) -> Hits4 {
+        intersect4(ray4, ray.tmin, ray.tmax, block)
+    }
+}
+
+impl BlockTest for Watertight {
+    #[inline]
+    fn test4(prepared: &Self::Prepared, _: &Ray4, ray: &Ray, block: &Tri4) -> Hits4 {
+        let mut hits = Hits4 {
+            mask: 0,
+            t: Vec4::ZERO,
+            u: Vec4::ZERO,
+            v: Vec4::ZERO,
+        };
+        for lane in 0..LANES {
+            if block.ids[lane] == EMPTY_ID {
+                continue;
+            }
+            if let Some((t, u, v)) = Watertight::test(prepared, ray, &block.triangle(lane)) {
+                hits.mask |= 1 << lane;
+                hits.t[lane] = t;
+                hits.u[lane] = u;
+                hits.v[lane] = v;
+            }
+        }
+        hits
+    }
+}
+
+/// The reference for [`intersect4`]: the scalar test lane by lane.
+pub fn intersect4_scalar(ray: &Ray, block: &Tri4) -> [Option<(f32, f32, f32)>; LANES] {
+    std::array::from_fn(|lane| intersect_triangle(ray, &block.triangle(lane)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::rng::Rng;
+
+    fn random_block(rng: &mut Rng, lanes: usize) -> Tri4 {
+        let mut p = || Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - 1.0;
+        let tris: Vec<[Vec3; 3]> = (0..lanes).map(|_| [p(), p(), p()]).collect();
+        let ids: Vec<u32> = (0..lanes as u32).map(|i| 10 + i).collect();
+        Tri4::new(&tris, &ids)
+    }
+
+    #[test]
+    fn simd_triangle_test_equals_the_scalar_one_lane_by_lane() {
+        let mut rng = Rng::for_pixel(3, 1, 4);
+        let mut hits = 0;
+        for k in 0..50_000 {
+            let block = random_block(&mut rng, 1 + k % 4);
+            let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 4.0 - 2.0;
+            let target = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
+            let mut ray = Ray::new(o, target - o);
+            if k % 5 == 0 {
+                ray.tmax = rng.next_f32() * 1.5;
+            }
+            if k % 7 == 0 {
+                // Aimed exactly at a vertex: the rounding-sensitive case.
+                let lane = k % block.len();
+                ray.dir = block.triangle(lane)[k % 3] - o;
+            }
+            let simd = intersect4(&Ray4::new(&ray), ray.tmin, ray.tmax, &block);
+            for (lane, want) in intersect4_scalar(&ray, &block).iter().enumerate() {
+                let got = (simd.mask >> lane & 1 == 1)
+                    .then(|| (simd.t[lane], simd.u[lane], simd.v[lane]));
+                let bits = |h: Option<(f32, f32, f32)>| {
+                    h.map(|(t, u, v)| (t.to_bits(), u.to_bits(), v.to_bits()))
+                };
+                assert_eq!(bits(got), bits(*want), "ray {k} lane {lane}");
+                hits += want.is_some() as usize;
+            }
+        }
+        assert!(hits > 5_000, "too few hits to mean anything: {hits}");
+    }
+
+    #[test]
+    fn empty_lanes_never_hit_and_nan_rays_miss() {
+        let tri = [
+            Vec3::new(-1.0, -1.0, 0.0),
+            Vec3::new(1.0, -1.0, 0.0),
+            Vec3::Y,
+        ];
+        let block = Tri4::new(&[tri], &[7]);
+        assert_eq!(block.len(), 1);
+        // Through the origin, where the empty lanes' point triangles sit.
+        let ray = Ray::new(Vec3::new(0.0, 0.0, 1.0), Vec3::new(0.0, 0.0, -1.0));
+        let hits = intersect4(&Ray4::new(&ray), 0.0, f32::INFINITY, &block);
+        assert_eq!(hits.mask, 1);
+        assert_eq!(hits.closest(&block.ids).unwrap().tri, 7);
+        let nan = Ray::new(Vec3::new(f32::NAN, 0.0, 1.0), Vec3::new(0.0, 0.0, -1.0));
+        assert_eq!(
+            intersect4(&Ray4::new(&nan), 0.0, f32::INFINITY, &block).mask,
+            0
+        );
+    }
+
+    #[test]
+    fn closest_lane_breaks_ties_by_lowest_id() {
+        let tri = [
+            Vec3::new(-1.0, -1.0, 0.0),
+            Vec3::new(1.0, -1.0, 0.0),
+            Vec3::Y,
+        ];
+        let far = tri.map(|v| v - Vec3::Z);
+        let block = Tri4::new(&[far, tri, tri], &[1, 9, 4]);
+        let ray = Ray::new(Vec3::new(0.0, 0.0, 1.0), Vec3::new(0.0, 0.0, -1.0));
+        let hits = intersect4(&Ray4::new(&ray), 0.0, f32::INFINITY, &block);
+        assert_eq!(hits.mask, 0b111);
+        let best = hits.closest(&block.ids).unwrap();
+        assert_eq!((best.tri, best.t), (4, 1.0));
+    }
+}

@@ -1,0 +1,367 @@
+//! The node kernels of the wide trees: the slab test of all `N` child boxes
+//! of a node at once, in a portable form (glam's `Vec4`: SSE2 on x86-64, NEON
+//! on aarch64, scalar elsewhere) and with AVX2 for 8-wide nodes, chosen at run
+//! time. [`slab_test_scalar`] is the reference both are tested against, lane
+//! by lane and bit for bit.
+//!
+//! `unsafe` outside the Embree module lives here alone: the AVX2 intrinsics
+//! load through pointers, and AVX2 code may only run on a CPU that has it. An
+//! [`Avx2`] value can only be made by [`Avx2::detect`], which checks the CPU,
+//! so holding one is the proof every `unsafe` block below relies on.
+
+use glam::Vec4;
+
+use super::leaf::BlockTest;
+use super::traverse::Counter;
+use super::wide::{WideBvh, WideNode};
+use crate::geometry::{Hit, Ray, GAMMA3};
+
+/// The slab test's conservative growth of exit distances (see [`crate::geometry::Aabb::intersect`]).
+const GROW: f32 = 1.0 + 2.0 * GAMMA3;
+
+/// A ray prepared for the node kernels: origin, reciprocal direction, and for
+/// each axis which bound row of a node is the near plane and which the far.
+#[derive(Clone, Copy, Debug)]
+pub struct WideRay {
+    pub origin: [f32; 3],
+    pub inv_dir: [f32; 3],
+    /// `near[a]` is the row of `WideNode::bounds` holding the near plane on axis
+    /// `a` (the minimum for a positive direction, the maximum for a negative one).
+    pub near: [usize; 3],
+    pub far: [usize; 3],
+}
+
+impl WideRay {
+    /// `inv_dir` is [`crate::geometry::safe_reciprocal`] of the ray's direction.
+    #[inline]
+    pub fn new(ray: &Ray, inv_dir: glam::Vec3) -> WideRay {
+        // The sign of the reciprocal decides: safe_reciprocal keeps the sign of
+        // a zero component, so -0.0 counts as negative, as the slab test needs.
+        let row = |a: usize| if inv_dir[a] >= 0.0 { 2 * a } else { 2 * a + 1 };
+        WideRay {
+            origin: ray.origin.to_array(),
+            inv_dir: inv_dir.to_array(),
+            near: [row(0), row(1), row(2)],
+            far: [row(0) ^ 1, row(1) ^ 1, row(2) ^ 1],
+        }
+    }
+}
+
+/// The slab test of every lane of an `N`-wide node.
+///
+/// Returns the mask of lanes whose box overlaps `(tmin, tmax)` and each lane's
+/// entry distance (meaningful for set lanes only). For a valid box this equals
+/// [`crate::geometry::Aabb::intersect`] bit for bit (choosing the near plane by
+/// the direction's sign is the same as the min/max of the two planes); unused
+/// lanes hold an inverted box, which the sign choice always rejects.
+pub trait NodeKernel<const N: usize>: Copy {
+    fn intersect(self, node: &WideNode<N>, ray: &WideRay, tmin: f32, tmax: f32) -> (u32, [f32; N]);
+}
+
+/// The portable kernel: `N / 4` glam `Vec4` operations per step.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Portable;
+
+impl<const N: usize> NodeKernel<N> for Portable {
+    #[inline(always)]
+    fn intersect(self, node: &WideNode<N>, ray: &WideRay, tmin: f32, tmax: f32) -> (u32, [f32; N]) {
+        let mut mask = 0;
+        let mut near = [0f32; N];
+        for h in 0..N / 4 {
+            let row = |r: usize| Vec4::from_slice(&node.bounds[r][4 * h..]);
+            let slab = |a: usize, r: usize| {
+                (row(r) - Vec4::splat(ray.origin[a])) * Vec4::splat(ray.inv_dir[a])
+            };
+            let n = slab(0, ray.near[0])
+                .max(slab(1, ray.near[1]))
+                .max(slab(2, ray.near[2]))
+                .max(Vec4::splat(tmin));
+            let f = (slab(0, ray.far[0])
+                .min(slab(1, ray.far[1]))
+                .min(slab(2, ray.far[2]))
+                * GROW)
+                .min(Vec4::splat(tmax));
+            mask |= n.cmple(f).bitmask() << (4 * h);
+            n.write_to_slice(&mut near[4 * h..]);
+        }
+        (mask, near)
+    }
+}
+
+/// The reference for the kernels: [`crate::geometry::Aabb::intersect`]'s
+/// operations one lane at a time, with the near plane chosen by sign.
+pub fn slab_test_scalar<const N: usize>(
+    node: &WideNode<N>,
+    ray: &WideRay,
+    tmin: f32,
+    tmax: f32,
+) -> (u32, [f32; N]) {
+    let mut mask = 0;
+    let mut near = [0f32; N];
+    for (lane, slot) in near.iter_mut().enumerate() {
+        let slab = |a: usize, r: usize| (node.bounds[r][lane] - ray.origin[a]) * ray.inv_dir[a];
+        let n = slab(0, ray.near[0])
+            .max(slab(1, ray.near[1]))
+            .max(slab(2, ray.near[2]))
+            .max(tmin);
+        let f = (slab(0, ray.far[0])
+            .min(slab(1, ray.far[1]))
+            .min(slab(2, ray.far[2]))
+            * GROW)
+            .min(tmax);
+        if n <= f {
+            mask |= 1 << lane;
+        }
+        *slot = n;
+    }
+    (mask, near)
+}
+
+/// Proof that this CPU runs AVX2 (and BMI1 and POPCNT, which the traversal's
+/// bit scans use): only [`Avx2::detect`] makes one.
+#[derive(Clone, Copy, Debug)]
+pub struct Avx2 {
+    _checked: (),
+}
+
+impl Avx2 {
+    /// `Some` when the CPU has AVX2, BMI1 and POPCNT (checked once by the
+    /// standard library, cached), unless `RAYLAB_SIMD=portable` asks for the
+    /// portable kernels.
+    pub fn detect() -> Option<Avx2> {
+        if std::env::var("RAYLAB_SIMD").is_ok_and(|v| v == "portable") {
+            return None;
+        }
+        #[cfg(target_arch = "x86_64")]
+        if is_x86_feature_detected!("avx2")
+            && is_x86_feature_detected!("bmi1")
+            && is_x86_feature_detected!("popcnt")
+        {
+            return Some(Avx2 { _checked: () });
+        }
+        None
+    }
+}
+
+/// Which kernel a tree's queries use, chosen when it is built.
+#[derive(Clone, Copy, Debug)]
+pub enum Kernel {
+    Portable,
+    Avx2(Avx2),
+}
+
+impl Kernel {
+    /// AVX2 where the CPU has it, else portable.
+    pub fn detect() -> Kernel {
+        Avx2::detect().map_or(Kernel::Portable, Kernel::Avx2)
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Kernel::Portable => "portable",
+            Kernel::Avx2(_) => "avx2",
+        }
+    }
+}
+
+/// [`Portable`]'s operations on eight lanes in one AVX register each. Always
+/// inlined into the AVX2 traversal functions below, which is where its
+/// intrinsics are compiled (they need the caller to have AVX enabled).
+#[cfg(target_arch = "x86_64")]
+impl NodeKernel<8> for Avx2 {
+    #[inline(always)]
+    fn intersect(self, node: &WideNode<8>, ray: &WideRay, tmin: f32, tmax: f32) -> (u32, [f32; 8]) {
+        use std::arch::x86_64::*;
+        // SAFETY: `self` proves the CPU has AVX2 (see `Avx2::detect`). Each row
+        // of `node.bounds` is eight f32 behind a live reference, 32-byte aligned
+        // (the node is 64-byte aligned and rows are 32 bytes); `out` is eight
+        // writable f32.
+        unsafe {
+            let b = &node.bounds;
+            let o = |a: usize| _mm256_set1_ps(ray.origin[a]);
+            let i = |a: usize| _mm256_set1_ps(ray.inv_dir[a]);
+            let nx = _mm256_mul_ps(
+                _mm256_sub_ps(_mm256_load_ps(b[ray.near[0]].as_ptr()), o(0)),
+                i(0),
+            );
+            let ny = _mm256_mul_ps(
+                _mm256_sub_ps(_mm256_load_ps(b[ray.near[1]].as_ptr()), o(1)),
+                i(1),
+            );
+            let nz = _mm256_mul_ps(
+                _mm256_sub_ps(_mm256_load_ps(b[ray.near[2]].as_ptr()), o(2)),
+                i(2),
+            );
+            let fx = _mm256_mul_ps(
+                _mm256_sub_ps(_mm256_load_ps(b[ray.far[0]].as_ptr()), o(0)),
+                i(0),
+            );
+            let fy = _mm256_mul_ps(
+                _mm256_sub_ps(_mm256_load_ps(b[ray.far[1]].as_ptr()), o(1)),
+                i(1),
+            );
+            let fz = _mm256_mul_ps(
+                _mm256_sub_ps(_mm256_load_ps(b[ray.far[2]].as_ptr()), o(2)),
+                i(2),
+            );
+            let near = _mm256_max_ps(
+                _mm256_max_ps(_mm256_max_ps(nx, ny), nz),
+                _mm256_set1_ps(tmin),
+            );
+            let far = _mm256_min_ps(
+                _mm256_mul_ps(
+                    _mm256_min_ps(_mm256_min_ps(fx, fy), fz),
+                    _mm256_set1_ps(GROW),
+                ),
+                _mm256_set1_ps(tmax),
+            );
+            let mask = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(near, far)) as u32;
+            let mut out = [0f32; 8];
+            _mm256_storeu_ps(out.as_mut_ptr(), near);
+            (mask, out)
+        }
+    }
+}
+
+/// The wide trees' queries compiled with AVX2 enabled: the generic traversal
+/// is `#[inline(always)]`, so it is compiled into these functions and every
+/// operation in it (node tests, triangle tests, bit scans) uses AVX2 and VEX
+/// encoding.
+impl Avx2 {
+    #[inline(always)]
+    pub fn closest<T: BlockTest, C: Counter, const S: usize>(
+        self,
+        bvh: &WideBvh<8>,
+        ray: &Ray,
+        counter: &mut C,
+    ) -> Option<Hit> {
+        #[cfg(target_arch = "x86_64")]
+        {
+            // SAFETY: `self` proves the CPU has AVX2, BMI1 and POPCNT.
+            unsafe { closest_avx2::<T, C, S>(self, bvh, ray, counter) }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        bvh.closest_with::<Portable, T, C, S>(Portable, ray, counter)
+    }
+
+    #[inline(always)]
+    pub fn any<T: BlockTest, C: Counter, const S: usize>(
+        self,
+        bvh: &WideBvh<8>,
+        ray: &Ray,
+        counter: &mut C,
+    ) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        {
+            // SAFETY: as in `closest`.
+            unsafe { any_avx2::<T, C, S>(self, bvh, ray, counter) }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        bvh.any_with::<Portable, T, C, S>(Portable, ray, counter)
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,popcnt")]
+fn closest_avx2<T: BlockTest, C: Counter, const S: usize>(
+    kernel: Avx2,
+    bvh: &WideBvh<8>,
+    ray: &Ray,
+    counter: &mut C,
+) -> Option<Hit> {
+    bvh.closest_with::<Avx2, T, C, S>(kernel, ray, counter)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,popcnt")]
+fn any_avx2<T: BlockTest, C: Counter, const S: usize>(
+    kernel: Avx2,
+    bvh: &WideBvh<8>,
+    ray: &Ray,
+    counter: &mut C,
+) -> bool {
+    bvh.any_with::<Avx2, T, C, S>(kernel, ray, counter)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::bvh::wide::WideNode;
+    use crate::geometry::safe_reciprocal;
+    use crate::render::rng::Rng;
+    use glam::Vec3;
+
+    fn random_node<const N: usize>(rng: &mut Rng) -> WideNode<N> {
+        let mut node = WideNode::<N>::empty();
+        for lane in 0..N {
+            if rng.next_f32() < 0.2 {
+                continue; // an unused lane keeps its inverted box
+            }
+            let mut p = || Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 4.0 - 2.0;
+            let (a, mut b) = (p(), p());
+            if lane % 3 == 0 {
+                b.y = a.y; // flat boxes must be hit too
+            }
+            node.set_lane(lane, &crate::geometry::Aabb::from_points(&[a, b]), 0);
+        }
+        node
+    }
+
+    fn check<const N: usize, K: NodeKernel<N>>(kernel: K) {
+        let mut rng = Rng::for_pixel(4, 2, 8);
+        let mut hits = 0;
+        for k in 0..20_000 {
+            let node = random_node::<N>(&mut rng);
+            let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 6.0 - 3.0;
+            let mut d = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
+            if k % 5 == 0 {
+                d.x = 0.0; // huge reciprocals
+            }
+            if k % 10 == 0 {
+                d.z = -0.0;
+            }
+            let ray = Ray::new(o, d);
+            let wray = WideRay::new(&ray, safe_reciprocal(d));
+            let tmax = if k % 3 == 0 {
+                f32::INFINITY
+            } else {
+                rng.next_f32() * 5.0
+            };
+            let (mask, near) = kernel.intersect(&node, &wray, 0.0, tmax);
+            let (want_mask, want_near) = slab_test_scalar(&node, &wray, 0.0, tmax);
+            assert_eq!(mask, want_mask, "ray {k}");
+            for lane in 0..N {
+                if mask >> lane & 1 == 1 {
+                    assert_eq!(near[lane].to_bits(), want_near[lane].to_bits(), "ray {k}");
+                    // And the box test every other backend uses agrees.
+                    let b = node.lane_bounds(lane);
+                    assert_eq!(
+                        b.intersect(o, safe_reciprocal(d), 0.0, tmax)
+                            .map(f32::to_bits),
+                        Some(near[lane].to_bits()),
+                        "ray {k} lane {lane}"
+                    );
+                    hits += 1;
+                } else if node.child[lane] != super::super::wide::EMPTY {
+                    let b = node.lane_bounds(lane);
+                    assert!(b.intersect(o, safe_reciprocal(d), 0.0, tmax).is_none());
+                }
+            }
+        }
+        assert!(hits > 1_000, "too few hits to mean anything: {hits}");
+    }
+
+    #[test]
+    fn portable_kernels_equal_the_scalar_slab_test() {
+        check::<4, _>(Portable);
+        check::<8, _>(Portable);
+    }
+
+    #[test]
+    fn avx2_kernel_equals_the_scalar_slab_test() {
+        match Avx2::detect() {
+            Some(k) => check::<8, _>(k),
+            None => eprintln!("no AVX2 on this CPU: the AVX2 kernel is not tested"),
+        }
+    }
+}

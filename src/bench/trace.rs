@@ -1,0 +1,403 @@
+//! Query throughput without shading: the rays one render casts (primary,
+//! shadow and AO), recorded once per scene, traced by every backend on each
+//! thread count, repetitions interleaved across backends so that a noisy
+//! machine slows them alike.
+//!
+//! A speed figure is only quoted for right answers (tinybvh's habit): before
+//! timing, every backend answers every ray once; raylab's own backends must
+//! give the reference's answers bit for bit (the bench fails otherwise), and
+//! Embree's differing answers are counted and reported (ties on shared edges,
+//! which `raylab validate` classifies).
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Instant;
+
+use serde::Serialize;
+
+use super::measure::Stat;
+use crate::accel::embree::ftz::FlushDenormals;
+use crate::accel::{build_backend, Backend, BackendKind, BackendSpec};
+use crate::error::{Error, Result};
+use crate::geometry::Ray;
+use crate::progress::StepBar;
+use crate::render::RenderSettings;
+use crate::scene::Scene;
+use crate::validate::{ray_sets, RaySet};
+
+/// Rays handed to a thread at a time: small enough to balance two threads,
+/// large enough that the shared counter is touched rarely.
+const CHUNK: usize = 512;
+
+/// One backend's throughput on one ray kind and thread count.
+#[derive(Clone, Debug, Serialize)]
+pub struct TracePoint {
+    pub scene: String,
+    pub triangles: usize,
+    pub backend: String,
+    /// `primary` (closest hit), `shadow` or `ao` (any hit).
+    pub kind: String,
+    pub threads: usize,
+    pub rays: usize,
+    /// Millions of rays per second of wall time, over the measured runs.
+    pub mrays: Stat,
+    /// Answers that differ from the reference backend's (0 for raylab's own
+    /// backends, or the bench fails).
+    pub differing: usize,
+    /// Build time of the backend (ms, once, on the largest thread count).
+    pub build_ms: f64,
+}
+
+/// What a query answered, comparable across backends: the hit triangle and the
+/// bits of `t` for closest hits, hit or not for any-hit queries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Answer {
+    Closest(Option<(u32, u32)>),
+    Any(bool),
+}
+
+/// Answers `ray` as the ray kind `kind` asks.
+#[inline]
+fn answer(backend: &dyn Backend, kind: RaySet, ray: &Ray) -> Answer {
+    match kind {
+        RaySet::Primary | RaySet::Random => {
+            Answer::Closest(backend.intersect(ray).map(|h| (h.tri, h.t.to_bits())))
+        }
+        RaySet::Shadow | RaySet::Ao => Answer::Any(backend.occluded(ray)),
+    }
+}
+
+/// A number that depends on every answer, so the timed loop cannot be elided.
+#[inline]
+fn digest(a: Answer) -> u64 {
+    match a {
+        Answer::Closest(Some((tri, _))) => tri as u64 + 1,
+        Answer::Closest(None) | Answer::Any(false) => 0,
+        Answer::Any(true) => 1,
+    }
+}
+
+/// Traces `rays` on `threads` threads (chunks taken from a shared counter) and
+/// returns the wall time in seconds and the sum of the answers' digests.
+pub fn trace(backend: &dyn Backend, kind: RaySet, rays: &[Ray], threads: usize) -> (f64, u64) {
+    let next = AtomicUsize::new(0);
+    let work = || {
+        let _ftz = backend.flushes_denormals().then(FlushDenormals::enable);
+        let mut sum = 0u64;
+        loop {
+            let start = next.fetch_add(CHUNK, Ordering::Relaxed);
+            if start >= rays.len() {
+                break sum;
+            }
+            for ray in &rays[start..(start + CHUNK).min(rays.len())] {
+                sum = sum.wrapping_add(digest(answer(backend, kind, ray)));
+            }
+        }
+    };
+    let started = Instant::now();
+    let sum = if threads <= 1 {
+        work()
+    } else {
+        std::thread::scope(|s| {
+            let handles: Vec<_> = (0..threads).map(|_| s.spawn(work)).collect();
+            handles
+                .into_iter()
+                .map(|h| h.join().unwrap_or(0))
+                .fold(0u64, u64::wrapping_add)
+        })
+    };
+    (started.elapsed().as_secs_f64(), sum)
+}
+
+/// The backends of the trace part for the bench's variants: each distinct
+/// backend once (schedules do not matter here), the naive scan left out.
+pub fn trace_specs(variants: &[super::variants::Variant], threads: usize) -> Vec<BackendSpec> {
+    let mut specs: Vec<BackendSpec> = Vec::new();
+    for v in variants.iter().filter(|v| v.kind != BackendKind::Naive) {
+        let mut spec = v.spec(threads);
+        spec.bvh.threads = threads;
+        let same = |s: &BackendSpec| {
+            s.kind == spec.kind
+                && (s.kind == BackendKind::Embree
+                    || (s.bvh.builder == spec.bvh.builder && s.bvh.width == spec.bvh.width))
+        };
+        if !specs.iter().any(same) {
+            specs.push(spec);
+        }
+    }
+    specs
+}
+
+/// Measures every backend of `specs` on the rays of one render of `scene`
+/// with `settings`, on each of `thread_counts`, `reps` times. The first own
+/// (non-Embree) backend is the reference every other is checked against.
+pub fn trace_throughput(
+    scene: &Scene,
+    settings: &RenderSettings,
+    specs: &[BackendSpec],
+    thread_counts: &[usize],
+    reps: usize,
+    bar: &StepBar,
+) -> Result<Vec<TracePoint>> {
+    bar.set_message(format!("trace: building backends for {}", scene.name));
+    let mut backends: Vec<(Box<dyn Backend>, f64)> = Vec::new();
+    for spec in specs {
+        let start = Instant::now();
+        let b = build_backend(spec, scene)?;
+        backends.push((b, start.elapsed().as_secs_f64() * 1e3));
+    }
+    trace_backends(scene, settings, &backends, thread_counts, reps, bar)
+}
+
+/// [`trace_throughput`] over backends already built, each with its build time
+/// in ms.
+pub fn trace_backends(
+    scene: &Scene,
+    settings: &RenderSettings,
+    backends: &[(Box<dyn Backend>, f64)],
+    thread_counts: &[usize],
+    reps: usize,
+    bar: &StepBar,
+) -> Result<Vec<TracePoint>> {
+    if backends.is_empty() {
+        return Ok(Vec::new());
+    }
+    let reference = backends
+        .iter()
+        .position(|(b, _)| !b.name().starts_with("embree"))
+        .unwrap_or(0);
+    bar.set_message(format!("trace: recording the rays of {}", scene.name));
+    let kinds = [RaySet::Primary, RaySet::Shadow, RaySet::Ao];
+    let sets = ray_sets(
+        scene,
+        backends[reference].0.as_ref(),
+        settings,
+        &kinds,
+        usize::MAX,
+        true,
+    )?;
+    let mut out = Vec::new();
+    for (kind, rays) in &sets {
+        if rays.is_empty() {
+            continue;
+        }
+        // Answers first: a speed is only reported for right answers.
+        let want: Vec<Answer> = rays
+            .iter()
+            .map(|r| answer(backends[reference].0.as_ref(), *kind, r))
+            .collect();
+        let mut differing = Vec::with_capacity(backends.len());
+        for (b, _) in backends {
+            // Embree computes t with its own arithmetic: only the triangle hit
+            // is comparable.
+            let exact = !b.name().starts_with("embree");
+            let same = |a: Answer, w: Answer| match (a, w) {
+                (Answer::Closest(a), Answer::Closest(w)) if !exact => {
+                    a.map(|h| h.0) == w.map(|h| h.0)
+                }
+                _ => a == w,
+            };
+            let n = rays
+                .iter()
+                .zip(&want)
+                .filter(|(r, w)| !same(answer(b.as_ref(), *kind, r), **w))
+                .count();
+            if n > 0 && !b.name().starts_with("embree") {
+                return Err(Error::Other(format!(
+                    "trace: {} differs from {} on {n} of {} {} rays of {}",
+                    b.name(),
+                    backends[reference].0.name(),
+                    rays.len(),
+                    kind.name(),
+                    scene.name
+                )));
+            }
+            differing.push(n);
+        }
+        let expected: u64 = want.iter().map(|&a| digest(a)).fold(0, u64::wrapping_add);
+        let mut rates = vec![vec![Vec::new(); thread_counts.len()]; backends.len()];
+        for rep in 0..reps.max(1) + 1 {
+            bar.set_message(format!(
+                "trace: {} rays of {}, run {}/{}",
+                kind.name(),
+                scene.name,
+                rep,
+                reps.max(1)
+            ));
+            for (ti, &threads) in thread_counts.iter().enumerate() {
+                for (bi, (b, _)) in backends.iter().enumerate() {
+                    let (seconds, sum) = trace(b.as_ref(), *kind, rays, threads);
+                    if differing[bi] == 0 && sum != expected {
+                        return Err(Error::Other(format!(
+                            "trace: {} answered differently on {threads} threads",
+                            b.name()
+                        )));
+                    }
+                    // Run 0 warms caches and the branch predictors.
+                    if rep > 0 {
+                        rates[bi][ti].push(rays.len() as f64 / seconds.max(1e-12) / 1e6);
+                    }
+                }
+            }
+        }
+        bar.step();
+        for (bi, (b, build_ms)) in backends.iter().enumerate() {
+            for (ti, &threads) in thread_counts.iter().enumerate() {
+                out.push(TracePoint {
+                    scene: scene.name.clone(),
+                    triangles: scene.triangle_count(),
+                    backend: b.name(),
+                    kind: kind.name().to_string(),
+                    threads,
+                    rays: rays.len(),
+                    mrays: Stat::of(&rates[bi][ti]),
+                    differing: differing[bi],
+                    build_ms: *build_ms,
+                });
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// The trace table: one row per scene, ray kind and thread count, Mrays/s per
+/// backend, and the best own backend's time over Embree's (at most 1 means as
+/// fast as Embree or faster).
+pub fn markdown(points: &[TracePoint]) -> String {
+    let mut backends: Vec<&str> = Vec::new();
+    for p in points {
+        if !backends.contains(&p.backend.as_str()) {
+            backends.push(&p.backend);
+        }
+    }
+    let has_embree = backends.iter().any(|b| b.starts_with("embree"));
+    let mut out = String::from(
+        "### Trace throughput (no shading; the same recorded rays for every backend; median Mrays/s of wall time)\n\n| scene | triangles | rays | threads |",
+    );
+    for b in &backends {
+        out.push_str(&format!(" {b} |"));
+    }
+    if has_embree {
+        out.push_str(" best own | own/Embree time |");
+    }
+    out.push_str("\n|---|---:|---|---:|");
+    out.push_str(&"---:|".repeat(backends.len() + if has_embree { 2 } else { 0 }));
+    out.push('\n');
+    let mut rows: Vec<(&str, &str, usize)> = Vec::new();
+    for p in points {
+        let key = (p.scene.as_str(), p.kind.as_str(), p.threads);
+        if !rows.contains(&key) {
+            rows.push(key);
+        }
+    }
+    for (scene, kind, threads) in rows {
+        let cell: Vec<&TracePoint> = points
+            .iter()
+            .filter(|p| p.scene == scene && p.kind == kind && p.threads == threads)
+            .collect();
+        let first = cell[0];
+        out.push_str(&format!(
+            "| {scene} | {} | {kind} ({}) | {threads} |",
+            first.triangles, first.rays
+        ));
+        for b in &backends {
+            match cell.iter().find(|p| p.backend == *b) {
+                Some(p) if p.differing > 0 => out.push_str(&format!(
+                    " {:.2} ({} differ) |",
+                    p.mrays.median, p.differing
+                )),
+                Some(p) => out.push_str(&format!(" {:.2} |", p.mrays.median)),
+                None => out.push_str(" |"),
+            }
+        }
+        if has_embree {
+            let best = cell
+                .iter()
+                .filter(|p| !p.backend.starts_with("embree"))
+                .max_by(|a, b| a.mrays.median.total_cmp(&b.mrays.median));
+            let embree = cell.iter().find(|p| p.backend.starts_with("embree"));
+            match (best, embree) {
+                (Some(b), Some(e)) => out.push_str(&format!(
+                    " {} | {:.2} |",
+                    b.backend,
+                    e.mrays.median / b.mrays.median.max(1e-12)
+                )),
+                _ => out.push_str(" | |"),
+            }
+        }
+        out.push('\n');
+    }
+    out.push('\n');
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::bvh::{BuildParams, BvhBackend};
+    use crate::bench::measure::View;
+    use crate::geometry::Hit;
+    use crate::render::AoMode;
+
+    /// The SAH tree, but every 50th closest hit reports another triangle.
+    struct Planted(BvhBackend);
+
+    impl Backend for Planted {
+        fn name(&self) -> String {
+            "planted".into()
+        }
+        fn build_time(&self) -> std::time::Duration {
+            self.0.build_time()
+        }
+        fn intersect(&self, ray: &Ray) -> Option<Hit> {
+            let hit = self.0.intersect(ray)?;
+            let wrong = ray.dir.x.to_bits().is_multiple_of(50).then_some(hit.tri + 1);
+            Some(Hit {
+                tri: wrong.unwrap_or(hit.tri),
+                ..hit
+            })
+        }
+        fn occluded(&self, ray: &Ray) -> bool {
+            self.0.occluded(ray)
+        }
+    }
+
+    fn setup() -> (Scene, RenderSettings) {
+        let scene = crate::scene::builtin::builtin("cornell-sphere").unwrap();
+        let settings = View::PAPER[0].settings((48, 36), AoMode::Paper, 1).unwrap();
+        (scene, settings)
+    }
+
+    #[test]
+    fn own_backends_agree_and_every_kind_and_thread_count_is_measured() {
+        let (scene, settings) = setup();
+        let specs: Vec<BackendSpec> = [2, 4, 8]
+            .map(|w| BackendSpec::bvh(BuildParams::sah().with_width(w)))
+            .to_vec();
+        let bar = StepBar::new(0, true);
+        let points = trace_throughput(&scene, &settings, &specs, &[1, 2], 1, &bar).unwrap();
+        assert_eq!(points.len(), 3 * 3 * 2);
+        for p in &points {
+            assert_eq!(p.differing, 0, "{p:?}");
+            assert!(p.mrays.median > 0.0 && p.rays > 0, "{p:?}");
+        }
+        let md = markdown(&points);
+        assert!(md.contains("| cornell-sphere | 2188 | ao ("), "{md}");
+        assert!(
+            !md.contains("own/Embree"),
+            "no Embree column without Embree: {md}"
+        );
+    }
+
+    #[test]
+    fn a_wrong_own_backend_fails_the_trace() {
+        let (scene, settings) = setup();
+        let build = || BvhBackend::new(&scene, &BuildParams::sah()).unwrap();
+        let backends: Vec<(Box<dyn Backend>, f64)> =
+            vec![(Box::new(build()), 0.0), (Box::new(Planted(build())), 0.0)];
+        let bar = StepBar::new(0, true);
+        let err = trace_backends(&scene, &settings, &backends, &[1], 1, &bar)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("planted differs from bvh-sah"), "{err}");
+    }
+}
