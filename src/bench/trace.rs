@@ -350,7 +350,12 @@ mod tests {
         }
         fn intersect(&self, ray: &Ray) -> Option<Hit> {
             let hit = self.0.intersect(ray)?;
-            let wrong = ray.dir.x.to_bits().is_multiple_of(50).then_some(hit.tri + 1);
+            let wrong = ray
+                .dir
+                .x
+                .to_bits()
+                .is_multiple_of(50)
+                .then_some(hit.tri + 1);
             Some(Hit {
                 tri: wrong.unwrap_or(hit.tri),
                 ..hit

@@ -34,19 +34,29 @@ impl Tri4 {
     /// most [`LANES`]).
     pub fn new(tris: &[[Vec3; 3]], ids: &[u32]) -> Tri4 {
         debug_assert!(tris.len() <= LANES && tris.len() == ids.len());
-        let mut block = Tri4 {
-            v: [[Vec4::ZERO; 3]; 3],
-            ids: [EMPTY_ID; LANES],
-        };
+        let mut block = Tri4::empty();
         for (lane, (tri, &id)) in tris.iter().zip(ids).enumerate() {
-            for (k, vertex) in tri.iter().enumerate() {
-                for axis in 0..3 {
-                    block.v[k][axis][lane] = vertex[axis];
-                }
-            }
-            block.ids[lane] = id;
+            block.set_lane(lane, tri, id);
         }
         block
+    }
+
+    /// A block with every lane unused.
+    pub fn empty() -> Tri4 {
+        Tri4 {
+            v: [[Vec4::ZERO; 3]; 3],
+            ids: [EMPTY_ID; LANES],
+        }
+    }
+
+    /// Puts triangle `tri` (scene index `id`) in lane `lane`.
+    pub fn set_lane(&mut self, lane: usize, tri: &[Vec3; 3], id: u32) {
+        for (k, vertex) in tri.iter().enumerate() {
+            for axis in 0..3 {
+                self.v[k][axis][lane] = vertex[axis];
+            }
+        }
+        self.ids[lane] = id;
     }
 
     /// The triangle of `lane`.

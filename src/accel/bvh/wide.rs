@@ -17,7 +17,7 @@ use arrayvec::ArrayVec;
 use glam::Vec3;
 
 use super::leaf::{BlockTest, Ray4, Tri4, LANES};
-use super::simd::{Kernel, NodeKernel, Portable, WideRay};
+use super::simd::{prefetch, Kernel, NodeKernel, Portable, WideRay};
 use super::traverse::{Counter, Traversal, CULL_SLACK, SLAB_SLACK};
 use super::Bvh;
 use crate::error::{Error, Result};
@@ -27,11 +27,13 @@ use crate::geometry::{safe_reciprocal, Aabb, Hit, Ray};
 pub const EMPTY: u32 = u32::MAX;
 /// Set in `child` for a leaf lane.
 const LEAF: u32 = 1 << 31;
-const BLOCKS_SHIFT: u32 = 25;
-/// Most blocks in one leaf (leaves of up to 256 triangles).
-pub const MAX_LEAF_BLOCKS: usize = 64;
-/// Blocks addressable by a leaf reference (2^25, about 134 million triangles).
-pub const MAX_BLOCKS: usize = 1 << BLOCKS_SHIFT;
+/// A leaf reference holds the leaf's first triangle slot (block * 4 + lane)
+/// in its low bits and its triangle count minus one above them.
+const SLOT_BITS: u32 = 27;
+/// Most triangles in one leaf of a wide tree.
+pub const MAX_LEAF: usize = 16;
+/// Triangle slots addressable by a leaf reference (2^27, about 134 million).
+pub const MAX_SLOTS: usize = 1 << SLOT_BITS;
 
 /// Stack entries of the traversals of ordinary trees; a tree whose deepest
 /// path could need more (see [`WideBvh::stack_need`]) is traversed with
@@ -40,19 +42,38 @@ const STACK: usize = 64;
 /// Enough for any tree of binary depth 64, the bound every builder keeps.
 const DEEP_STACK: usize = 64 * 7 + 1;
 
-/// A leaf lane's reference to `blocks` blocks starting at `first`.
+/// A leaf lane's reference to `count` triangles from slot `slot` on.
 #[inline]
-fn leaf_ref(first: usize, blocks: usize) -> u32 {
-    debug_assert!((1..=MAX_LEAF_BLOCKS).contains(&blocks) && first < MAX_BLOCKS);
-    LEAF | ((blocks as u32 - 1) << BLOCKS_SHIFT) | first as u32
+fn leaf_ref(slot: usize, count: usize) -> u32 {
+    debug_assert!((1..=MAX_LEAF).contains(&count) && slot < MAX_SLOTS);
+    LEAF | ((count as u32 - 1) << SLOT_BITS) | slot as u32
 }
 
-/// The block range of a leaf reference.
+/// The slots `first..end` of a leaf reference.
 #[inline(always)]
-fn leaf_blocks(child: u32) -> std::ops::Range<usize> {
-    let first = (child & ((1 << BLOCKS_SHIFT) - 1)) as usize;
-    let count = ((child & !LEAF) >> BLOCKS_SHIFT) as usize + 1;
-    first..first + count
+fn leaf_slots(child: u32) -> (usize, usize) {
+    let first = (child & (MAX_SLOTS as u32 - 1)) as usize;
+    let count = ((child & !LEAF) >> SLOT_BITS) as usize + 1;
+    (first, first + count)
+}
+
+/// The part of a leaf in one block: `(block, lanes)`, `lanes` the mask of the
+/// block's lanes that belong to the leaf. Calls `f` for each block in order
+/// and stops early when it returns `true`; returns whether it did.
+#[inline(always)]
+fn for_leaf_blocks(child: u32, mut f: impl FnMut(usize, u32) -> bool) -> bool {
+    let (mut slot, end) = leaf_slots(child);
+    while slot < end {
+        let base = slot & !(LANES - 1);
+        let lo = slot - base;
+        let hi = (end - base).min(LANES);
+        let lanes = (0xF >> (LANES - hi)) & (0xF << lo);
+        if f(base / LANES, lanes) {
+            return true;
+        }
+        slot = base + LANES;
+    }
+    false
 }
 
 /// `N` children: their boxes as rows by axis and bound, and what each holds.
@@ -113,10 +134,12 @@ impl<const N: usize> WideNode<N> {
         self.child.iter().filter(|&&c| c != EMPTY).count()
     }
 
-    /// The leaf blocks of lane `lane` (empty for other lanes).
-    pub fn leaf_blocks(&self, lane: usize) -> std::ops::Range<usize> {
+    /// The triangle slots (block * 4 + lane) of lane `lane`'s leaf (empty for
+    /// other lanes).
+    pub fn leaf_slots(&self, lane: usize) -> std::ops::Range<usize> {
         if self.is_leaf(lane) {
-            leaf_blocks(self.child[lane])
+            let (first, end) = leaf_slots(self.child[lane]);
+            first..end
         } else {
             0..0
         }
@@ -128,7 +151,8 @@ impl<const N: usize> WideNode<N> {
 pub struct WideBvh<const N: usize> {
     /// `nodes[0]` is the root; empty for an empty tree.
     pub nodes: Vec<WideNode<N>>,
-    /// Leaf triangles, leaf by leaf, four to a block.
+    /// Leaf triangles, four to a block. A leaf's triangles are consecutive
+    /// lanes; small leaves of one node share blocks.
     pub blocks: Vec<Tri4>,
     /// The most stack entries a traversal can need (pending siblings along the
     /// deepest path, plus one).
@@ -204,42 +228,77 @@ impl<const N: usize> WideBvh<N> {
         let index = self.nodes.len();
         self.nodes.push(WideNode::empty());
         let mut wide = WideNode::empty();
+        // Leaves first, packed into shared blocks (first fit, largest first)
+        // so that leaves of one to three triangles do not each take a block.
+        let mut leaves: Vec<usize> = (0..children.len())
+            .filter(|&lane| bvh.nodes[children[lane] as usize].is_leaf())
+            .collect();
+        leaves.sort_by_key(|&lane| std::cmp::Reverse(bvh.nodes[children[lane] as usize].count));
+        let mut open: Vec<(usize, usize)> = Vec::new(); // (block, lanes used)
+        for &lane in &leaves {
+            let n = bvh.nodes[children[lane] as usize];
+            let count = n.count as usize;
+            if count > MAX_LEAF {
+                return Err(Error::usage(
+                    "--leaf-size",
+                    format!("wide trees take leaves of at most {MAX_LEAF} triangles, not {count}"),
+                ));
+            }
+            let slot = match open.iter_mut().find(|(_, used)| count <= LANES - *used) {
+                Some((block, used)) => {
+                    *used += count;
+                    *block * LANES + *used - count
+                }
+                None => {
+                    let first = self.blocks.len();
+                    let blocks = count.div_ceil(LANES);
+                    self.blocks.resize(first + blocks, Tri4::empty());
+                    if !count.is_multiple_of(LANES) {
+                        open.push((first + blocks - 1, count % LANES));
+                    }
+                    first * LANES
+                }
+            };
+            if self.blocks.len() * LANES > MAX_SLOTS {
+                return Err(Error::Other(format!(
+                    "wide BVH: more than {MAX_SLOTS} triangle slots"
+                )));
+            }
+            let range = n.offset as usize..(n.offset + n.count) as usize;
+            for (k, (tri, &id)) in bvh.tris[range.clone()]
+                .iter()
+                .zip(&bvh.tri_ids[range])
+                .enumerate()
+            {
+                let s = slot + k;
+                self.blocks[s / LANES].set_lane(s % LANES, tri, id);
+            }
+            wide.set_lane(lane, &n.bounds(), leaf_ref(slot, count));
+        }
         let mut deepest = 0;
         for (lane, &c) in children.iter().enumerate() {
             let n = bvh.nodes[c as usize];
-            let child = if n.is_leaf() {
-                let first = self.blocks.len();
-                let range = n.offset as usize..(n.offset + n.count) as usize;
-                for (tris, ids) in bvh.tris[range.clone()]
-                    .chunks(LANES)
-                    .zip(bvh.tri_ids[range].chunks(LANES))
-                {
-                    self.blocks.push(Tri4::new(tris, ids));
-                }
-                let blocks = self.blocks.len() - first;
-                if blocks > MAX_LEAF_BLOCKS {
-                    return Err(Error::Other(format!(
-                        "wide BVH: a leaf of {} triangles (at most {} per leaf)",
-                        n.count,
-                        MAX_LEAF_BLOCKS * LANES
-                    )));
-                }
-                if self.blocks.len() > MAX_BLOCKS {
-                    return Err(Error::Other(format!(
-                        "wide BVH: more than {} triangles",
-                        MAX_BLOCKS * LANES
-                    )));
-                }
-                leaf_ref(first, blocks)
-            } else {
-                let (i, need) = self.collapse_node(bvh, c)?;
-                deepest = deepest.max(need);
-                i
-            };
-            wide.set_lane(lane, &n.bounds(), child);
+            if n.is_leaf() {
+                continue;
+            }
+            let (i, need) = self.collapse_node(bvh, c)?;
+            deepest = deepest.max(need);
+            wide.set_lane(lane, &n.bounds(), i);
         }
         self.nodes[index] = wide;
         Ok((index as u32, children.len() - 1 + deepest))
+    }
+
+    /// Starts loading what `child` refers to: a node, or a leaf's first block.
+    #[inline(always)]
+    fn prefetch_child(&self, child: u32) {
+        if child & LEAF == 0 {
+            if let Some(node) = self.nodes.get(child as usize) {
+                prefetch(node);
+            }
+        } else if let Some(block) = self.blocks.get(leaf_slots(child).0 / LANES) {
+            prefetch(block);
+        }
     }
 
     /// Bytes of nodes and leaf blocks (scene indices included).
@@ -280,12 +339,11 @@ impl<const N: usize> WideBvh<N> {
         let mut current = 0u32;
         loop {
             if current & LEAF != 0 {
-                for block in &self.blocks[leaf_blocks(current)] {
-                    counter.triangles(block.len());
-                    let hits = T::test4(&prepared, &ray4, &test_ray, block);
-                    if hits.mask == 0 {
-                        continue;
-                    }
+                for_leaf_blocks(current, |b, lanes| {
+                    let block = &self.blocks[b];
+                    counter.triangles(lanes.count_ones() as usize);
+                    let mut hits = T::test4(&prepared, &ray4, &test_ray, block);
+                    hits.mask &= lanes;
                     if let Some(hit) = hits.closest(&block.ids) {
                         if best.is_none_or(|b| hit.is_closer_than(&b)) {
                             best = Some(hit);
@@ -293,7 +351,8 @@ impl<const N: usize> WideBvh<N> {
                             cut = hit.t * (1.0 + CULL_SLACK);
                         }
                     }
-                }
+                    false
+                });
             } else {
                 counter.node();
                 let node = &self.nodes[current as usize];
@@ -304,6 +363,7 @@ impl<const N: usize> WideBvh<N> {
                     if rest == 0 {
                         // One child: no stack, no sorting.
                         current = node.child[first];
+                        self.prefetch_child(current);
                         continue;
                     }
                     // Push the hit lanes farthest first, so the nearest is on top.
@@ -313,6 +373,7 @@ impl<const N: usize> WideBvh<N> {
                         let lane = m.trailing_zeros() as usize;
                         m &= m - 1;
                         let entry = (node.child[lane], near[lane]);
+                        self.prefetch_child(entry.0);
                         stack.push(entry);
                         let s = stack.as_mut_slice();
                         let mut j = s.len() - 1;
@@ -359,11 +420,12 @@ impl<const N: usize> WideBvh<N> {
         let mut current = 0u32;
         loop {
             if current & LEAF != 0 {
-                for block in &self.blocks[leaf_blocks(current)] {
-                    counter.triangles(block.len());
-                    if T::test4(&prepared, &ray4, ray, block).mask != 0 {
-                        return true;
-                    }
+                let hit = for_leaf_blocks(current, |b, lanes| {
+                    counter.triangles(lanes.count_ones() as usize);
+                    T::test4(&prepared, &ray4, ray, &self.blocks[b]).mask & lanes != 0
+                });
+                if hit {
+                    return true;
                 }
             } else {
                 counter.node();
@@ -371,9 +433,12 @@ impl<const N: usize> WideBvh<N> {
                 let (mut mask, _) = kernel.intersect(node, &wray, tmin, tmax);
                 if mask != 0 {
                     current = node.child[mask.trailing_zeros() as usize];
+                    self.prefetch_child(current);
                     mask &= mask - 1;
                     while mask != 0 {
-                        stack.push(node.child[mask.trailing_zeros() as usize]);
+                        let child = node.child[mask.trailing_zeros() as usize];
+                        self.prefetch_child(child);
+                        stack.push(child);
                         mask &= mask - 1;
                     }
                     continue;
@@ -460,12 +525,62 @@ mod tests {
     }
 
     #[test]
+    fn small_leaves_share_blocks() {
+        let tris = random_tris(4000, 5);
+        let bvh = Bvh::build(&tris, &BuildParams::sah().with_width(8)).unwrap();
+        let wide = Bvh8::collapse(&bvh).unwrap();
+        let fill = wide.triangle_count() as f64 / (wide.blocks.len() * LANES) as f64;
+        let mean_leaf = tris.len() as f64 / bvh.nodes.iter().filter(|n| n.is_leaf()).count() as f64;
+        // Without sharing, fill could not exceed mean leaf size / 4.
+        assert!(
+            fill > mean_leaf / 4.0 + 0.05,
+            "fill {fill}, mean leaf {mean_leaf}"
+        );
+    }
+
+    #[test]
+    fn leaves_over_sixteen_triangles_are_refused_for_wide_trees() {
+        // 200 triangles halved down to at most 32 per leaf: leaves of 25.
+        let tris = random_tris(200, 1);
+        let bvh = Bvh::build(&tris, &BuildParams::median().with_max_leaf_size(32)).unwrap();
+        let Err(err) = Bvh8::collapse(&bvh) else {
+            panic!("a leaf of 25 triangles was accepted");
+        };
+        let err = err.to_string();
+        assert!(err.contains("--leaf-size") && err.contains("16"), "{err}");
+    }
+
+    #[test]
     fn leaf_references_round_trip() {
-        for (first, blocks) in [(0, 1), (7, 64), (MAX_BLOCKS - 1, 3)] {
-            let r = leaf_ref(first, blocks);
+        for (slot, count) in [(0, 1), (7, 16), (MAX_SLOTS - 3, 3)] {
+            let r = leaf_ref(slot, count);
             assert!(r & LEAF != 0 && r != EMPTY);
-            assert_eq!(leaf_blocks(r), first..first + blocks);
+            assert_eq!(leaf_slots(r), (slot, slot + count));
         }
+    }
+
+    #[test]
+    fn leaf_blocks_cover_exactly_the_leaf_lanes() {
+        let parts = |slot, count| {
+            let mut v = Vec::new();
+            for_leaf_blocks(leaf_ref(slot, count), |b, lanes| {
+                v.push((b, lanes));
+                false
+            });
+            v
+        };
+        assert_eq!(parts(0, 4), [(0, 0b1111)]);
+        assert_eq!(parts(5, 2), [(1, 0b0110)]);
+        assert_eq!(parts(7, 1), [(1, 0b1000)]);
+        assert_eq!(parts(8, 9), [(2, 0b1111), (3, 0b1111), (4, 0b0001)]);
+        assert_eq!(parts(6, 4), [(1, 0b1100), (2, 0b0011)]);
+        // Stops at the first block whose call says so.
+        let mut calls = 0;
+        assert!(for_leaf_blocks(leaf_ref(0, 12), |_, _| {
+            calls += 1;
+            true
+        }));
+        assert_eq!(calls, 1);
     }
 
     fn check_collapse<const N: usize>() {
@@ -487,14 +602,31 @@ mod tests {
                 ids.sort();
                 assert_eq!(ids, (0..n as u32).collect::<Vec<_>>(), "n = {n}");
                 assert_eq!(wide.triangle_count(), n);
-                // Leaves become ceil(count / 4) blocks each.
+                // Packing never takes more blocks than a block run per leaf,
+                // and every leaf lane's slots hold exactly that leaf's triangles.
                 let leaves: usize = bvh
                     .nodes
                     .iter()
                     .filter(|n| n.is_leaf())
                     .map(|n| (n.count as usize).div_ceil(LANES))
                     .sum();
-                assert_eq!(wide.blocks.len(), leaves);
+                assert!(wide.blocks.len() <= leaves);
+                let mut slots: Vec<usize> = Vec::new();
+                for node in &wide.nodes {
+                    for lane in 0..N {
+                        for slot in node.leaf_slots(lane) {
+                            let block = &wide.blocks[slot / LANES];
+                            assert_ne!(block.ids[slot % LANES], u32::MAX);
+                            let tri = block.triangle(slot % LANES);
+                            let b = node.lane_bounds(lane);
+                            assert!(tri.iter().all(|&v| b.contains(&Aabb::from_points(&[v]))));
+                            slots.push(slot);
+                        }
+                    }
+                }
+                slots.sort();
+                slots.dedup();
+                assert_eq!(slots.len(), n, "each slot in exactly one leaf");
                 // Each child's box lies inside its parent's lane box.
                 for node in &wide.nodes {
                     for lane in 0..N {
