@@ -20,7 +20,7 @@ use std::time::{Duration, Instant};
 
 use glam::Vec3;
 
-pub use build::{BuildParams, BuilderKind};
+pub use build::{BuildParams, BuilderKind, Triangles};
 pub use traverse::Traversal;
 
 use super::Backend;
@@ -69,7 +69,7 @@ pub struct Bvh {
 impl Bvh {
     /// Builds over `triangles` (indexed as in the scene) with `params`. Only the
     /// Embree builders can fail.
-    pub fn build(triangles: &[[Vec3; 3]], params: &BuildParams) -> crate::Result<Bvh> {
+    pub fn build<T: Triangles + ?Sized>(triangles: &T, params: &BuildParams) -> crate::Result<Bvh> {
         build::build(triangles, params)
     }
 
@@ -142,12 +142,25 @@ impl Tree {
 
     /// Builds over `triangles` with `params` and collapses to `params.width`
     /// (the binary tree is dropped once collapsed).
-    pub fn build(triangles: &[[Vec3; 3]], params: &BuildParams) -> crate::Result<Tree> {
-        let bvh = Bvh::build(triangles, params)?;
+    pub fn build<T: Triangles + ?Sized>(
+        triangles: &T,
+        params: &BuildParams,
+    ) -> crate::Result<Tree> {
+        build::in_pool(params.threads, || Tree::build_here(triangles, params))
+    }
+
+    /// [`Tree::build`] on the current thread pool.
+    fn build_here<T: Triangles + ?Sized>(
+        triangles: &T,
+        params: &BuildParams,
+    ) -> crate::Result<Tree> {
         Ok(match params.width {
-            4 => Tree::Wide4(wide::Bvh4::collapse(&bvh)?),
-            8 => Tree::Wide8(wide::Bvh8::collapse(&bvh)?),
-            _ => Tree::Binary(bvh),
+            2 => {
+                let skeleton = build::skeleton_here(triangles, params)?;
+                Tree::Binary(skeleton.gather(triangles, params.threads > 1))
+            }
+            4 => Tree::Wide4(build::wide_here(triangles, params)?),
+            _ => Tree::Wide8(build::wide_here(triangles, params)?),
         })
     }
 }
@@ -162,11 +175,10 @@ pub struct BvhBackend {
 
 impl BvhBackend {
     /// Builds a BVH over the scene's triangles; like every backend's, the build
-    /// time runs from the scene to a ready structure (vertex gather and
-    /// collapse to a wide tree included).
+    /// time runs from the scene to a ready structure (collapse to a wide tree
+    /// included).
     pub fn new(scene: &Scene, params: &BuildParams) -> crate::Result<Self> {
-        let start = Instant::now();
-        Self::build_timed(&scene.triangle_vertices(), params, start)
+        Self::build_timed(scene, params, Instant::now())
     }
 
     /// Builds over raw triangles (degenerate ones included), for stress tests.
@@ -174,8 +186,8 @@ impl BvhBackend {
         Self::build_timed(triangles, params, Instant::now())
     }
 
-    fn build_timed(
-        triangles: &[[Vec3; 3]],
+    fn build_timed<T: Triangles + ?Sized>(
+        triangles: &T,
         params: &BuildParams,
         start: Instant,
     ) -> crate::Result<Self> {

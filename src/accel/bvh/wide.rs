@@ -15,11 +15,13 @@
 
 use arrayvec::ArrayVec;
 use glam::Vec3;
+use rayon::prelude::*;
 
+use super::build::{Skeleton, Triangles};
 use super::leaf::{BlockTest, Ray4, Tri4, LANES};
 use super::simd::{prefetch, Kernel, NodeKernel, Portable, WideRay};
 use super::traverse::{Counter, Traversal, CULL_SLACK, SLAB_SLACK};
-use super::Bvh;
+use super::{Bvh, Node};
 use crate::error::{Error, Result};
 use crate::geometry::{safe_reciprocal, Aabb, Hit, Ray};
 
@@ -34,6 +36,8 @@ const SLOT_BITS: u32 = 27;
 pub const MAX_LEAF: usize = 16;
 /// Triangle slots addressable by a leaf reference (2^27, about 134 million).
 pub const MAX_SLOTS: usize = 1 << SLOT_BITS;
+/// Set in `child` for a leaf lane (public for the builders).
+pub(crate) const LEAF_BIT: u32 = LEAF;
 
 /// Stack entries of the traversals of ordinary trees; a tree whose deepest
 /// path could need more (see [`WideBvh::stack_need`]) is traversed with
@@ -42,9 +46,50 @@ const STACK: usize = 64;
 /// Enough for any tree of binary depth 64, the bound every builder keeps.
 const DEEP_STACK: usize = 64 * 7 + 1;
 
+/// Packs the leaves of one node, of `counts` triangles, into new blocks
+/// numbered from `first_block`: first fit, largest first, so that leaves of
+/// one to three triangles share blocks; a leaf of up to four triangles never
+/// straddles two blocks. Returns each leaf's first slot (block * 4 + lane), in
+/// the order of `counts`, and the number of blocks taken.
+pub(crate) fn pack_leaves<const N: usize>(
+    counts: &[usize],
+    first_block: usize,
+) -> Result<(ArrayVec<usize, N>, usize)> {
+    let mut order: ArrayVec<usize, N> = (0..counts.len()).collect();
+    order.sort_by_key(|&i| std::cmp::Reverse(counts[i]));
+    let mut slots: ArrayVec<usize, N> = counts.iter().map(|_| 0).collect();
+    let mut open: ArrayVec<(usize, usize), N> = ArrayVec::new(); // (block, lanes used)
+    let mut blocks = 0;
+    for i in order {
+        let count = counts[i];
+        if count > MAX_LEAF {
+            return Err(Error::usage(
+                "--leaf-size",
+                format!("wide trees take leaves of at most {MAX_LEAF} triangles, not {count}"),
+            ));
+        }
+        slots[i] = match open.iter_mut().find(|(_, used)| count <= LANES - *used) {
+            Some((block, used)) => {
+                *used += count;
+                *block * LANES + *used - count
+            }
+            None => {
+                let first = first_block + blocks;
+                let taken = count.div_ceil(LANES);
+                blocks += taken;
+                if !count.is_multiple_of(LANES) {
+                    open.push((first + taken - 1, count % LANES));
+                }
+                first * LANES
+            }
+        };
+    }
+    Ok((slots, blocks))
+}
+
 /// A leaf lane's reference to `count` triangles from slot `slot` on.
 #[inline]
-fn leaf_ref(slot: usize, count: usize) -> u32 {
+pub(crate) fn leaf_ref(slot: usize, count: usize) -> u32 {
     debug_assert!((1..=MAX_LEAF).contains(&count) && slot < MAX_SLOTS);
     LEAF | ((count as u32 - 1) << SLOT_BITS) | slot as u32
 }
@@ -174,114 +219,145 @@ fn half_area(b: &Aabb) -> f32 {
 impl<const N: usize> WideBvh<N> {
     /// Collapses `bvh` (left intact) with the kernel the CPU supports best.
     pub fn collapse(bvh: &Bvh) -> Result<Self> {
-        Self::collapse_with(
-            bvh,
-            if N == 8 {
-                Kernel::detect()
-            } else {
-                Kernel::Portable
-            },
-        )
+        Self::collapse_with(bvh, Kernel::detect())
     }
 
     /// Collapses `bvh` using `kernel` for queries (AVX2 serves only `N = 8`).
     pub fn collapse_with(bvh: &Bvh, kernel: Kernel) -> Result<Self> {
+        Self::collapse_parts(
+            &bvh.nodes,
+            &bvh.tri_ids,
+            |slot| bvh.tris[slot],
+            kernel,
+            false,
+        )
+    }
+
+    /// Collapses a tree whose triangles were not gathered: leaf slot `i` holds
+    /// `triangles[skeleton.tri_ids[i]]`. The leaf blocks are filled in
+    /// parallel on the current rayon pool when `parallel`.
+    pub fn from_skeleton<T: Triangles + ?Sized>(
+        skeleton: &Skeleton,
+        triangles: &T,
+        parallel: bool,
+    ) -> Result<Self> {
+        let ids = &skeleton.tri_ids;
+        Self::collapse_parts(
+            &skeleton.nodes,
+            ids,
+            |slot| triangles.get(ids[slot] as usize),
+            Kernel::detect(),
+            parallel,
+        )
+    }
+
+    /// Two passes: the wide nodes and, for every lane of every leaf block, the
+    /// binary leaf slot it takes its triangle from (cheap, serial); then the
+    /// blocks, whose triangle reads are scattered over memory (in parallel).
+    fn collapse_parts(
+        nodes: &[Node],
+        tri_ids: &[u32],
+        triangle: impl Fn(usize) -> [Vec3; 3] + Sync,
+        kernel: Kernel,
+        parallel: bool,
+    ) -> Result<Self> {
         let kernel = if N == 8 { kernel } else { Kernel::Portable };
         let mut out = WideBvh {
-            nodes: Vec::with_capacity(bvh.nodes.len() / (N - 1) + 1),
-            blocks: Vec::with_capacity(bvh.tris.len() / LANES + bvh.nodes.len() / 4 + 1),
+            // Enough for leaves of one triangle; reserving touches no memory,
+            // while growing would copy the nodes made so far.
+            nodes: Vec::with_capacity(tri_ids.len() / (N - 1) + 1),
+            blocks: Vec::new(),
             stack_need: 1,
             kernel,
         };
-        if !bvh.nodes.is_empty() {
-            let (_, need) = out.collapse_node(bvh, 0)?;
-            out.stack_need = need + 1;
+        if nodes.is_empty() {
+            return Ok(out);
         }
+        let mut sources: Vec<u32> = Vec::with_capacity(tri_ids.len() + tri_ids.len() / 2);
+        let (_, need) = out.collapse_node(nodes, &mut sources, 0)?;
+        out.stack_need = need + 1;
+        let block = |lanes: &[u32]| {
+            let mut b = Tri4::empty();
+            for (lane, &from) in lanes.iter().enumerate() {
+                if from != EMPTY {
+                    b.set_lane(lane, &triangle(from as usize), tri_ids[from as usize]);
+                }
+            }
+            b
+        };
+        out.blocks = if parallel {
+            sources.par_chunks(LANES).map(block).collect()
+        } else {
+            sources.chunks(LANES).map(block).collect()
+        };
         Ok(out)
     }
 
     /// Makes the wide node for binary node `b` (a root leaf becomes a node with
-    /// one leaf lane); returns its index and the stack its subtree can need.
-    fn collapse_node(&mut self, bvh: &Bvh, b: u32) -> Result<(u32, usize)> {
-        let node = &bvh.nodes[b as usize];
-        let mut children: Vec<u32> = if node.is_leaf() {
-            vec![b]
+    /// one leaf lane), and the source slots of its leaves' lanes in `sources`;
+    /// returns its index and the stack its subtree can need.
+    fn collapse_node(
+        &mut self,
+        nodes: &[Node],
+        sources: &mut Vec<u32>,
+        b: u32,
+    ) -> Result<(u32, usize)> {
+        let node = &nodes[b as usize];
+        let mut children: ArrayVec<u32, N> = ArrayVec::new();
+        if node.is_leaf() {
+            children.push(b);
         } else {
-            vec![b + 1, node.offset]
-        };
+            children.push(b + 1);
+            children.push(node.offset);
+        }
         while children.len() < N {
             // Open the interior child with the largest surface area.
             let best = children
                 .iter()
                 .enumerate()
-                .filter(|(_, &c)| !bvh.nodes[c as usize].is_leaf())
+                .filter(|(_, &c)| !nodes[c as usize].is_leaf())
                 .max_by(|(_, &a), (_, &c)| {
-                    half_area(&bvh.nodes[a as usize].bounds())
-                        .total_cmp(&half_area(&bvh.nodes[c as usize].bounds()))
+                    half_area(&nodes[a as usize].bounds())
+                        .total_cmp(&half_area(&nodes[c as usize].bounds()))
                 })
                 .map(|(i, _)| i);
             let Some(i) = best else { break };
             let c = children[i];
-            let n = &bvh.nodes[c as usize];
-            children.splice(i..=i, [c + 1, n.offset]);
+            children[i] = c + 1;
+            children.push(nodes[c as usize].offset);
         }
         let index = self.nodes.len();
         self.nodes.push(WideNode::empty());
         let mut wide = WideNode::empty();
-        // Leaves first, packed into shared blocks (first fit, largest first)
-        // so that leaves of one to three triangles do not each take a block.
-        let mut leaves: Vec<usize> = (0..children.len())
-            .filter(|&lane| bvh.nodes[children[lane] as usize].is_leaf())
+        // Leaves first, packed into shared blocks.
+        let leaves: ArrayVec<usize, N> = (0..children.len())
+            .filter(|&lane| nodes[children[lane] as usize].is_leaf())
             .collect();
-        leaves.sort_by_key(|&lane| std::cmp::Reverse(bvh.nodes[children[lane] as usize].count));
-        let mut open: Vec<(usize, usize)> = Vec::new(); // (block, lanes used)
-        for &lane in &leaves {
-            let n = bvh.nodes[children[lane] as usize];
-            let count = n.count as usize;
-            if count > MAX_LEAF {
-                return Err(Error::usage(
-                    "--leaf-size",
-                    format!("wide trees take leaves of at most {MAX_LEAF} triangles, not {count}"),
-                ));
-            }
-            let slot = match open.iter_mut().find(|(_, used)| count <= LANES - *used) {
-                Some((block, used)) => {
-                    *used += count;
-                    *block * LANES + *used - count
-                }
-                None => {
-                    let first = self.blocks.len();
-                    let blocks = count.div_ceil(LANES);
-                    self.blocks.resize(first + blocks, Tri4::empty());
-                    if !count.is_multiple_of(LANES) {
-                        open.push((first + blocks - 1, count % LANES));
-                    }
-                    first * LANES
-                }
-            };
-            if self.blocks.len() * LANES > MAX_SLOTS {
-                return Err(Error::Other(format!(
-                    "wide BVH: more than {MAX_SLOTS} triangle slots"
-                )));
-            }
-            let range = n.offset as usize..(n.offset + n.count) as usize;
-            for (k, (tri, &id)) in bvh.tris[range.clone()]
-                .iter()
-                .zip(&bvh.tri_ids[range])
-                .enumerate()
-            {
-                let s = slot + k;
-                self.blocks[s / LANES].set_lane(s % LANES, tri, id);
+        let counts: ArrayVec<usize, N> = leaves
+            .iter()
+            .map(|&lane| nodes[children[lane] as usize].count as usize)
+            .collect();
+        let (slots, blocks) = pack_leaves::<N>(&counts, sources.len() / LANES)?;
+        sources.resize(sources.len() + blocks * LANES, EMPTY);
+        if sources.len() > MAX_SLOTS {
+            return Err(Error::Other(format!(
+                "wide BVH: more than {MAX_SLOTS} triangle slots"
+            )));
+        }
+        for ((&lane, &count), &slot) in leaves.iter().zip(&counts).zip(&slots) {
+            let n = nodes[children[lane] as usize];
+            for k in 0..count {
+                sources[slot + k] = n.offset + k as u32;
             }
             wide.set_lane(lane, &n.bounds(), leaf_ref(slot, count));
         }
         let mut deepest = 0;
         for (lane, &c) in children.iter().enumerate() {
-            let n = bvh.nodes[c as usize];
+            let n = nodes[c as usize];
             if n.is_leaf() {
                 continue;
             }
-            let (i, need) = self.collapse_node(bvh, c)?;
+            let (i, need) = self.collapse_node(nodes, sources, c)?;
             deepest = deepest.max(need);
             wide.set_lane(lane, &n.bounds(), i);
         }

@@ -3,8 +3,8 @@
 //! else (traversal, triangle test, shading) equal.
 //!
 //! Embree calls back to create nodes and leaves in its thread-local allocator;
-//! after the build the temporary tree is converted into a [`Bvh`] and the Embree
-//! BVH (with all that memory) is released. At quality `High` Embree may split
+//! after the build the temporary tree is converted into raylab's flat layout (a
+//! [`Skeleton`]) and the Embree BVH (with all that memory) is released. At quality `High` Embree may split
 //! triangles spatially: a leaf then holds a triangle whose bounds were clipped to
 //! a part of it, and a triangle can appear in several leaves.
 
@@ -14,8 +14,7 @@ use std::sync::Arc;
 use glam::Vec3;
 
 use super::{ffi, Device, Quality};
-use crate::accel::bvh::build::{assemble, BuildNode};
-use crate::accel::bvh::Bvh;
+use crate::accel::bvh::build::{skeleton_of, BuildNode, Skeleton};
 use crate::error::{Error, Result};
 use crate::geometry::Aabb;
 
@@ -203,9 +202,9 @@ pub fn build(
     quality: Quality,
     max_leaf: usize,
     sah_block: usize,
-) -> Result<Bvh> {
+) -> Result<Skeleton> {
     if triangles.is_empty() {
-        return Ok(Bvh::default());
+        return Ok(Skeleton::default());
     }
     let count = triangles.len();
     // Room for spatial splits at high quality.
@@ -278,7 +277,7 @@ pub fn build(
         // SAFETY: `root` and every node below it were made by our callbacks in
         // memory owned by `bvh`, which is released only after this conversion.
         let tree = unsafe { convert(root, None, triangles, &mut tri_ids) };
-        Ok(assemble(tree, tri_ids, triangles))
+        Ok(skeleton_of(tree, tri_ids))
     });
     // SAFETY: releases the Embree BVH and all callback-allocated nodes.
     unsafe { ffi::rtcReleaseBVH(bvh) };

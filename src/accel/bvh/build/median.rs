@@ -4,8 +4,7 @@
 //! leaf. The partition is found by selection in O(n) rather than a full sort; the
 //! split sets are the same (ties broken by triangle index).
 
-use super::{median_partition, PrimRef, Splitter};
-use crate::geometry::Aabb;
+use super::{median_partition, side_infos, NodeInfo, PrimRef, Splitter};
 
 pub struct Median {
     pub max_leaf: usize,
@@ -15,15 +14,16 @@ impl Splitter for Median {
     fn split(
         &self,
         prims: &mut [PrimRef],
-        _bounds: &Aabb,
+        _info: &NodeInfo,
         depth: u32,
-        _parallel: bool,
-    ) -> Option<usize> {
+        parallel: bool,
+    ) -> Option<(usize, NodeInfo, NodeInfo)> {
         if prims.len() <= self.max_leaf {
             return None;
         }
         let mid = prims.len().div_ceil(2);
         median_partition(prims, depth as usize % 3, mid);
-        Some(mid)
+        let (left, right) = side_infos(prims, mid, parallel);
+        Some((mid, left, right))
     }
 }

@@ -1,16 +1,27 @@
 //! What every top-down builder shares: primitive references, the recursion (with
-//! `rayon::join` above a size cut-off), and flattening into the [`Bvh`] layout.
-//! A builder only decides, per node, whether to make a leaf and how to partition
-//! ([`Splitter`]); each lives in its own file.
+//! `rayon::join` above a size cut-off) writing nodes straight into the flat
+//! [`Bvh`] layout, and the gather of leaf triangles. A builder only decides, per
+//! node, whether to make a leaf and how to partition ([`Splitter`]); each lives
+//! in its own file.
 //!
-//! Determinism: a node's partition depends only on its primitives, and subtrees
-//! are flattened in a fixed order after the parallel part, so the tree is the same
-//! for every thread count.
+//! Speed (the build is part of every measured render): primitives are 32-byte
+//! SIMD boxes; a splitter returns its children's bounds and centroid bounds
+//! (the SAH builder gets them from its bins and its partition), so a node
+//! costs two passes over its primitives, not four; and nodes are written in
+//! place: a subtree of `k` primitives owns `2k - 1` node slots of one array,
+//! handed to the two halves of a `rayon::join` with `split_at_mut`, and the
+//! slots a subtree leaves unused are squeezed out once at the end.
+//!
+//! Determinism: a node's partition depends only on its primitives (bins are
+//! exact unions and counts, however the reduction is chunked), and the layout
+//! depends only on the tree, so the tree is the same for every thread count.
 
 pub mod median;
+pub mod nary;
 pub mod sah;
 
-use glam::Vec3;
+use glam::{Vec3, Vec4};
+use rayon::prelude::*;
 
 use super::{Bvh, Node};
 use crate::geometry::Aabb;
@@ -151,14 +162,172 @@ impl BuildParams {
 /// four-block tree's.
 pub const WIDE_SAH_BLOCK: usize = 2;
 
-/// A triangle as the builders see it.
-#[derive(Clone, Copy, Debug)]
+/// The triangles a BVH is built over: vertex triples in a slice, or a scene's
+/// (read through its index list, so the build makes no copy of them).
+pub trait Triangles: Sync {
+    fn count(&self) -> usize;
+    /// The vertices of triangle `i`.
+    fn get(&self, i: usize) -> [Vec3; 3];
+}
+
+impl Triangles for [[Vec3; 3]] {
+    #[inline]
+    fn count(&self) -> usize {
+        self.len()
+    }
+    #[inline]
+    fn get(&self, i: usize) -> [Vec3; 3] {
+        self[i]
+    }
+}
+
+impl Triangles for Vec<[Vec3; 3]> {
+    #[inline]
+    fn count(&self) -> usize {
+        self.len()
+    }
+    #[inline]
+    fn get(&self, i: usize) -> [Vec3; 3] {
+        self[i]
+    }
+}
+
+impl Triangles for crate::scene::Scene {
+    #[inline]
+    fn count(&self) -> usize {
+        self.triangle_count()
+    }
+    #[inline]
+    fn get(&self, i: usize) -> [Vec3; 3] {
+        self.triangle(i)
+    }
+}
+
+/// Twice the bias that puts a scene index's bits in the normal float range.
+const INDEX_BIAS: u32 = 0x0080_0000;
+
+/// Most triangles a build takes: indices stay below this after the bias.
+pub const MAX_TRIANGLES: usize = (0x7F00_0000 - 1) as usize;
+
+/// A triangle as the builders see it: its box as two SIMD vectors (32 bytes,
+/// as Embree's `PrimRef`). The minimum's w lane carries the scene index's bits,
+/// shifted up by one exponent step so that they always form a normal float:
+/// arithmetic on whole vectors never meets a denormal (slow on many CPUs).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(16))]
 pub struct PrimRef {
-    pub bounds: Aabb,
-    pub centroid: Vec3,
-    /// Scene triangle index; also the final tie-break in every sort, so partitions
-    /// never depend on the order primitives arrive in.
-    pub index: u32,
+    pub lo: Vec4,
+    pub hi: Vec4,
+}
+
+impl PrimRef {
+    /// The reference to triangle `index` (at most [`MAX_TRIANGLES`]) with box `b`.
+    #[inline]
+    pub fn new(b: &Aabb, index: u32) -> PrimRef {
+        debug_assert!((index as usize) < MAX_TRIANGLES);
+        PrimRef {
+            lo: b.min.extend(f32::from_bits(index + INDEX_BIAS)),
+            hi: b.max.extend(0.0),
+        }
+    }
+
+    /// Scene triangle index; also the final tie-break in every sort, so
+    /// partitions never depend on the order primitives arrive in.
+    #[inline]
+    pub fn index(&self) -> u32 {
+        self.lo.w.to_bits() - INDEX_BIAS
+    }
+
+    #[inline]
+    pub fn bounds(&self) -> Aabb {
+        Aabb {
+            min: self.lo.truncate(),
+            max: self.hi.truncate(),
+        }
+    }
+
+    /// Twice the box centre in xyz (`lo + hi`): what the builders bin and sort
+    /// by, in the same order as the centre, without a multiplication.
+    #[inline]
+    pub fn centroid2(&self) -> Vec4 {
+        self.lo + self.hi
+    }
+}
+
+/// An axis-aligned box as two SIMD vectors (w lanes unused).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Box4 {
+    pub lo: Vec4,
+    pub hi: Vec4,
+}
+
+impl Box4 {
+    pub const EMPTY: Box4 = Box4 {
+        lo: Vec4::INFINITY,
+        hi: Vec4::NEG_INFINITY,
+    };
+
+    #[inline]
+    pub fn union(self, o: Box4) -> Box4 {
+        Box4 {
+            lo: self.lo.min(o.lo),
+            hi: self.hi.max(o.hi),
+        }
+    }
+
+    #[inline]
+    pub fn grow(&mut self, p: Vec4) {
+        self.lo = self.lo.min(p);
+        self.hi = self.hi.max(p);
+    }
+
+    /// Surface area, 0 for the empty box; the same arithmetic as
+    /// [`Aabb::surface_area`], so both give the same bits.
+    #[inline]
+    pub fn area(self) -> f32 {
+        let e = (self.hi - self.lo).max(Vec4::ZERO);
+        2.0 * (e.x * e.y + e.y * e.z + e.z * e.x)
+    }
+
+    #[inline]
+    pub fn to_aabb(self) -> Aabb {
+        Aabb {
+            min: self.lo.truncate(),
+            max: self.hi.truncate(),
+        }
+    }
+}
+
+/// What a node's split needs to know of its primitives, and what a split
+/// returns for each child: the union of their boxes and the bounds of their
+/// doubled centroids ([`PrimRef::centroid2`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NodeInfo {
+    pub bounds: Box4,
+    pub centroids: Box4,
+}
+
+impl NodeInfo {
+    /// Of `prims`, in parallel chunks for large inputs when `parallel`.
+    pub fn of(prims: &[PrimRef], parallel: bool) -> NodeInfo {
+        let empty = NodeInfo {
+            bounds: Box4::EMPTY,
+            centroids: Box4::EMPTY,
+        };
+        reduce_prims(
+            prims,
+            parallel,
+            empty,
+            |i, p| {
+                i.bounds = i.bounds.union(Box4 { lo: p.lo, hi: p.hi });
+                i.centroids.grow(p.centroid2());
+            },
+            |a, b| {
+                a.bounds = a.bounds.union(b.bounds);
+                a.centroids = a.centroids.union(b.centroids);
+            },
+        )
+    }
 }
 
 /// Below this many primitives a subtree is built on the current thread.
@@ -170,16 +339,17 @@ pub const MAX_SPLIT_DEPTH: u32 = 32;
 
 /// Per-node decision of a top-down builder.
 pub trait Splitter: Sync {
-    /// Either `None` (make a leaf of all `prims`) or `Some(mid)` with
-    /// `0 < mid < prims.len()` after reordering `prims` so that `..mid` goes left.
+    /// Either `None` (make a leaf of all `prims`) or `Some((mid, left, right))`
+    /// with `0 < mid < prims.len()` after reordering `prims` so that `..mid`
+    /// goes left, and each side's [`NodeInfo`]. `info` is `prims`' own.
     /// `parallel` allows the splitter to use rayon for large nodes.
     fn split(
         &self,
         prims: &mut [PrimRef],
-        bounds: &Aabb,
+        info: &NodeInfo,
         depth: u32,
         parallel: bool,
-    ) -> Option<usize>;
+    ) -> Option<(usize, NodeInfo, NodeInfo)>;
 }
 
 /// Below this many primitives a per-node reduction (bounds, bins) runs serially.
@@ -195,11 +365,9 @@ pub fn reduce_prims<T: Send + Sync + Clone>(
     fold: impl Fn(&mut T, &PrimRef) + Sync,
     combine: impl Fn(&mut T, T) + Sync + Send,
 ) -> T {
-    use rayon::prelude::*;
     // Accumulators are updated in place: a large one (SAH bins) must not be
-    // moved per primitive.
-    let serial = |chunk: &[PrimRef]| {
-        let mut acc = identity.clone();
+    // moved or copied per primitive, nor cloned for a serial fold.
+    let fold_into = |mut acc: T, chunk: &[PrimRef]| {
         for p in chunk {
             fold(&mut acc, p);
         }
@@ -208,7 +376,7 @@ pub fn reduce_prims<T: Send + Sync + Clone>(
     if parallel && prims.len() >= PARALLEL_REDUCE_CUTOFF {
         prims
             .par_chunks(PARALLEL_REDUCE_CUTOFF / 4)
-            .map(serial)
+            .map(|chunk| fold_into(identity.clone(), chunk))
             .reduce(
                 || identity.clone(),
                 |mut a, b| {
@@ -217,12 +385,66 @@ pub fn reduce_prims<T: Send + Sync + Clone>(
                 },
             )
     } else {
-        serial(prims)
+        fold_into(identity, prims)
     }
 }
 
-/// Temporary tree, flattened once into the compact layout. Leaves refer to a
-/// range of the leaf-ordered triangle list.
+/// The infos of `prims[..mid]` and `prims[mid..]`, for splits that do not get
+/// them on the way (median splits).
+pub fn side_infos(prims: &[PrimRef], mid: usize, parallel: bool) -> (NodeInfo, NodeInfo) {
+    (
+        NodeInfo::of(&prims[..mid], parallel),
+        NodeInfo::of(&prims[mid..], parallel),
+    )
+}
+
+/// A built binary tree before its triangles are gathered: nodes in the
+/// [`Bvh`] layout, except that slots no subtree used may lie between them
+/// (nothing points there; [`Skeleton::compact`] squeezes them out), and the
+/// scene index of each leaf slot.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Skeleton {
+    pub nodes: Vec<Node>,
+    pub tri_ids: Vec<u32>,
+}
+
+impl Skeleton {
+    /// The same tree with its nodes renumbered depth-first without gaps.
+    pub fn compact(self) -> Skeleton {
+        if self.nodes.is_empty() {
+            return self;
+        }
+        Skeleton {
+            nodes: compact(&self.nodes),
+            tri_ids: self.tri_ids,
+        }
+    }
+
+    /// The [`Bvh`]: the skeleton, compacted, with each leaf slot's vertices
+    /// gathered.
+    pub fn gather<T: Triangles + ?Sized>(self, triangles: &T, parallel: bool) -> Bvh {
+        let s = self.compact();
+        let tris = if parallel {
+            s.tri_ids
+                .par_iter()
+                .map(|&i| triangles.get(i as usize))
+                .collect()
+        } else {
+            s.tri_ids
+                .iter()
+                .map(|&i| triangles.get(i as usize))
+                .collect()
+        };
+        Bvh {
+            nodes: s.nodes,
+            tri_ids: s.tri_ids,
+            tris,
+        }
+    }
+}
+
+/// Temporary tree, flattened once into the compact layout (the Embree
+/// builder's callbacks make one). Leaves refer to a range of `tri_ids`.
 pub(crate) enum BuildNode {
     Leaf {
         bounds: Aabb,
@@ -235,58 +457,241 @@ pub(crate) enum BuildNode {
     },
 }
 
-/// Builds the hierarchy (the entry point behind [`Bvh::build`]). Only the
-/// Embree builders can fail (no Embree in this build, or an Embree error).
-pub fn build(triangles: &[[Vec3; 3]], params: &BuildParams) -> crate::Result<Bvh> {
+/// Builds the hierarchy (the entry point behind [`Bvh::build`]) on a pool of
+/// `params.threads` threads. Only the Embree builders can fail (no Embree in
+/// this build, or an Embree error).
+pub fn build<T: Triangles + ?Sized>(triangles: &T, params: &BuildParams) -> crate::Result<Bvh> {
+    in_pool(params.threads, || {
+        Ok(skeleton_here(triangles, params)?.gather(triangles, params.threads > 1))
+    })
+}
+
+/// Runs `f` on a pool of `threads` threads (on the calling thread for one).
+/// Code inside passes `parallel = threads > 1` down and runs serially when
+/// it is false, so one thread means no other thread at all.
+pub fn in_pool<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> R {
+    if threads <= 1 {
+        return f();
+    }
+    match rayon::ThreadPoolBuilder::new().num_threads(threads).build() {
+        Ok(pool) => pool.install(f),
+        // No threads to be had: the same result, computed serially.
+        Err(_) => f(),
+    }
+}
+
+/// Builds the tree without gathering its triangles (what the wide trees are
+/// collapsed from), on a pool of `params.threads` threads.
+pub fn build_skeleton<T: Triangles + ?Sized>(
+    triangles: &T,
+    params: &BuildParams,
+) -> crate::Result<Skeleton> {
+    in_pool(params.threads, || skeleton_here(triangles, params))
+}
+
+/// [`build_skeleton`] on the current thread pool.
+pub fn skeleton_here<T: Triangles + ?Sized>(
+    triangles: &T,
+    params: &BuildParams,
+) -> crate::Result<Skeleton> {
+    let count = triangles.count();
+    if count > MAX_TRIANGLES {
+        return Err(crate::Error::Other(format!(
+            "BVH build: {count} triangles, at most {MAX_TRIANGLES}"
+        )));
+    }
     if let Some(quality) = params.builder.embree_quality() {
-        return build_with_embree(triangles, params, quality);
+        // Embree's builder splits triangles spatially: it takes a slice.
+        let all: Vec<[Vec3; 3]> = (0..count).map(|i| triangles.get(i)).collect();
+        return build_with_embree(&all, params, quality);
     }
-    if triangles.is_empty() {
-        return Ok(Bvh::default());
+    if count == 0 {
+        return Ok(Skeleton::default());
     }
+    let parallel = params.threads > 1;
     let max_leaf = params.max_leaf_size.max(1);
-    let run = |prims: &mut [PrimRef]| {
-        let parallel = params.threads > 1;
-        match params.builder {
-            BuilderKind::Median => recurse(prims, 0, 0, &median::Median { max_leaf }, parallel),
-            _ => recurse(
-                prims,
-                0,
-                0,
-                &sah::BinnedSah::new(max_leaf, params.sah_block),
-                parallel,
-            ),
-        }
-    };
-    let mut prims: Vec<PrimRef> = triangles
-        .iter()
-        .enumerate()
-        .map(|(i, t)| {
-            let bounds = Aabb::from_points(t);
-            PrimRef {
-                bounds,
-                centroid: bounds.center(),
-                index: i as u32,
-            }
-        })
-        .collect();
-    let root = if params.threads > 1 {
-        match rayon::ThreadPoolBuilder::new()
-            .num_threads(params.threads)
-            .build()
-        {
-            Ok(pool) => pool.install(|| run(&mut prims)),
-            // No threads to be had: the same tree, built serially.
-            Err(_) => run(&mut prims),
-        }
+    Ok(match params.builder {
+        BuilderKind::Median => top_down(triangles, &median::Median { max_leaf }, parallel),
+        _ => top_down(
+            triangles,
+            &sah::BinnedSah::new(max_leaf, params.sah_block),
+            parallel,
+        ),
+    })
+}
+
+/// The references of `triangles`, made in parallel when `parallel`.
+pub(crate) fn prim_refs<T: Triangles + ?Sized>(triangles: &T, parallel: bool) -> Vec<PrimRef> {
+    let make = |i: usize| PrimRef::new(&Aabb::from_points(&triangles.get(i)), i as u32);
+    if parallel {
+        (0..triangles.count()).into_par_iter().map(make).collect()
     } else {
-        run(&mut prims)
+        (0..triangles.count()).map(make).collect()
+    }
+}
+
+/// Builds the `N`-wide tree with the builder of `params` on the current
+/// thread pool: directly top-down ([`nary`]) for raylab's builders, by
+/// collapsing the binary tree for Embree's.
+pub fn wide_here<const N: usize, T: Triangles + ?Sized>(
+    triangles: &T,
+    params: &BuildParams,
+) -> crate::Result<super::wide::WideBvh<N>> {
+    let parallel = params.threads > 1;
+    let kernel = super::simd::Kernel::detect();
+    let max_leaf = params.max_leaf_size.max(1);
+    if triangles.count() > MAX_TRIANGLES {
+        return Err(crate::Error::Other(format!(
+            "BVH build: {} triangles, at most {MAX_TRIANGLES}",
+            triangles.count()
+        )));
+    }
+    match params.builder {
+        BuilderKind::Median => {
+            nary::build(triangles, &median::Median { max_leaf }, parallel, kernel)
+        }
+        BuilderKind::Sah => nary::build(
+            triangles,
+            &sah::BinnedSah::new(max_leaf, params.sah_block),
+            parallel,
+            kernel,
+        ),
+        _ => super::wide::WideBvh::from_skeleton(
+            &skeleton_here(triangles, params)?,
+            triangles,
+            parallel,
+        ),
+    }
+}
+
+/// Builds top-down with `splitter` into node slots in place (unused slots
+/// stay in; [`Skeleton::compact`] removes them where a gapless array is
+/// wanted).
+fn top_down<T: Triangles + ?Sized, S: Splitter>(
+    triangles: &T,
+    splitter: &S,
+    parallel: bool,
+) -> Skeleton {
+    let mut prims = prim_refs(triangles, parallel);
+    let info = NodeInfo::of(&prims, parallel);
+    let count = 2 * prims.len() - 1;
+    let mut slots = Vec::with_capacity(count);
+    if parallel {
+        // Filling 32 bytes per slot (and faulting the pages in) is worth two threads.
+        slots.par_extend(rayon::iter::repeat_n(UNUSED, count));
+    } else {
+        slots.resize(count, UNUSED);
+    }
+    recurse(&mut prims, 0, info, 0, splitter, parallel, 0, &mut slots);
+    let tri_ids = if parallel {
+        prims.par_iter().map(PrimRef::index).collect()
+    } else {
+        prims.iter().map(PrimRef::index).collect()
     };
-    Ok(assemble(
-        root,
-        prims.iter().map(|p| p.index).collect(),
-        triangles,
-    ))
+    Skeleton {
+        nodes: slots,
+        tri_ids,
+    }
+}
+
+/// A node slot no subtree wrote.
+const UNUSED: Node = Node {
+    min: Vec3::ZERO,
+    offset: u32::MAX,
+    max: Vec3::ZERO,
+    count: 0,
+};
+
+/// Builds the subtree of `prims` (the leaf slots from `start` on) into
+/// `nodes`, which holds its `2 * prims.len() - 1` slots, the first of them
+/// at index `base` of the whole array.
+#[allow(clippy::too_many_arguments)]
+fn recurse<S: Splitter>(
+    prims: &mut [PrimRef],
+    start: usize,
+    info: NodeInfo,
+    depth: u32,
+    splitter: &S,
+    parallel: bool,
+    base: usize,
+    nodes: &mut [Node],
+) {
+    let n = prims.len();
+    debug_assert!(nodes.len() >= 2 * n - 1);
+    let b = padded(info.bounds.to_aabb());
+    let split = splitter
+        .split(prims, &info, depth, parallel)
+        .filter(|&(mid, ..)| mid > 0 && mid < n);
+    let Some((mid, left, right)) = split else {
+        nodes[0] = Node {
+            min: b.min,
+            offset: start as u32,
+            max: b.max,
+            count: n as u32,
+        };
+        return;
+    };
+    // Left subtree in the slots right after this node, right subtree after
+    // all of the left's.
+    let right_base = base + 2 * mid;
+    nodes[0] = Node {
+        min: b.min,
+        offset: right_base as u32,
+        max: b.max,
+        count: 0,
+    };
+    let (lp, rp) = prims.split_at_mut(mid);
+    let (ln, rn) = nodes[1..].split_at_mut(2 * mid - 1);
+    if parallel && n >= PARALLEL_CUTOFF {
+        rayon::join(
+            || recurse(lp, start, left, depth + 1, splitter, true, base + 1, ln),
+            || {
+                recurse(
+                    rp,
+                    start + mid,
+                    right,
+                    depth + 1,
+                    splitter,
+                    true,
+                    right_base,
+                    rn,
+                )
+            },
+        );
+    } else {
+        recurse(lp, start, left, depth + 1, splitter, parallel, base + 1, ln);
+        recurse(
+            rp,
+            start + mid,
+            right,
+            depth + 1,
+            splitter,
+            parallel,
+            right_base,
+            rn,
+        );
+    }
+}
+
+/// The nodes reachable from slot 0, renumbered depth-first without gaps.
+fn compact(slots: &[Node]) -> Vec<Node> {
+    let mut out: Vec<Node> = Vec::with_capacity(slots.len());
+    // (slot, the output node whose right-child offset points here)
+    let mut stack: Vec<(usize, Option<usize>)> = vec![(0, None)];
+    while let Some((slot, parent)) = stack.pop() {
+        let index = out.len();
+        if let Some(p) = parent {
+            out[p].offset = index as u32;
+        }
+        let node = slots[slot];
+        debug_assert!(node != UNUSED);
+        out.push(node);
+        if !node.is_leaf() {
+            stack.push((node.offset as usize, Some(index)));
+            stack.push((slot + 1, None));
+        }
+    }
+    out
 }
 
 #[cfg(feature = "embree")]
@@ -294,7 +699,7 @@ fn build_with_embree(
     triangles: &[[Vec3; 3]],
     params: &BuildParams,
     quality: crate::accel::embree::Quality,
-) -> crate::Result<Bvh> {
+) -> crate::Result<Skeleton> {
     use std::collections::HashMap;
     use std::sync::{Arc, Mutex, OnceLock};
 
@@ -330,62 +735,16 @@ fn build_with_embree(
     _triangles: &[[Vec3; 3]],
     _params: &BuildParams,
     _quality: crate::accel::embree::Quality,
-) -> crate::Result<Bvh> {
+) -> crate::Result<Skeleton> {
     Err(crate::accel::embree::unavailable())
 }
 
 /// Flattens a temporary tree whose leaves index `tri_ids` into the compact
-/// layout, gathering the triangles' vertices in leaf order.
-pub(crate) fn assemble(root: BuildNode, tri_ids: Vec<u32>, triangles: &[[Vec3; 3]]) -> Bvh {
+/// layout.
+pub(crate) fn skeleton_of(root: BuildNode, tri_ids: Vec<u32>) -> Skeleton {
     let mut nodes = Vec::with_capacity(2 * tri_ids.len());
     flatten(root, &mut nodes);
-    let tris = tri_ids.iter().map(|&i| triangles[i as usize]).collect();
-    Bvh {
-        nodes,
-        tri_ids,
-        tris,
-    }
-}
-
-fn recurse<S: Splitter>(
-    prims: &mut [PrimRef],
-    start: usize,
-    depth: u32,
-    splitter: &S,
-    parallel: bool,
-) -> BuildNode {
-    let bounds = reduce_prims(
-        prims,
-        parallel,
-        Aabb::EMPTY,
-        |b, p| *b = b.union(p.bounds),
-        |a, b| *a = a.union(b),
-    );
-    let mid = splitter.split(prims, &bounds, depth, parallel);
-    let Some(mid) = mid.filter(|&m| m > 0 && m < prims.len()) else {
-        return BuildNode::Leaf {
-            bounds,
-            start: start as u32,
-            count: prims.len() as u32,
-        };
-    };
-    let n = prims.len();
-    let (left, right) = prims.split_at_mut(mid);
-    let (l, r) = if parallel && n >= PARALLEL_CUTOFF {
-        rayon::join(
-            || recurse(left, start, depth + 1, splitter, true),
-            || recurse(right, start + mid, depth + 1, splitter, true),
-        )
-    } else {
-        (
-            recurse(left, start, depth + 1, splitter, parallel),
-            recurse(right, start + mid, depth + 1, splitter, parallel),
-        )
-    };
-    BuildNode::Interior {
-        bounds,
-        children: Box::new([l, r]),
-    }
+    Skeleton { nodes, tri_ids }
 }
 
 /// Node boxes are stored grown by this fraction of their largest coordinate
@@ -396,7 +755,7 @@ fn recurse<S: Splitter>(
 /// stay inside their parents.
 pub const BOX_MARGIN: f32 = 1.0 / (1 << 20) as f32;
 
-fn padded(b: Aabb) -> Aabb {
+pub(crate) fn padded(b: Aabb) -> Aabb {
     let magnitude = b
         .min
         .abs()
@@ -412,13 +771,7 @@ fn padded(b: Aabb) -> Aabb {
 
 fn flatten(node: BuildNode, nodes: &mut Vec<Node>) -> u32 {
     let index = nodes.len();
-    let blank = Node {
-        min: Vec3::ZERO,
-        offset: 0,
-        max: Vec3::ZERO,
-        count: 0,
-    };
-    nodes.push(blank);
+    nodes.push(UNUSED);
     nodes[index] = match node {
         BuildNode::Leaf {
             bounds,
@@ -456,9 +809,9 @@ pub fn median_partition(prims: &mut [PrimRef], axis: usize, mid: usize) {
         return;
     }
     prims.select_nth_unstable_by(mid, |a, b| {
-        a.centroid[axis]
-            .total_cmp(&b.centroid[axis])
-            .then(a.index.cmp(&b.index))
+        a.centroid2()[axis]
+            .total_cmp(&b.centroid2()[axis])
+            .then(a.index().cmp(&b.index()))
     });
 }
 
@@ -466,32 +819,66 @@ pub fn median_partition(prims: &mut [PrimRef], axis: usize, mid: usize) {
 mod tests {
     use super::*;
 
+    fn point_prim(c: Vec3, index: u32) -> PrimRef {
+        PrimRef::new(&Aabb::from_points(&[c]), index)
+    }
+
+    #[test]
+    fn prim_refs_keep_index_and_box_and_never_hold_denormals() {
+        let b = Aabb::from_points(&[Vec3::new(-1.0, 2.0, 3.0), Vec3::new(4.0, 5.0, 6.5)]);
+        for index in [0, 1, 12345, (MAX_TRIANGLES - 1) as u32] {
+            let p = PrimRef::new(&b, index);
+            assert_eq!(p.index(), index);
+            assert_eq!(p.bounds(), b);
+            assert!(p.lo.w.is_normal() && p.centroid2().w.is_normal(), "{index}");
+            assert_eq!(p.centroid2().truncate(), b.min + b.max);
+        }
+    }
+
     #[test]
     fn median_partition_matches_a_sort() {
         let prims: Vec<PrimRef> = (0..101u32)
             .map(|i| {
                 // Many equal keys, so the index tie-break matters.
-                let c = Vec3::splat((i * 37 % 11) as f32);
-                PrimRef {
-                    bounds: Aabb::from_points(&[c]),
-                    centroid: c,
-                    index: i,
-                }
+                point_prim(Vec3::splat((i * 37 % 11) as f32), i)
             })
             .collect();
         let mut sorted = prims.clone();
-        sorted.sort_by(|a, b| {
-            a.centroid
-                .x
-                .total_cmp(&b.centroid.x)
-                .then(a.index.cmp(&b.index))
-        });
+        sorted.sort_by(|a, b| a.lo.x.total_cmp(&b.lo.x).then(a.index().cmp(&b.index())));
         let mut part = prims.clone();
         median_partition(&mut part, 0, 51);
-        let mut left: Vec<u32> = part[..51].iter().map(|p| p.index).collect();
-        let mut want: Vec<u32> = sorted[..51].iter().map(|p| p.index).collect();
+        let mut left: Vec<u32> = part[..51].iter().map(PrimRef::index).collect();
+        let mut want: Vec<u32> = sorted[..51].iter().map(PrimRef::index).collect();
         left.sort();
         want.sort();
         assert_eq!(left, want);
+    }
+
+    #[test]
+    fn compaction_renumbers_depth_first_without_gaps() {
+        let tris: Vec<[Vec3; 3]> = (0..300)
+            .map(|i| {
+                let c = Vec3::new((i % 17) as f32, (i % 5) as f32, (i / 17) as f32);
+                [c, c + Vec3::X * 0.5, c + Vec3::Y * 0.5]
+            })
+            .collect();
+        for params in [
+            BuildParams::sah(),
+            BuildParams::sah().with_width(8),
+            BuildParams::median(),
+        ] {
+            let s = build_skeleton(&tris, &params).unwrap().compact();
+            assert!(s.nodes.iter().all(|n| *n != UNUSED));
+            let leaves = s.nodes.iter().filter(|n| n.is_leaf()).count();
+            assert_eq!(s.nodes.len(), 2 * leaves - 1);
+            for (i, n) in s.nodes.iter().enumerate() {
+                if !n.is_leaf() {
+                    assert!(n.offset as usize > i + 1 && (n.offset as usize) < s.nodes.len());
+                }
+            }
+            let mut ids = s.tri_ids.clone();
+            ids.sort();
+            assert_eq!(ids, (0..300).collect::<Vec<u32>>());
+        }
     }
 }

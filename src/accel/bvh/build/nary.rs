@@ -1,0 +1,533 @@
+//! Wide trees built top-down directly, as Embree's BVH4/BVH8 builders do: a
+//! node keeps splitting its open child of largest surface area with the
+//! binary builders' [`Splitter`] until it has `N` children; its leaves are
+//! then packed into blocks and filled, and its other children become nodes in
+//! turn, in parallel where they are large.
+//!
+//! A split depends only on a node's primitives and depth, so the tree is the
+//! one [`WideBvh::collapse`] makes of the binary tree of the same splitter,
+//! node for node and block for block (tested), without making that binary
+//! tree or reading it back: collapsing it was a pass of cache misses over
+//! nodes that existed only to be read once.
+//!
+//! Memory: a subtree below [`PARALLEL_CUTOFF`] primitives (or any subtree in
+//! a serial build) is made into arrays of its own with indices relative to
+//! them; the parallel top is stitched together with those pieces once, in
+//! depth-first order, at the end.
+
+use arrayvec::ArrayVec;
+use rayon::prelude::*;
+
+use super::{padded, prim_refs, NodeInfo, PrimRef, Splitter, Triangles, PARALLEL_CUTOFF};
+use crate::accel::bvh::leaf::{Tri4, LANES};
+use crate::accel::bvh::simd::Kernel;
+use crate::accel::bvh::wide::{
+    leaf_ref, pack_leaves, WideBvh, WideNode, EMPTY, LEAF_BIT, MAX_SLOTS,
+};
+use crate::error::{Error, Result};
+
+/// A split as [`Splitter::split`] returns it (`None`: a leaf).
+type Split = Option<(usize, NodeInfo, NodeInfo)>;
+
+/// A child of the node being made: a range of the node's primitives, and its
+/// split once tried (`Some(None)`: a leaf).
+struct Kid {
+    start: usize,
+    len: usize,
+    info: NodeInfo,
+    depth: u32,
+    split: Option<Split>,
+    /// The lane box (the node box the binary tree would store) and half its
+    /// area, which orders the opening.
+    bounds: crate::geometry::Aabb,
+    half_area: f32,
+}
+
+impl Kid {
+    fn new(start: usize, len: usize, info: NodeInfo, depth: u32, split: Option<Split>) -> Kid {
+        let bounds = padded(info.bounds.to_aabb());
+        let e = bounds.max - bounds.min;
+        Kid {
+            start,
+            len,
+            info,
+            depth,
+            split,
+            bounds,
+            half_area: e.x * e.y + e.y * e.z + e.z * e.x,
+        }
+    }
+
+    fn is_leaf(&self) -> bool {
+        matches!(self.split, Some(None))
+    }
+
+    fn bounds(&self) -> crate::geometry::Aabb {
+        self.bounds
+    }
+}
+
+/// What the builders need at every node.
+struct Ctx<'a, T: ?Sized, S> {
+    triangles: &'a T,
+    splitter: &'a S,
+    parallel: bool,
+}
+
+impl<T: Triangles + ?Sized, S: Splitter> Ctx<'_, T, S> {
+    /// The split of `prims`, with the binary recursion's rule that a split
+    /// putting everything on one side is a leaf.
+    fn split(&self, prims: &mut [PrimRef], info: &NodeInfo, depth: u32) -> Split {
+        let n = prims.len();
+        self.splitter
+            .split(prims, info, depth, self.parallel)
+            .filter(|&(mid, ..)| mid > 0 && mid < n)
+    }
+
+    /// The children of the wide node made of binary node `prims` (whose
+    /// split is `split`): the open child of largest area is split until there
+    /// are `N`, as the collapse opens the binary tree's children.
+    fn open_children<const N: usize>(
+        &self,
+        prims: &mut [PrimRef],
+        info: NodeInfo,
+        depth: u32,
+        split: Split,
+    ) -> ArrayVec<Kid, N> {
+        let mut kids: ArrayVec<Kid, N> = ArrayVec::new();
+        kids.push(Kid::new(0, prims.len(), info, depth, Some(split)));
+        while kids.len() < N {
+            let Some(i) = kids
+                .iter()
+                .enumerate()
+                .filter(|(_, k)| !k.is_leaf())
+                .max_by(|a, b| a.1.half_area.total_cmp(&b.1.half_area))
+                .map(|(i, _)| i)
+            else {
+                break;
+            };
+            let k = &mut kids[i];
+            let split = match k.split {
+                Some(s) => s,
+                None => {
+                    let s = self.split(&mut prims[k.start..k.start + k.len], &k.info, k.depth);
+                    k.split = Some(s);
+                    s
+                }
+            };
+            let Some((mid, left, right)) = split else {
+                continue;
+            };
+            let (start, len, depth) = (k.start, k.len, k.depth + 1);
+            kids[i] = Kid::new(start, mid, left, depth, None);
+            kids.push(Kid::new(start + mid, len - mid, right, depth, None));
+        }
+        for k in &mut kids {
+            if k.split.is_none() {
+                k.split = Some(self.split(&mut prims[k.start..k.start + k.len], &k.info, k.depth));
+            }
+        }
+        kids
+    }
+
+    /// The node of `kids` over `prims`, its leaves packed into new blocks at
+    /// the end of `blocks` and filled (leaf references count from the start of
+    /// `blocks`); interior lanes are left for the caller.
+    fn node_with_leaves<const N: usize>(
+        &self,
+        prims: &[PrimRef],
+        kids: &ArrayVec<Kid, N>,
+        blocks: &mut Vec<Tri4>,
+    ) -> Result<WideNode<N>> {
+        let mut node = WideNode::empty();
+        let leaves: ArrayVec<usize, N> = (0..kids.len()).filter(|&l| kids[l].is_leaf()).collect();
+        let counts: ArrayVec<usize, N> = leaves.iter().map(|&l| kids[l].len).collect();
+        let (slots, taken) = pack_leaves::<N>(&counts, blocks.len())?;
+        blocks.resize(blocks.len() + taken, Tri4::empty());
+        for (&lane, &slot) in leaves.iter().zip(&slots) {
+            let kid = &kids[lane];
+            for (k, p) in prims[kid.start..kid.start + kid.len].iter().enumerate() {
+                let s = slot + k;
+                let id = p.index();
+                blocks[s / LANES].set_lane(s % LANES, &self.triangles.get(id as usize), id);
+            }
+            node.set_lane(lane, &kid.bounds(), leaf_ref(slot, kid.len));
+        }
+        Ok(node)
+    }
+
+    /// Makes the node of `kids` and its whole subtree serially into `piece`;
+    /// returns the node's index there and the stack the subtree can need.
+    fn serial<const N: usize>(
+        &self,
+        prims: &mut [PrimRef],
+        kids: ArrayVec<Kid, N>,
+        piece: &mut Piece<N>,
+    ) -> Result<(u32, usize)> {
+        let index = piece.nodes.len();
+        piece.nodes.push(WideNode::empty());
+        let mut node = self.node_with_leaves(prims, &kids, &mut piece.blocks)?;
+        let mut deepest = 0;
+        for (lane, kid) in kids.iter().enumerate() {
+            let Some(Some(split)) = kid.split else {
+                continue;
+            };
+            let sub = &mut prims[kid.start..kid.start + kid.len];
+            let grand = self.open_children(sub, kid.info, kid.depth, Some(split));
+            let (child, need) = self.serial(sub, grand, piece)?;
+            deepest = deepest.max(need);
+            node.set_lane(lane, &kid.bounds(), child);
+        }
+        piece.nodes[index] = node;
+        Ok((index as u32, kids.len() - 1 + deepest))
+    }
+
+    /// Makes the node of `kids` with its large interior children built in
+    /// parallel (each into its own piece or parallel node).
+    fn parallel<const N: usize>(
+        &self,
+        prims: &mut [PrimRef],
+        kids: ArrayVec<Kid, N>,
+    ) -> Result<Built<N>> {
+        let mut blocks = Vec::new();
+        let node = self.node_with_leaves(prims, &kids, &mut blocks)?;
+        // The interior children's primitive ranges, carved apart so that each
+        // task owns its own.
+        let mut order: ArrayVec<usize, N> = (0..kids.len()).collect();
+        order.sort_by_key(|&l| kids[l].start);
+        let mut rest: &mut [PrimRef] = prims;
+        let mut at = 0;
+        let mut jobs: Vec<(usize, &mut [PrimRef])> = Vec::with_capacity(N);
+        for lane in order {
+            let kid = &kids[lane];
+            let (_, tail) = std::mem::take(&mut rest).split_at_mut(kid.start - at);
+            let (mine, tail) = tail.split_at_mut(kid.len);
+            rest = tail;
+            at = kid.start + kid.len;
+            if !kid.is_leaf() {
+                jobs.push((lane, mine));
+            }
+        }
+        let built: Vec<(usize, Result<Built<N>>)> = jobs
+            .into_par_iter()
+            .map(|(lane, sub)| {
+                let kid = &kids[lane];
+                let Some(split) = kid.split else {
+                    unreachable!("every child's split is tried")
+                };
+                let grand = self.open_children(sub, kid.info, kid.depth, split);
+                let b = if kid.len >= PARALLEL_CUTOFF {
+                    self.parallel(sub, grand)
+                } else {
+                    let mut piece = Piece::with_capacity::<N>(kid.len);
+                    self.serial(sub, grand, &mut piece).map(|(_, need)| {
+                        piece.need = need;
+                        Built::Piece(piece)
+                    })
+                };
+                (lane, b)
+            })
+            .collect();
+        let mut children: Vec<(usize, Built<N>)> = Vec::with_capacity(N);
+        let mut deepest = 0;
+        for (lane, b) in built {
+            let b = b?;
+            deepest = deepest.max(b.need());
+            children.push((lane, b));
+        }
+        // Emitted in lane order, as the serial build and the collapse do.
+        children.sort_by_key(|&(lane, _)| lane);
+        Ok(Built::Node {
+            node,
+            kids: kids.iter().map(Kid::bounds).collect(),
+            blocks,
+            children,
+            need: kids.len() - 1 + deepest,
+        })
+    }
+}
+
+/// A subtree made serially: nodes and blocks indexed from its own arrays'
+/// starts, its root node first.
+struct Piece<const N: usize> {
+    nodes: Vec<WideNode<N>>,
+    blocks: Vec<Tri4>,
+    need: usize,
+}
+
+impl<const N: usize> Piece<N> {
+    /// Room for the subtree of `prims` triangles, so that it never regrows
+    /// (reserving touches no memory).
+    fn with_capacity<const M: usize>(prims: usize) -> Self {
+        Piece {
+            nodes: Vec::with_capacity(prims / (N - 1) + 1),
+            blocks: Vec::with_capacity(prims / 2 + 1),
+            need: 0,
+        }
+    }
+}
+
+/// A subtree: a piece, or a node whose children were made in parallel.
+enum Built<const N: usize> {
+    Piece(Piece<N>),
+    Node {
+        /// Leaf lanes refer to `blocks`; interior lanes are set when stitched.
+        node: WideNode<N>,
+        /// The lane boxes, for the interior lanes.
+        kids: ArrayVec<crate::geometry::Aabb, N>,
+        blocks: Vec<Tri4>,
+        children: Vec<(usize, Built<N>)>,
+        need: usize,
+    },
+}
+
+impl<const N: usize> Built<N> {
+    fn need(&self) -> usize {
+        match self {
+            Built::Piece(p) => p.need,
+            Built::Node { need, .. } => *need,
+        }
+    }
+
+    /// Lists the subtree's segments depth-first (a parallel node before its
+    /// children, children in lane order: the collapse's order); returns the
+    /// index of its own segment.
+    fn segments(self, out: &mut Vec<Segment<N>>) -> usize {
+        let index = out.len();
+        match self {
+            Built::Piece(p) => out.push(Segment::Piece(p)),
+            Built::Node {
+                node,
+                kids,
+                blocks,
+                children,
+                ..
+            } => {
+                out.push(Segment::Node {
+                    node,
+                    kids,
+                    blocks,
+                    children: Vec::new(),
+                });
+                let ids: Vec<(usize, usize)> = children
+                    .into_iter()
+                    .map(|(lane, child)| (lane, child.segments(out)))
+                    .collect();
+                if let Segment::Node { children, .. } = &mut out[index] {
+                    *children = ids;
+                }
+            }
+        }
+        index
+    }
+}
+
+/// One contiguous run of the final arrays: a parallel node with its own leaf
+/// blocks (children by segment index), or a piece.
+enum Segment<const N: usize> {
+    Node {
+        node: WideNode<N>,
+        kids: ArrayVec<crate::geometry::Aabb, N>,
+        blocks: Vec<Tri4>,
+        children: Vec<(usize, usize)>,
+    },
+    Piece(Piece<N>),
+}
+
+impl<const N: usize> Segment<N> {
+    fn size(&self) -> (usize, usize) {
+        match self {
+            Segment::Node { blocks, .. } => (1, blocks.len()),
+            Segment::Piece(p) => (p.nodes.len(), p.blocks.len()),
+        }
+    }
+}
+
+/// `node` with its node references moved up by `first_node` and its leaf
+/// references by `first_block` blocks.
+fn shifted<const N: usize>(
+    mut node: WideNode<N>,
+    first_node: usize,
+    first_block: usize,
+) -> WideNode<N> {
+    for c in &mut node.child {
+        if *c == EMPTY {
+        } else if *c & LEAF_BIT != 0 {
+            *c += (first_block * LANES) as u32;
+        } else {
+            *c += first_node as u32;
+        }
+    }
+    node
+}
+
+/// Writes the segments into one node array and one block array, each segment
+/// into its own run, in parallel when `parallel`.
+fn stitch<const N: usize>(
+    segments: Vec<Segment<N>>,
+    parallel: bool,
+) -> Result<(Vec<WideNode<N>>, Vec<Tri4>)> {
+    let mut offsets = Vec::with_capacity(segments.len());
+    let (mut nodes, mut blocks) = (0, 0);
+    for s in &segments {
+        offsets.push((nodes, blocks));
+        let (n, b) = s.size();
+        nodes += n;
+        blocks += b;
+    }
+    if blocks * LANES > MAX_SLOTS {
+        return Err(Error::Other(format!(
+            "wide BVH: more than {MAX_SLOTS} triangle slots"
+        )));
+    }
+    let mut out_nodes = Vec::with_capacity(nodes);
+    let mut out_blocks = Vec::with_capacity(blocks);
+    if parallel {
+        // Filling first lets both threads take the page faults.
+        out_nodes.par_extend(rayon::iter::repeat_n(WideNode::empty(), nodes));
+        out_blocks.par_extend(rayon::iter::repeat_n(Tri4::empty(), blocks));
+    } else {
+        out_nodes.resize(nodes, WideNode::empty());
+        out_blocks.resize(blocks, Tri4::empty());
+    }
+    // Each segment's runs, carved apart.
+    let mut jobs = Vec::with_capacity(segments.len());
+    let (mut node_rest, mut block_rest) = (&mut out_nodes[..], &mut out_blocks[..]);
+    for (s, &(n0, b0)) in segments.iter().zip(&offsets) {
+        let (n, b) = s.size();
+        let (nn, nr) = std::mem::take(&mut node_rest).split_at_mut(n);
+        let (bb, br) = std::mem::take(&mut block_rest).split_at_mut(b);
+        node_rest = nr;
+        block_rest = br;
+        jobs.push((s, nn, bb, n0, b0));
+    }
+    let write = |(s, nodes, blocks, n0, b0): (
+        &Segment<N>,
+        &mut [WideNode<N>],
+        &mut [Tri4],
+        usize,
+        usize,
+    )| {
+        match s {
+            Segment::Piece(p) => {
+                for (out, &node) in nodes.iter_mut().zip(&p.nodes) {
+                    *out = shifted(node, n0, b0);
+                }
+                blocks.copy_from_slice(&p.blocks);
+            }
+            Segment::Node {
+                node,
+                kids,
+                blocks: own,
+                children,
+            } => {
+                let mut node = shifted(*node, 0, b0);
+                for &(lane, child) in children {
+                    node.set_lane(lane, &kids[lane], offsets[child].0 as u32);
+                }
+                nodes[0] = node;
+                blocks.copy_from_slice(own);
+            }
+        }
+    };
+    if parallel {
+        jobs.into_par_iter().for_each(write);
+    } else {
+        jobs.into_iter().for_each(write);
+    }
+    Ok((out_nodes, out_blocks))
+}
+
+/// Builds the `N`-wide tree over `triangles` with `splitter`, in parallel on
+/// the current rayon pool when `parallel`.
+pub fn build<const N: usize, T: Triangles + ?Sized, S: Splitter>(
+    triangles: &T,
+    splitter: &S,
+    parallel: bool,
+    kernel: Kernel,
+) -> Result<WideBvh<N>> {
+    let kernel = if N == 8 { kernel } else { Kernel::Portable };
+    let mut out = WideBvh {
+        nodes: Vec::new(),
+        blocks: Vec::new(),
+        stack_need: 1,
+        kernel,
+    };
+    let mut prims = prim_refs(triangles, parallel);
+    if prims.is_empty() {
+        return Ok(out);
+    }
+    let ctx = Ctx {
+        triangles,
+        splitter,
+        parallel,
+    };
+    let info = NodeInfo::of(&prims, parallel);
+    let split = ctx.split(&mut prims, &info, 0);
+    let kids = ctx.open_children::<N>(&mut prims, info, 0, split);
+    let built = if parallel && prims.len() >= PARALLEL_CUTOFF {
+        ctx.parallel(&mut prims, kids)?
+    } else {
+        let mut piece = Piece::with_capacity::<N>(prims.len());
+        let (_, need) = ctx.serial(&mut prims, kids, &mut piece)?;
+        piece.need = need;
+        Built::Piece(piece)
+    };
+    out.stack_need = built.need() + 1;
+    let mut segments = Vec::new();
+    built.segments(&mut segments);
+    (out.nodes, out.blocks) = stitch(segments, parallel)?;
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+
+    use super::super::{build_skeleton, in_pool, wide_here, BuildParams};
+    use crate::accel::bvh::wide::WideBvh;
+    use crate::render::rng::Rng;
+
+    fn random_tris(n: usize, seed: u64) -> Vec<[Vec3; 3]> {
+        let mut rng = Rng::for_pixel(0, seed, 5);
+        let mut v = |s: f32| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * s;
+        (0..n)
+            .map(|_| {
+                let c = v(10.0);
+                [c + v(0.3), c + v(0.3), c + v(0.3)]
+            })
+            .collect()
+    }
+
+    fn same_as_collapse<const N: usize>(tris: &Vec<[Vec3; 3]>, params: &BuildParams) {
+        let direct = in_pool(params.threads, || wide_here::<N, _>(tris, params)).unwrap();
+        let skeleton = build_skeleton(tris, params).unwrap();
+        let collapsed = WideBvh::<N>::from_skeleton(&skeleton, tris, false).unwrap();
+        let what = format!("N = {N}, {} triangles, {params:?}", tris.len());
+        assert_eq!(direct.nodes.len(), collapsed.nodes.len(), "{what}");
+        assert!(direct.nodes == collapsed.nodes, "{what}: nodes differ");
+        assert!(direct.blocks == collapsed.blocks, "{what}: blocks differ");
+        assert_eq!(direct.stack_need, collapsed.stack_need, "{what}");
+    }
+
+    #[test]
+    fn direct_build_equals_the_collapsed_binary_tree() {
+        // 12000 triangles pass the parallel cut-off: parallel nodes and pieces.
+        for n in [1, 2, 5, 17, 300, 12_000] {
+            let tris = random_tris(n, n as u64);
+            for threads in [1, 2] {
+                for params in [
+                    BuildParams::sah().with_width(8),
+                    BuildParams::sah().with_width(8).with_max_leaf_size(9),
+                    BuildParams::median().with_width(8),
+                ] {
+                    same_as_collapse::<8>(&tris, &params.with_threads(threads));
+                }
+                same_as_collapse::<4>(
+                    &tris,
+                    &BuildParams::sah().with_width(4).with_threads(threads),
+                );
+            }
+        }
+    }
+}
