@@ -329,7 +329,7 @@ pub struct BvhArgs {
     /// Children per BVH node traversed: 4 (the built tree collapsed into 4-wide
     /// nodes whose boxes are tested together with SIMD; the fastest), or 2 (the
     /// binary tree as built).
-    #[arg(long, value_name = "N", default_value_t = 4, value_parser = parse_bvh_width)]
+    #[arg(long, value_name = "N", default_value_t = 8, value_parser = parse_bvh_width)]
     pub bvh_width: usize,
 }
 
@@ -879,6 +879,10 @@ struct RenderReport {
     seed: u64,
     load_ms: f64,
     build_ms: f64,
+    /// Bytes of the acceleration structure (BVH nodes and leaf triangles;
+    /// for Embree, what its memory monitor reports the build left allocated).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    memory_bytes: Option<usize>,
     render_ms: f64,
     rays: RayCounts,
     /// Time spent in each pass, summed over threads (includes that pass's shading).
@@ -1003,6 +1007,7 @@ fn run_render(args: &RenderArgs) -> Result<()> {
             seed: settings.seed,
             load_ms: ms(load_time),
             build_ms: ms(backend.build_time()),
+            memory_bytes: backend.memory_bytes(),
             render_ms: ms(render_time),
             rays: RayCounts {
                 primary: stats.primary_rays,

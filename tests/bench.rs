@@ -128,15 +128,15 @@ fn quick_bench_runs_every_experiment() {
     let len = |k: &str| json[k].as_array().map_or(0, Vec::len);
     // Thread scaling: each parallel variant on 1..N threads and 2N.
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let scaling_variants = if embree() { 4 } else { 2 };
+    let scaling_variants = if embree() { 5 } else { 3 };
     assert_eq!(len("scaling"), scaling_variants * (threads + 1));
     for p in json["scaling"].as_array().unwrap() {
         if p["threads"] == 1 {
             assert!((p["speedup"].as_f64().unwrap() - 1.0).abs() < 1e-9);
         }
     }
-    // Cost growth: 2 mesh sizes x (naive, median, sah, sah 4-wide, embree).
-    assert_eq!(len("growth"), 2 * if embree() { 5 } else { 4 });
+    // Cost growth: 2 mesh sizes x (naive, median, sah, sah 4-wide, sah 8-wide, embree).
+    assert_eq!(len("growth"), 2 * if embree() { 6 } else { 5 });
     // AO error: paper and cosine:1,4,16 on two scenes; more samples, less error.
     let ao = json["ao_error"].as_array().unwrap();
     assert_eq!(ao.len(), 2 * 4);
@@ -173,15 +173,21 @@ fn quick_bench_runs_every_experiment() {
 #[test]
 fn quick_bench_draws_charts_and_images() {
     let (dir, _) = quick_report();
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let trace_n = format!("trace-{threads}t");
     let mut charts = vec![
         "speedup-ao-off",
         "speedup-ao-paper",
+        "trace-1t",
         "thread-scaling",
         "cost-growth",
         "ao-error",
         "builders",
         "leaks",
     ];
+    if threads > 1 {
+        charts.push(&trace_n);
+    }
     charts.sort();
     for c in charts {
         let png = image::open(dir.join("charts").join(format!("{c}.png")))

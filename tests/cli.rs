@@ -205,7 +205,8 @@ fn intersector_flag_selects_the_watertight_test() {
         String::from_utf8_lossy(&out.stderr)
     );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!(v["backend"], "bvh4-sah-watertight");
+    // The default tree is the 8-wide one, the fastest.
+    assert_eq!(v["backend"], "bvh8-sah-watertight");
     std::fs::remove_dir_all(&d).ok();
 }
 

@@ -32,6 +32,12 @@ pub trait Backend: Send + Sync {
     /// Whether anything is hit within `(ray.tmin, ray.tmax)`.
     fn occluded(&self, ray: &Ray) -> bool;
 
+    /// Bytes of the acceleration structure (nodes and leaf data, as the
+    /// backend holds them), when it has one to speak of.
+    fn memory_bytes(&self) -> Option<usize> {
+        None
+    }
+
     /// Whether render threads should flush denormals while tracing (Embree asks
     /// for it; the schedules set and restore it per work unit).
     fn flushes_denormals(&self) -> bool {

@@ -12,6 +12,7 @@ use plotters::style::text_anchor::{HPos, Pos, VPos};
 use super::extras::{AoErrorPoint, BuilderPoint, GrowthPoint, ScalingPoint};
 use super::measure::Measurement;
 use super::tables::speedup;
+use super::trace::TracePoint;
 use crate::error::{Error, Result};
 use crate::stress::LeakRow;
 
@@ -273,6 +274,90 @@ where
             (px, py + 23),
             style,
         ))?;
+    }
+    root.present()?;
+    Ok(())
+}
+
+/// Query throughput per scene and ray kind on one thread count, one bar per
+/// backend (log scale), so each of raylab's trees stands beside Embree.
+pub struct TraceData<'a> {
+    pub points: &'a [TracePoint],
+    pub threads: usize,
+}
+
+pub fn trace_chart(dir: &Path, data: &TraceData) -> Result<String> {
+    let name = format!("trace-{}t", data.threads);
+    save_chart!(dir, &name, (1200, 560), draw_trace, data)
+}
+
+fn draw_trace<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, d: &TraceData) -> DrawResult
+where
+    DB::ErrorType: 'static,
+{
+    root.fill(&WHITE)?;
+    let here: Vec<&TracePoint> = d.points.iter().filter(|p| p.threads == d.threads).collect();
+    let mut groups: Vec<(String, String, usize)> = Vec::new();
+    let mut backends: Vec<String> = Vec::new();
+    for p in &here {
+        if !groups.iter().any(|(s, k, _)| *s == p.scene && *k == p.kind) {
+            groups.push((p.scene.clone(), p.kind.clone(), p.triangles));
+        }
+        if !backends.contains(&p.backend) {
+            backends.push(p.backend.clone());
+        }
+    }
+    let y = log_range(here.iter().map(|p| p.mrays.median));
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            format!(
+                "Query throughput without shading, {} thread{} (median Mrays/s)",
+                d.threads,
+                if d.threads == 1 { "" } else { "s" }
+            ),
+            (FONT, 22),
+        )
+        .margin(12)
+        .x_label_area_size(50)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0f64..groups.len().max(1) as f64, y.clone().log_scale())?;
+    chart
+        .configure_mesh()
+        .disable_x_mesh()
+        .x_labels(0)
+        .x_label_formatter(&|_| String::new())
+        .y_desc("Mrays/s (log)")
+        .y_label_formatter(&log_label)
+        .draw()?;
+    let width = 0.8 / backends.len().max(1) as f64;
+    for (bi, backend) in backends.iter().enumerate() {
+        let c = color(bi);
+        let bars: Vec<Rectangle<(f64, f64)>> = groups
+            .iter()
+            .enumerate()
+            .filter_map(|(gi, (scene, kind, _))| {
+                let p = here
+                    .iter()
+                    .find(|p| p.backend == *backend && p.scene == *scene && p.kind == *kind)?;
+                let x0 = gi as f64 + 0.1 + bi as f64 * width;
+                Some(Rectangle::new(
+                    [(x0, y.start), (x0 + width * 0.9, p.mrays.median)],
+                    c.filled(),
+                ))
+            })
+            .collect();
+        chart
+            .draw_series(bars)?
+            .label(backend.as_str())
+            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 12, y + 5)], c.filled()));
+    }
+    legend(&mut chart, SeriesLabelPosition::UpperRight)?;
+    for (gi, (scene, kind, _)) in groups.iter().enumerate() {
+        let (px, py) = chart.backend_coord(&(gi as f64 + 0.5, y.start));
+        let style = TextStyle::from((FONT, 13).into_font()).pos(Pos::new(HPos::Center, VPos::Top));
+        let short = scene.strip_prefix("cornell-").unwrap_or(scene);
+        root.draw(&Text::new(short.to_string(), (px, py + 6), style.clone()))?;
+        root.draw(&Text::new(kind.clone(), (px, py + 23), style))?;
     }
     root.present()?;
     Ok(())

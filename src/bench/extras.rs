@@ -59,13 +59,14 @@ pub struct ScalingPoint {
     pub speedup: f64,
 }
 
-/// The variants whose render time is measured on 1..N threads: the binary and
-/// 4-wide SAH BVHs and Embree, over the locked tile queue (and Embree's also
-/// over rayon).
+/// The variants whose render time is measured on 1..N threads: the binary,
+/// 4-wide and 8-wide SAH BVHs and Embree, over the locked tile queue (and
+/// Embree's also over rayon).
 pub fn scaling_variants() -> Vec<Variant> {
     [
         "bvh-sah-tiles",
         "bvh4-sah-tiles",
+        "bvh8-sah-tiles",
         "embree-tiles",
         "embree-rayon",
     ]
@@ -137,12 +138,13 @@ pub struct GrowthPoint {
 }
 
 /// The backends of the cost-growth chart.
-fn growth_variants() -> Vec<Variant> {
+pub fn growth_variants() -> Vec<Variant> {
     [
         "naive-tiles",
         "bvh-median-pbuild-tiles",
         "bvh-sah-tiles",
         "bvh4-sah-tiles",
+        "bvh8-sah-tiles",
         "embree-tiles",
     ]
     .iter()

@@ -60,7 +60,7 @@ impl BenchConfig {
         if self.quick {
             vec![1_000, 10_000]
         } else {
-            vec![1_000, 10_000, 100_000, 1_000_000]
+            vec![1_000, 10_000, 100_000, 1_000_000, 10_000_000]
         }
     }
 
@@ -234,7 +234,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
         steps += extras::scaling_variants().len() as u64;
     }
     if cfg.wants("growth") {
-        steps += (cfg.growth_sizes().len() * 5) as u64;
+        steps += (cfg.growth_sizes().len() * extras::growth_variants().len()) as u64;
     }
     if cfg.wants("ao-error") {
         steps += (last_two.len() * (ao_n.len() + 2)) as u64;
@@ -460,6 +460,17 @@ fn write_charts(dir: &Path, r: &BenchReport) -> Result<Vec<String>> {
                 },
             )?);
         }
+    }
+    let mut trace_threads: Vec<usize> = r.trace.iter().map(|p| p.threads).collect();
+    trace_threads.dedup();
+    for threads in trace_threads {
+        push(charts::trace_chart(
+            dir,
+            &charts::TraceData {
+                points: &r.trace,
+                threads,
+            },
+        )?);
     }
     if !r.scaling.is_empty() {
         push(charts::scaling_chart(dir, &r.scaling)?);

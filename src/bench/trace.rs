@@ -45,6 +45,8 @@ pub struct TracePoint {
     pub differing: usize,
     /// Build time of the backend (ms, once, on the largest thread count).
     pub build_ms: f64,
+    /// Bytes of its acceleration structure ([`Backend::memory_bytes`]).
+    pub memory_bytes: Option<usize>,
 }
 
 /// What a query answered, comparable across backends: the hit triangle and the
@@ -252,6 +254,7 @@ pub fn trace_backends(
                     mrays: Stat::of(&rates[bi][ti]),
                     differing: differing[bi],
                     build_ms: *build_ms,
+                    memory_bytes: b.memory_bytes(),
                 });
             }
         }
@@ -326,6 +329,21 @@ pub fn markdown(points: &[TracePoint]) -> String {
         }
         out.push('\n');
     }
+    out.push_str("\nBuild (once, on the largest thread count) and memory of each backend:\n\n| scene | backend | build ms | bytes/triangle |\n|---|---|---:|---:|\n");
+    let mut seen: Vec<(&str, &str)> = Vec::new();
+    for p in points {
+        if seen.contains(&(p.scene.as_str(), p.backend.as_str())) {
+            continue;
+        }
+        seen.push((&p.scene, &p.backend));
+        let bytes = p.memory_bytes.map_or("-".to_string(), |b| {
+            format!("{:.1}", b as f64 / p.triangles.max(1) as f64)
+        });
+        out.push_str(&format!(
+            "| {} | {} | {:.1} | {bytes} |\n",
+            p.scene, p.backend, p.build_ms
+        ));
+    }
     out.push('\n');
     out
 }
@@ -387,6 +405,8 @@ mod tests {
         }
         let md = markdown(&points);
         assert!(md.contains("| cornell-sphere | 2188 | ao ("), "{md}");
+        assert!(md.contains("| cornell-sphere | bvh8-sah |"), "{md}");
+        assert!(points.iter().all(|p| p.memory_bytes.is_some_and(|b| b > 0)));
         assert!(
             !md.contains("own/Embree"),
             "no Embree column without Embree: {md}"

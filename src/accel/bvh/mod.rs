@@ -233,6 +233,10 @@ impl Backend for BvhBackend {
         self.build_time
     }
 
+    fn memory_bytes(&self) -> Option<usize> {
+        Some(self.tree.memory_bytes())
+    }
+
     #[inline]
     fn intersect(&self, ray: &Ray) -> Option<Hit> {
         self.tree.intersect_using(ray, self.intersector)

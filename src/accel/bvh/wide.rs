@@ -122,9 +122,11 @@ fn for_leaf_blocks(child: u32, mut f: impl FnMut(usize, u32) -> bool) -> bool {
 }
 
 /// `N` children: their boxes as rows by axis and bound, and what each holds.
-/// 128 bytes for `N = 4`, 256 for `N = 8`: whole cache lines.
+/// 128 bytes for `N = 4`, 224 for `N = 8`: aligned to 32 bytes, so every row
+/// is one aligned AVX load; a 224-byte node spans four cache lines wherever it
+/// starts, as a 256-byte one would, with 12.5% less memory.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[repr(C, align(64))]
+#[repr(C, align(32))]
 pub struct WideNode<const N: usize> {
     /// Rows `min_x, max_x, min_y, max_y, min_z, max_z`, one lane per child.
     pub bounds: [[f32; N]; 6],
@@ -593,10 +595,10 @@ mod tests {
     }
 
     #[test]
-    fn nodes_are_whole_cache_lines() {
+    fn nodes_have_no_padding_beyond_row_alignment() {
         assert_eq!(std::mem::size_of::<WideNode<4>>(), 128);
-        assert_eq!(std::mem::size_of::<WideNode<8>>(), 256);
-        assert_eq!(std::mem::align_of::<WideNode<8>>(), 64);
+        assert_eq!(std::mem::size_of::<WideNode<8>>(), 224);
+        assert_eq!(std::mem::align_of::<WideNode<8>>(), 32);
         assert_eq!(std::mem::size_of::<Tri4>(), 160);
     }
 

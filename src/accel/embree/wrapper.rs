@@ -3,6 +3,7 @@
 //! and the [`EmbreeBackend`] that renders through the shared loop.
 
 use std::ffi::{c_char, c_void, CStr, CString};
+use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -23,6 +24,9 @@ pub struct Device {
     /// Boxed so its address, given to Embree as the callback's user pointer,
     /// stays fixed; it outlives the device because `Drop` releases the device first.
     errors: Box<ErrorLog>,
+    /// Bytes Embree holds for this device, as its memory monitor reports them
+    /// (boxed for a fixed address, as `errors`).
+    memory: Box<AtomicI64>,
 }
 
 // SAFETY: Embree devices are thread-safe (its API may be called on one device
@@ -47,6 +51,14 @@ unsafe extern "C" fn record_error(user: *mut c_void, code: ffi::RTCError, messag
     }
 }
 
+unsafe extern "C" fn record_memory(user: *mut c_void, bytes: isize, _post: bool) -> bool {
+    // SAFETY: `user` is the counter boxed in the `Device`, alive while the device is.
+    let memory = unsafe { &*(user as *const AtomicI64) };
+    memory.fetch_add(bytes as i64, Ordering::Relaxed);
+    // Never refuse an allocation.
+    true
+}
+
 impl Device {
     /// A device with Embree's `config` string (e.g. `"threads=2"`).
     pub fn new(config: &str) -> Result<Arc<Device>> {
@@ -64,12 +76,23 @@ impl Device {
         let device = Device {
             raw,
             errors: Box::new(Mutex::new(Vec::new())),
+            memory: Box::new(AtomicI64::new(0)),
         };
         let user = &*device.errors as *const ErrorLog as *mut c_void;
-        // SAFETY: `raw` is a live device; `user` points to the boxed log that lives
-        // until after the device is released (see `Drop`).
-        unsafe { ffi::rtcSetDeviceErrorFunction(raw, Some(record_error), user) };
+        let counter = &*device.memory as *const AtomicI64 as *mut c_void;
+        // SAFETY: `raw` is a live device; `user` and `counter` point to boxed
+        // values that live until after the device is released (see `Drop`).
+        unsafe {
+            ffi::rtcSetDeviceErrorFunction(raw, Some(record_error), user);
+            ffi::rtcSetDeviceMemoryMonitorFunction(raw, Some(record_memory), counter);
+        }
         Ok(Arc::new(device))
+    }
+
+    /// Bytes Embree holds for this device now (its memory monitor's sum of
+    /// allocations and frees since the device was made).
+    pub fn memory_bytes(&self) -> i64 {
+        self.memory.load(Ordering::Relaxed)
     }
 
     /// Turns the device's pending error, if any, into an `Err` naming `what`.
@@ -122,6 +145,9 @@ pub fn version() -> String {
 /// A committed Embree scene holding one triangle mesh.
 pub struct EmbreeScene {
     raw: ffi::RTCScene,
+    /// What the scene build (rtcCommitScene) left allocated: the BVH with its
+    /// leaf primitives, as Embree's memory monitor counts it.
+    bvh_bytes: usize,
     /// Held, never read: the device (and the error log its callback writes to)
     /// must outlive every scene made on it.
     _device: Arc<Device>,
@@ -155,8 +181,9 @@ impl EmbreeScene {
         let raw_device = device.raw();
         // SAFETY: a live device.
         let scene = unsafe { ffi::rtcNewScene(raw_device) };
-        let this = EmbreeScene {
+        let mut this = EmbreeScene {
             raw: scene,
+            bvh_bytes: 0,
             _device: device.clone(),
         };
         device.check("rtcNewScene")?;
@@ -231,10 +258,20 @@ impl EmbreeScene {
             ffi::rtcCommitGeometry(geometry);
             ffi::rtcAttachGeometry(scene, geometry);
             ffi::rtcReleaseGeometry(geometry);
-            ffi::rtcCommitScene(scene);
         }
+        let before = device.memory_bytes();
+        // SAFETY: a live scene with its geometry attached.
+        unsafe { ffi::rtcCommitScene(scene) };
         device.check("rtcCommitScene")?;
+        this.bvh_bytes = (device.memory_bytes() - before).max(0) as usize;
         Ok(this)
+    }
+
+    /// Bytes of the acceleration structure (nodes and leaf primitives), as
+    /// Embree's own memory monitor reports what the build left allocated; the
+    /// vertex and index buffers are not counted.
+    pub fn bvh_bytes(&self) -> usize {
+        self.bvh_bytes
     }
 
     #[inline]
@@ -307,6 +344,11 @@ pub struct EmbreeBackend {
 }
 
 impl EmbreeBackend {
+    /// Bytes of Embree's acceleration structure ([`EmbreeScene::bvh_bytes`]).
+    pub fn memory_bytes(&self) -> usize {
+        self.scene.bvh_bytes()
+    }
+
     /// Builds on a device with `threads` build threads; the build time covers
     /// device creation, buffer copies and the BVH build.
     pub fn new(scene: &Scene, quality: Quality, robust: bool, threads: usize) -> Result<Self> {
@@ -343,6 +385,10 @@ impl Backend for EmbreeBackend {
 
     fn build_time(&self) -> Duration {
         self.build_time
+    }
+
+    fn memory_bytes(&self) -> Option<usize> {
+        Some(self.scene.bvh_bytes())
     }
 
     #[inline]
