@@ -311,6 +311,12 @@ pub struct BuilderPoint {
     pub bytes_per_triangle: f64,
     /// Render time with the tiles schedule (median).
     pub render_ms: Stat,
+    /// The same builder's 8-wide tree (what `--backend bvh` traverses; leaf
+    /// tests in pairs): build time as the renderer builds it, SAH cost under
+    /// that block model, and memory.
+    pub wide8_build_ms: f64,
+    pub wide8_sah_cost: f64,
+    pub wide8_bytes_per_triangle: f64,
 }
 
 /// The builders compared (Embree's only when built in).
@@ -355,6 +361,9 @@ pub fn builder_quality(
             triangles_per_ray: per_ray(|w| w.triangles_per_ray),
             bytes_per_triangle: report.tree.bytes_per_triangle,
             render_ms,
+            wide8_build_ms: report.wide8.build_ms,
+            wide8_sah_cost: report.wide8.sah_cost,
+            wide8_bytes_per_triangle: report.wide8.bytes_per_triangle,
         });
     }
     Ok(out)

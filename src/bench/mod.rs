@@ -566,10 +566,10 @@ pub fn markdown(r: &BenchReport) -> String {
         out.push('\n');
     }
     if !r.builders.is_empty() {
-        out.push_str("### Builder quality\n\n| scene | builder | build ms | SAH cost | nodes/ray | tris/ray | bytes/tri | render ms |\n|---|---|---:|---:|---:|---:|---:|---:|\n");
+        out.push_str("### Builder quality\n\nBinary trees, and each builder's 8-wide tree (leaf tests counted in pairs).\n\n| scene | builder | build ms | SAH cost | nodes/ray | tris/ray | bytes/tri | render ms | 8-wide build ms | 8-wide SAH cost | 8-wide bytes/tri |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
         for p in &r.builders {
             out.push_str(&format!(
-                "| {} | {} | {:.2} | {:.2} | {:.1} | {:.1} | {:.1} | {:.1} |\n",
+                "| {} | {} | {:.2} | {:.2} | {:.1} | {:.1} | {:.1} | {:.1} | {:.2} | {:.2} | {:.1} |\n",
                 p.scene,
                 p.builder,
                 p.build_ms,
@@ -577,7 +577,10 @@ pub fn markdown(r: &BenchReport) -> String {
                 p.nodes_per_ray,
                 p.triangles_per_ray,
                 p.bytes_per_triangle,
-                p.render_ms.median
+                p.render_ms.median,
+                p.wide8_build_ms,
+                p.wide8_sah_cost,
+                p.wide8_bytes_per_triangle
             ));
         }
         out.push('\n');
