@@ -5,7 +5,7 @@
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::Vec3;
-use raylab::accel::bvh::{BuildParams, Bvh};
+use raylab::accel::bvh::BuildParams;
 use raylab::accel::naive::Naive;
 use raylab::accel::Backend;
 use raylab::camera::Camera;
@@ -110,6 +110,20 @@ fn ray_triangle(c: &mut Criterion) {
                 .count()
         })
     });
+    // The same test on a block of four triangles at once (the wide trees' leaf
+    // test); throughput counts rays, so divide by four for per-triangle cost.
+    let block = raylab::accel::bvh::leaf::Tri4::new(&[tri; 4], &[0, 1, 2, 3]);
+    g.bench_function("moller_trumbore_simd_block_of_4", |b| {
+        b.iter(|| {
+            rays.iter()
+                .filter(|r| {
+                    let r = std::hint::black_box(*r);
+                    let r4 = raylab::accel::bvh::leaf::Ray4::new(r);
+                    raylab::accel::bvh::leaf::intersect4(&r4, r.tmin, r.tmax, &block).mask != 0
+                })
+                .count()
+        })
+    });
     g.bench_function("watertight", |b| {
         b.iter(|| {
             rays.iter()
@@ -124,13 +138,18 @@ fn ray_triangle(c: &mut Criterion) {
 }
 
 /// The backends compared on one scene: naive (only where it finishes in
-/// reasonable time), both BVH builders and Embree.
+/// reasonable time), both BVH builders, the SAH tree 4- and 8-wide, and Embree.
 fn backends(scene: &raylab::scene::Scene, with_naive: bool) -> Vec<(String, Box<dyn Backend>)> {
     let mut out: Vec<(String, Box<dyn Backend>)> = Vec::new();
     if with_naive {
         out.push(("naive".into(), Box::new(Naive::new(scene))));
     }
-    for params in [BuildParams::median(), BuildParams::sah()] {
+    for params in [
+        BuildParams::median(),
+        BuildParams::sah(),
+        BuildParams::sah().with_width(4),
+        BuildParams::sah().with_width(8),
+    ] {
         let b = raylab::accel::bvh::BvhBackend::new(scene, &params).unwrap();
         out.push((b.name(), Box::new(b)));
     }
@@ -187,7 +206,11 @@ fn bvh_builds(c: &mut Criterion) {
     for n in [1_000u64, 10_000, 100_000] {
         let tris = builtin(&format!("mesh:{n}")).unwrap().triangle_vertices();
         g.throughput(Throughput::Elements(tris.len() as u64));
-        let mut builders = vec![BuildParams::median(), BuildParams::sah()];
+        let mut builders = vec![
+            BuildParams::median(),
+            BuildParams::sah(),
+            BuildParams::sah().with_width(8),
+        ];
         if raylab::accel::embree::AVAILABLE {
             // Embree's builder (rtcBuildBVH) into our layout, and Embree's own scene build.
             builders.push(BuildParams::for_builder(
@@ -197,9 +220,15 @@ fn bvh_builds(c: &mut Criterion) {
         for params in builders {
             for threads in [1, 2] {
                 let p = params.with_threads(threads);
-                let id = format!("{}-{threads}t", params.builder.name());
+                let wide = if p.width > 2 {
+                    format!("-{}wide", p.width)
+                } else {
+                    String::new()
+                };
+                let id = format!("{}{wide}-{threads}t", params.builder.name());
                 g.bench_with_input(BenchmarkId::new(id, n), &tris, |b, tris| {
-                    b.iter(|| Bvh::build(tris, &p).unwrap())
+                    // The tree the renderer traverses (wide trees built directly).
+                    b.iter(|| raylab::accel::bvh::Tree::build(tris, &p).unwrap())
                 });
             }
         }
