@@ -105,16 +105,7 @@ pub fn builder_report(
     let (serial_time, serial) = timed_build(&triangles, &params.with_threads(1), reps)?;
     let (parallel_time, parallel) = timed_build(&triangles, &params.with_threads(threads), reps)?;
     let deterministic = serial.nodes == parallel.nodes && serial.tri_ids == parallel.tri_ids;
-    let tracer = CountingTracer::new(&parallel);
-    render(
-        scene,
-        &tracer,
-        settings,
-        Schedule::Rayon,
-        threads,
-        &Progress::new(),
-    )?;
-    let (primary, shadow, ao) = tracer.work();
+    let (primary, shadow, ao) = counted_work(scene, &parallel, settings, threads)?;
     let wide4 = wide_report::<4>(scene, &triangles, params, settings, threads, reps)?;
     let wide8 = wide_report::<8>(scene, &triangles, params, settings, threads, reps)?;
     Ok(BuilderReport {
@@ -134,6 +125,26 @@ pub fn builder_report(
         wide4,
         wide8,
     })
+}
+
+/// Traversal work of `tree` per ray kind (primary, shadow, AO) over a render
+/// of `scene` with `settings` through the shared shading loop.
+fn counted_work<B: Traversal + Sync>(
+    scene: &Scene,
+    tree: &B,
+    settings: &RenderSettings,
+    threads: usize,
+) -> Result<(KindWork, KindWork, KindWork)> {
+    let tracer = CountingTracer::new(tree);
+    render(
+        scene,
+        &tracer,
+        settings,
+        Schedule::Rayon,
+        threads,
+        &Progress::new(),
+    )?;
+    Ok(tracer.work())
 }
 
 /// Builds the tree `--bvh-width N` traverses and counts its traversal work
@@ -167,16 +178,7 @@ where
         scene.triangle_count(),
         params.sah_block,
     );
-    let tracer = CountingTracer::new(&wide);
-    render(
-        scene,
-        &tracer,
-        settings,
-        Schedule::Rayon,
-        threads,
-        &Progress::new(),
-    )?;
-    let (primary, shadow, ao) = tracer.work();
+    let (primary, shadow, ao) = counted_work(scene, &wide, settings, threads)?;
     let lanes = wide.blocks.len() * crate::accel::bvh::leaf::LANES;
     Ok(WideReport {
         width: N,

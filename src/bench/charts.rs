@@ -197,7 +197,6 @@ fn draw_speedup<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, d: &SpeedupDat
 where
     DB::ErrorType: 'static,
 {
-    root.fill(&WHITE)?;
     let here: Vec<&Measurement> = d.ms.iter().filter(|m| m.ao == d.ao).collect();
     let mut groups: Vec<(String, String, usize)> = Vec::new();
     let mut variants: Vec<String> = Vec::new();
@@ -209,71 +208,115 @@ where
             variants.push(m.variant.clone());
         }
     }
+    let series = variants
+        .into_iter()
+        .map(|variant| {
+            let values = groups
+                .iter()
+                .map(|(scene, view, _)| {
+                    let m = here
+                        .iter()
+                        .find(|m| m.variant == variant && m.scene == *scene && m.view == *view)?;
+                    speedup(d.ms, m)
+                })
+                .collect();
+            (variant, values)
+        })
+        .collect();
     let values: Vec<f64> = here.iter().filter_map(|m| speedup(d.ms, m)).collect();
     let y = log_range(values.iter().copied().chain([1.0]));
-    let y = (y.start.min(0.5))..y.end;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            format!(
+    let speedup_label = |v: &f64| {
+        let l = log_label(v);
+        if l.is_empty() {
+            l
+        } else {
+            format!("{l}x")
+        }
+    };
+    draw_bars(
+        root,
+        &Bars {
+            caption: format!(
                 "Speedup over {} (total time, median), AO {}",
                 super::tables::baseline_name(d.ms),
                 d.ao
             ),
-            (FONT, 22),
-        )
+            y_desc: "speedup (log)",
+            groups: groups
+                .iter()
+                .map(|(scene, view, tris)| (short(scene), format!("{tris} tris {view}")))
+                .collect(),
+            series,
+            y: (y.start.min(0.5))..y.end,
+            y_label: &speedup_label,
+            legend: SeriesLabelPosition::UpperLeft,
+        },
+    )
+}
+
+/// A scene name without the `cornell-` prefix, for labels under bars.
+fn short(scene: &str) -> String {
+    scene.strip_prefix("cornell-").unwrap_or(scene).to_string()
+}
+
+/// A grouped bar chart on a log axis: one group per entry of `groups` (two
+/// label lines under it), one coloured bar per series in each group where
+/// the series has a value.
+struct Bars<'a> {
+    caption: String,
+    y_desc: &'a str,
+    groups: Vec<(String, String)>,
+    series: Vec<(String, Vec<Option<f64>>)>,
+    y: std::ops::Range<f64>,
+    y_label: &'a dyn Fn(&f64) -> String,
+    legend: SeriesLabelPosition,
+}
+
+fn draw_bars<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, b: &Bars) -> DrawResult
+where
+    DB::ErrorType: 'static,
+{
+    root.fill(&WHITE)?;
+    let y = b.y.clone();
+    let mut chart = ChartBuilder::on(&root)
+        .caption(&b.caption, (FONT, 22))
         .margin(12)
         .x_label_area_size(50)
         .y_label_area_size(60)
-        .build_cartesian_2d(0f64..groups.len().max(1) as f64, y.clone().log_scale())?;
+        .build_cartesian_2d(0f64..b.groups.len().max(1) as f64, y.clone().log_scale())?;
     chart
         .configure_mesh()
         .disable_x_mesh()
         .x_labels(0)
         .x_label_formatter(&|_| String::new())
-        .y_desc("speedup (log)")
-        .y_label_formatter(&|v| {
-            let l = log_label(v);
-            if l.is_empty() {
-                l
-            } else {
-                format!("{l}x")
-            }
-        })
+        .y_desc(b.y_desc)
+        .y_label_formatter(b.y_label)
         .draw()?;
-    let width = 0.8 / variants.len().max(1) as f64;
-    for (vi, variant) in variants.iter().enumerate() {
-        let c = color(vi);
-        let bars: Vec<Rectangle<(f64, f64)>> = groups
+    let width = 0.8 / b.series.len().max(1) as f64;
+    for (si, (name, values)) in b.series.iter().enumerate() {
+        let c = color(si);
+        let bars: Vec<Rectangle<(f64, f64)>> = values
             .iter()
             .enumerate()
-            .filter_map(|(gi, (scene, view, _))| {
-                let m = here
-                    .iter()
-                    .find(|m| m.variant == *variant && m.scene == *scene && m.view == *view)?;
-                let s = speedup(d.ms, m)?;
-                let x0 = gi as f64 + 0.1 + vi as f64 * width;
+            .filter_map(|(gi, v)| {
+                let x0 = gi as f64 + 0.1 + si as f64 * width;
                 Some(Rectangle::new(
-                    [(x0, y.start), (x0 + width * 0.9, s)],
+                    [(x0, y.start), (x0 + width * 0.9, (*v)?)],
                     c.filled(),
                 ))
             })
             .collect();
         chart
             .draw_series(bars)?
-            .label(variant.as_str())
+            .label(name.as_str())
             .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 12, y + 5)], c.filled()));
     }
-    legend(&mut chart, SeriesLabelPosition::UpperLeft)?;
-    for (gi, (scene, view, tris)) in groups.iter().enumerate() {
+    legend(&mut chart, b.legend.clone())?;
+    for (gi, (first, second)) in b.groups.iter().enumerate() {
         let (px, py) = chart.backend_coord(&(gi as f64 + 0.5, y.start));
         let style = TextStyle::from((FONT, 13).into_font()).pos(Pos::new(HPos::Center, VPos::Top));
-        let short = scene.strip_prefix("cornell-").unwrap_or(scene);
-        root.draw(&Text::new(short.to_string(), (px, py + 6), style.clone()))?;
-        root.draw(&Text::new(
-            format!("{tris} tris {view}"),
-            (px, py + 23),
-            style,
-        ))?;
+        root.draw(&Text::new(first.clone(), (px, py + 6), style.clone()))?;
+        root.draw(&Text::new(second.clone(), (px, py + 23), style))?;
     }
     root.present()?;
     Ok(())
@@ -295,72 +338,50 @@ fn draw_trace<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, d: &TraceData) -
 where
     DB::ErrorType: 'static,
 {
-    root.fill(&WHITE)?;
     let here: Vec<&TracePoint> = d.points.iter().filter(|p| p.threads == d.threads).collect();
-    let mut groups: Vec<(String, String, usize)> = Vec::new();
+    let mut groups: Vec<(String, String)> = Vec::new();
     let mut backends: Vec<String> = Vec::new();
     for p in &here {
-        if !groups.iter().any(|(s, k, _)| *s == p.scene && *k == p.kind) {
-            groups.push((p.scene.clone(), p.kind.clone(), p.triangles));
+        if !groups.iter().any(|(s, k)| *s == p.scene && *k == p.kind) {
+            groups.push((p.scene.clone(), p.kind.clone()));
         }
         if !backends.contains(&p.backend) {
             backends.push(p.backend.clone());
         }
     }
-    let y = log_range(here.iter().map(|p| p.mrays.median));
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            format!(
+    let series = backends
+        .into_iter()
+        .map(|backend| {
+            let values = groups
+                .iter()
+                .map(|(scene, kind)| {
+                    here.iter()
+                        .find(|p| p.backend == backend && p.scene == *scene && p.kind == *kind)
+                        .map(|p| p.mrays.median)
+                })
+                .collect();
+            (backend, values)
+        })
+        .collect();
+    draw_bars(
+        root,
+        &Bars {
+            caption: format!(
                 "Query throughput without shading, {} thread{} (median Mrays/s)",
                 d.threads,
                 if d.threads == 1 { "" } else { "s" }
             ),
-            (FONT, 22),
-        )
-        .margin(12)
-        .x_label_area_size(50)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0f64..groups.len().max(1) as f64, y.clone().log_scale())?;
-    chart
-        .configure_mesh()
-        .disable_x_mesh()
-        .x_labels(0)
-        .x_label_formatter(&|_| String::new())
-        .y_desc("Mrays/s (log)")
-        .y_label_formatter(&log_label)
-        .draw()?;
-    let width = 0.8 / backends.len().max(1) as f64;
-    for (bi, backend) in backends.iter().enumerate() {
-        let c = color(bi);
-        let bars: Vec<Rectangle<(f64, f64)>> = groups
-            .iter()
-            .enumerate()
-            .filter_map(|(gi, (scene, kind, _))| {
-                let p = here
-                    .iter()
-                    .find(|p| p.backend == *backend && p.scene == *scene && p.kind == *kind)?;
-                let x0 = gi as f64 + 0.1 + bi as f64 * width;
-                Some(Rectangle::new(
-                    [(x0, y.start), (x0 + width * 0.9, p.mrays.median)],
-                    c.filled(),
-                ))
-            })
-            .collect();
-        chart
-            .draw_series(bars)?
-            .label(backend.as_str())
-            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 12, y + 5)], c.filled()));
-    }
-    legend(&mut chart, SeriesLabelPosition::UpperRight)?;
-    for (gi, (scene, kind, _)) in groups.iter().enumerate() {
-        let (px, py) = chart.backend_coord(&(gi as f64 + 0.5, y.start));
-        let style = TextStyle::from((FONT, 13).into_font()).pos(Pos::new(HPos::Center, VPos::Top));
-        let short = scene.strip_prefix("cornell-").unwrap_or(scene);
-        root.draw(&Text::new(short.to_string(), (px, py + 6), style.clone()))?;
-        root.draw(&Text::new(kind.clone(), (px, py + 23), style))?;
-    }
-    root.present()?;
-    Ok(())
+            y_desc: "Mrays/s (log)",
+            groups: groups
+                .iter()
+                .map(|(scene, kind)| (short(scene), kind.clone()))
+                .collect(),
+            series,
+            y: log_range(here.iter().map(|p| p.mrays.median)),
+            y_label: &log_label,
+            legend: SeriesLabelPosition::UpperRight,
+        },
+    )
 }
 
 pub fn scaling_chart(dir: &Path, points: &[ScalingPoint]) -> Result<String> {

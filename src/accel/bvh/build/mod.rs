@@ -170,25 +170,15 @@ pub trait Triangles: Sync {
     fn get(&self, i: usize) -> [Vec3; 3];
 }
 
-impl Triangles for [[Vec3; 3]] {
+/// Slices and vectors of vertex triples.
+impl<L: AsRef<[[Vec3; 3]]> + Sync + ?Sized> Triangles for L {
     #[inline]
     fn count(&self) -> usize {
-        self.len()
+        self.as_ref().len()
     }
     #[inline]
     fn get(&self, i: usize) -> [Vec3; 3] {
-        self[i]
-    }
-}
-
-impl Triangles for Vec<[Vec3; 3]> {
-    #[inline]
-    fn count(&self) -> usize {
-        self.len()
-    }
-    #[inline]
-    fn get(&self, i: usize) -> [Vec3; 3] {
-        self[i]
+        self.as_ref()[i]
     }
 }
 
@@ -642,24 +632,9 @@ fn recurse<S: Splitter>(
     };
     let (lp, rp) = prims.split_at_mut(mid);
     let (ln, rn) = nodes[1..].split_at_mut(2 * mid - 1);
-    if parallel && n >= PARALLEL_CUTOFF {
-        rayon::join(
-            || recurse(lp, start, left, depth + 1, splitter, true, base + 1, ln),
-            || {
-                recurse(
-                    rp,
-                    start + mid,
-                    right,
-                    depth + 1,
-                    splitter,
-                    true,
-                    right_base,
-                    rn,
-                )
-            },
-        );
-    } else {
-        recurse(lp, start, left, depth + 1, splitter, parallel, base + 1, ln);
+    let mut left_job =
+        move || recurse(lp, start, left, depth + 1, splitter, parallel, base + 1, ln);
+    let mut right_job = move || {
         recurse(
             rp,
             start + mid,
@@ -669,7 +644,13 @@ fn recurse<S: Splitter>(
             parallel,
             right_base,
             rn,
-        );
+        )
+    };
+    if parallel && n >= PARALLEL_CUTOFF {
+        rayon::join(left_job, right_job);
+    } else {
+        left_job();
+        right_job();
     }
 }
 
