@@ -28,7 +28,7 @@ use crate::geometry::{safe_reciprocal, Aabb, Hit, Ray};
 /// `child` of an unused lane.
 pub const EMPTY: u32 = u32::MAX;
 /// Set in `child` for a leaf lane.
-const LEAF: u32 = 1 << 31;
+pub(crate) const LEAF: u32 = 1 << 31;
 /// A leaf reference holds the leaf's first triangle slot (block * 4 + lane)
 /// in its low bits and its triangle count minus one above them.
 const SLOT_BITS: u32 = 27;
@@ -36,8 +36,6 @@ const SLOT_BITS: u32 = 27;
 pub const MAX_LEAF: usize = 16;
 /// Triangle slots addressable by a leaf reference (2^27, about 134 million).
 pub const MAX_SLOTS: usize = 1 << SLOT_BITS;
-/// Set in `child` for a leaf lane (public for the builders).
-pub(crate) const LEAF_BIT: u32 = LEAF;
 
 /// Stack entries of the traversals of ordinary trees; a tree whose deepest
 /// path could need more (see [`WideBvh::stack_need`]) is traversed with

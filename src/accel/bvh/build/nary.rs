@@ -21,9 +21,7 @@ use rayon::prelude::*;
 use super::{padded, prim_refs, NodeInfo, PrimRef, Splitter, Triangles, PARALLEL_CUTOFF};
 use crate::accel::bvh::leaf::{Tri4, LANES};
 use crate::accel::bvh::simd::Kernel;
-use crate::accel::bvh::wide::{
-    leaf_ref, pack_leaves, WideBvh, WideNode, EMPTY, LEAF_BIT, MAX_SLOTS,
-};
+use crate::accel::bvh::wide::{leaf_ref, pack_leaves, WideBvh, WideNode, EMPTY, LEAF, MAX_SLOTS};
 use crate::error::{Error, Result};
 
 /// A split as [`Splitter::split`] returns it (`None`: a leaf).
@@ -60,10 +58,6 @@ impl Kid {
 
     fn is_leaf(&self) -> bool {
         matches!(self.split, Some(None))
-    }
-
-    fn bounds(&self) -> crate::geometry::Aabb {
-        self.bounds
     }
 }
 
@@ -151,7 +145,7 @@ impl<T: Triangles + ?Sized, S: Splitter> Ctx<'_, T, S> {
                 let id = p.index();
                 blocks[s / LANES].set_lane(s % LANES, &self.triangles.get(id as usize), id);
             }
-            node.set_lane(lane, &kid.bounds(), leaf_ref(slot, kid.len));
+            node.set_lane(lane, &kid.bounds, leaf_ref(slot, kid.len));
         }
         Ok(node)
     }
@@ -176,7 +170,7 @@ impl<T: Triangles + ?Sized, S: Splitter> Ctx<'_, T, S> {
             let grand = self.open_children(sub, kid.info, kid.depth, Some(split));
             let (child, need) = self.serial(sub, grand, piece)?;
             deepest = deepest.max(need);
-            node.set_lane(lane, &kid.bounds(), child);
+            node.set_lane(lane, &kid.bounds, child);
         }
         piece.nodes[index] = node;
         Ok((index as u32, kids.len() - 1 + deepest))
@@ -239,7 +233,7 @@ impl<T: Triangles + ?Sized, S: Splitter> Ctx<'_, T, S> {
         children.sort_by_key(|&(lane, _)| lane);
         Ok(Built::Node {
             node,
-            kids: kids.iter().map(Kid::bounds).collect(),
+            kids: kids.iter().map(|k| k.bounds).collect(),
             blocks,
             children,
             need: kids.len() - 1 + deepest,
@@ -352,7 +346,7 @@ fn shifted<const N: usize>(
 ) -> WideNode<N> {
     for c in &mut node.child {
         if *c == EMPTY {
-        } else if *c & LEAF_BIT != 0 {
+        } else if *c & LEAF != 0 {
             *c += (first_block * LANES) as u32;
         } else {
             *c += first_node as u32;
