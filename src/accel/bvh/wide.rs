@@ -211,12 +211,18 @@ pub type Bvh4 = WideBvh<4>;
 /// The 8-wide tree (AVX2 where the CPU has it).
 pub type Bvh8 = WideBvh<8>;
 
-fn half_area(b: &Aabb) -> f32 {
-    let e = b.max - b.min;
-    e.x * e.y + e.y * e.z + e.z * e.x
-}
-
 impl<const N: usize> WideBvh<N> {
+    /// A tree with no nodes, whose queries will use `kernel` (AVX2 serves
+    /// only `N = 8`; other widths get the portable kernel).
+    pub(crate) fn empty(kernel: Kernel) -> Self {
+        WideBvh {
+            nodes: Vec::new(),
+            blocks: Vec::new(),
+            stack_need: 1,
+            kernel: if N == 8 { kernel } else { Kernel::Portable },
+        }
+    }
+
     /// Collapses `bvh` (left intact) with the kernel the CPU supports best.
     pub fn collapse(bvh: &Bvh) -> Result<Self> {
         Self::collapse_with(bvh, Kernel::detect())
@@ -261,18 +267,13 @@ impl<const N: usize> WideBvh<N> {
         kernel: Kernel,
         parallel: bool,
     ) -> Result<Self> {
-        let kernel = if N == 8 { kernel } else { Kernel::Portable };
-        let mut out = WideBvh {
-            // Enough for leaves of one triangle; reserving touches no memory,
-            // while growing would copy the nodes made so far.
-            nodes: Vec::with_capacity(tri_ids.len() / (N - 1) + 1),
-            blocks: Vec::new(),
-            stack_need: 1,
-            kernel,
-        };
+        let mut out = Self::empty(kernel);
         if nodes.is_empty() {
             return Ok(out);
         }
+        // Enough for leaves of one triangle; reserving touches no memory,
+        // while growing would copy the nodes made so far.
+        out.nodes.reserve(tri_ids.len() / (N - 1) + 1);
         let mut sources: Vec<u32> = Vec::with_capacity(tri_ids.len() + tri_ids.len() / 2);
         let (_, need) = out.collapse_node(nodes, &mut sources, 0)?;
         out.stack_need = need + 1;
@@ -317,8 +318,10 @@ impl<const N: usize> WideBvh<N> {
                 .enumerate()
                 .filter(|(_, &c)| !nodes[c as usize].is_leaf())
                 .max_by(|(_, &a), (_, &c)| {
-                    half_area(&nodes[a as usize].bounds())
-                        .total_cmp(&half_area(&nodes[c as usize].bounds()))
+                    nodes[a as usize]
+                        .bounds()
+                        .surface_area()
+                        .total_cmp(&nodes[c as usize].bounds().surface_area())
                 })
                 .map(|(i, _)| i);
             let Some(i) = best else { break };

@@ -342,6 +342,69 @@ pub trait Splitter: Sync {
     ) -> Option<(usize, NodeInfo, NodeInfo)>;
 }
 
+/// `splitter`'s split of `prims`, with the rule every builder keeps: a split
+/// that puts everything on one side is a leaf. The binary and the wide
+/// builders both split through here, so their trees stay the same.
+pub(crate) fn try_split<S: Splitter>(
+    splitter: &S,
+    prims: &mut [PrimRef],
+    info: &NodeInfo,
+    depth: u32,
+    parallel: bool,
+) -> Option<(usize, NodeInfo, NodeInfo)> {
+    let n = prims.len();
+    splitter
+        .split(prims, info, depth, parallel)
+        .filter(|&(mid, ..)| mid > 0 && mid < n)
+}
+
+/// raylab's own splitters, chosen by [`BuilderKind`].
+enum OwnSplitter {
+    Median(median::Median),
+    Sah(sah::BinnedSah),
+}
+
+impl OwnSplitter {
+    /// The splitter of `params`' builder; `None` for Embree's builders.
+    fn of(params: &BuildParams) -> Option<OwnSplitter> {
+        let max_leaf = params.max_leaf_size.max(1);
+        match params.builder {
+            BuilderKind::Median => Some(OwnSplitter::Median(median::Median { max_leaf })),
+            BuilderKind::Sah => Some(OwnSplitter::Sah(sah::BinnedSah::new(
+                max_leaf,
+                params.sah_block,
+            ))),
+            _ => None,
+        }
+    }
+}
+
+impl Splitter for OwnSplitter {
+    fn split(
+        &self,
+        prims: &mut [PrimRef],
+        info: &NodeInfo,
+        depth: u32,
+        parallel: bool,
+    ) -> Option<(usize, NodeInfo, NodeInfo)> {
+        match self {
+            OwnSplitter::Median(s) => s.split(prims, info, depth, parallel),
+            OwnSplitter::Sah(s) => s.split(prims, info, depth, parallel),
+        }
+    }
+}
+
+/// The triangle count, or the error for more than a build takes.
+fn checked_count<T: Triangles + ?Sized>(triangles: &T) -> crate::Result<usize> {
+    let count = triangles.count();
+    if count > MAX_TRIANGLES {
+        return Err(crate::Error::Other(format!(
+            "BVH build: {count} triangles, at most {MAX_TRIANGLES}"
+        )));
+    }
+    Ok(count)
+}
+
 /// Below this many primitives a per-node reduction (bounds, bins) runs serially.
 pub const PARALLEL_REDUCE_CUTOFF: usize = 1 << 16;
 
@@ -484,30 +547,17 @@ pub fn skeleton_here<T: Triangles + ?Sized>(
     triangles: &T,
     params: &BuildParams,
 ) -> crate::Result<Skeleton> {
-    let count = triangles.count();
-    if count > MAX_TRIANGLES {
-        return Err(crate::Error::Other(format!(
-            "BVH build: {count} triangles, at most {MAX_TRIANGLES}"
-        )));
-    }
-    if let Some(quality) = params.builder.embree_quality() {
+    let count = checked_count(triangles)?;
+    let Some(splitter) = OwnSplitter::of(params) else {
         // Embree's builder splits triangles spatially: it takes a slice.
         let all: Vec<[Vec3; 3]> = (0..count).map(|i| triangles.get(i)).collect();
+        let quality = params.builder.embree_quality().expect("an Embree builder");
         return build_with_embree(&all, params, quality);
-    }
+    };
     if count == 0 {
         return Ok(Skeleton::default());
     }
-    let parallel = params.threads > 1;
-    let max_leaf = params.max_leaf_size.max(1);
-    Ok(match params.builder {
-        BuilderKind::Median => top_down(triangles, &median::Median { max_leaf }, parallel),
-        _ => top_down(
-            triangles,
-            &sah::BinnedSah::new(max_leaf, params.sah_block),
-            parallel,
-        ),
-    })
+    Ok(top_down(triangles, &splitter, params.threads > 1))
 }
 
 /// The references of `triangles`, made in parallel when `parallel`.
@@ -528,25 +578,17 @@ pub fn wide_here<const N: usize, T: Triangles + ?Sized>(
     params: &BuildParams,
 ) -> crate::Result<super::wide::WideBvh<N>> {
     let parallel = params.threads > 1;
-    let kernel = super::simd::Kernel::detect();
-    let max_leaf = params.max_leaf_size.max(1);
-    if triangles.count() > MAX_TRIANGLES {
-        return Err(crate::Error::Other(format!(
-            "BVH build: {} triangles, at most {MAX_TRIANGLES}",
-            triangles.count()
-        )));
-    }
-    match params.builder {
-        BuilderKind::Median => {
-            nary::build(triangles, &median::Median { max_leaf }, parallel, kernel)
+    match OwnSplitter::of(params) {
+        Some(splitter) => {
+            checked_count(triangles)?;
+            nary::build(
+                triangles,
+                &splitter,
+                parallel,
+                super::simd::Kernel::detect(),
+            )
         }
-        BuilderKind::Sah => nary::build(
-            triangles,
-            &sah::BinnedSah::new(max_leaf, params.sah_block),
-            parallel,
-            kernel,
-        ),
-        _ => super::wide::WideBvh::from_skeleton(
+        None => super::wide::WideBvh::from_skeleton(
             &skeleton_here(triangles, params)?,
             triangles,
             parallel,
@@ -609,9 +651,7 @@ fn recurse<S: Splitter>(
     let n = prims.len();
     debug_assert!(nodes.len() >= 2 * n - 1);
     let b = padded(info.bounds.to_aabb());
-    let split = splitter
-        .split(prims, &info, depth, parallel)
-        .filter(|&(mid, ..)| mid > 0 && mid < n);
+    let split = try_split(splitter, prims, &info, depth, parallel);
     let Some((mid, left, right)) = split else {
         nodes[0] = Node {
             min: b.min,

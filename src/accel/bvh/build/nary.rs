@@ -18,7 +18,9 @@
 use arrayvec::ArrayVec;
 use rayon::prelude::*;
 
-use super::{padded, prim_refs, NodeInfo, PrimRef, Splitter, Triangles, PARALLEL_CUTOFF};
+use super::{
+    padded, prim_refs, try_split, NodeInfo, PrimRef, Splitter, Triangles, PARALLEL_CUTOFF,
+};
 use crate::accel::bvh::leaf::{Tri4, LANES};
 use crate::accel::bvh::simd::Kernel;
 use crate::accel::bvh::wide::{leaf_ref, pack_leaves, WideBvh, WideNode, EMPTY, LEAF, MAX_SLOTS};
@@ -35,16 +37,15 @@ struct Kid {
     info: NodeInfo,
     depth: u32,
     split: Option<Split>,
-    /// The lane box (the node box the binary tree would store) and half its
-    /// area, which orders the opening.
+    /// The lane box (the node box the binary tree would store) and its area,
+    /// which orders the opening as in the collapse.
     bounds: crate::geometry::Aabb,
-    half_area: f32,
+    area: f32,
 }
 
 impl Kid {
     fn new(start: usize, len: usize, info: NodeInfo, depth: u32, split: Option<Split>) -> Kid {
         let bounds = padded(info.bounds.to_aabb());
-        let e = bounds.max - bounds.min;
         Kid {
             start,
             len,
@@ -52,7 +53,7 @@ impl Kid {
             depth,
             split,
             bounds,
-            half_area: e.x * e.y + e.y * e.z + e.z * e.x,
+            area: bounds.surface_area(),
         }
     }
 
@@ -69,13 +70,8 @@ struct Ctx<'a, T: ?Sized, S> {
 }
 
 impl<T: Triangles + ?Sized, S: Splitter> Ctx<'_, T, S> {
-    /// The split of `prims`, with the binary recursion's rule that a split
-    /// putting everything on one side is a leaf.
     fn split(&self, prims: &mut [PrimRef], info: &NodeInfo, depth: u32) -> Split {
-        let n = prims.len();
-        self.splitter
-            .split(prims, info, depth, self.parallel)
-            .filter(|&(mid, ..)| mid > 0 && mid < n)
+        try_split(self.splitter, prims, info, depth, self.parallel)
     }
 
     /// The children of the wide node made of binary node `prims` (whose
@@ -95,7 +91,7 @@ impl<T: Triangles + ?Sized, S: Splitter> Ctx<'_, T, S> {
                 .iter()
                 .enumerate()
                 .filter(|(_, k)| !k.is_leaf())
-                .max_by(|a, b| a.1.half_area.total_cmp(&b.1.half_area))
+                .max_by(|a, b| a.1.area.total_cmp(&b.1.area))
                 .map(|(i, _)| i)
             else {
                 break;
@@ -126,7 +122,8 @@ impl<T: Triangles + ?Sized, S: Splitter> Ctx<'_, T, S> {
 
     /// The node of `kids` over `prims`, its leaves packed into new blocks at
     /// the end of `blocks` and filled (leaf references count from the start of
-    /// `blocks`); interior lanes are left for the caller.
+    /// `blocks`); interior lanes get their box, and their child is left
+    /// [`EMPTY`] for the caller to set.
     fn node_with_leaves<const N: usize>(
         &self,
         prims: &[PrimRef],
@@ -146,6 +143,9 @@ impl<T: Triangles + ?Sized, S: Splitter> Ctx<'_, T, S> {
                 blocks[s / LANES].set_lane(s % LANES, &self.triangles.get(id as usize), id);
             }
             node.set_lane(lane, &kid.bounds, leaf_ref(slot, kid.len));
+        }
+        for (lane, kid) in kids.iter().enumerate().filter(|(_, k)| !k.is_leaf()) {
+            node.set_lane(lane, &kid.bounds, EMPTY);
         }
         Ok(node)
     }
@@ -170,7 +170,7 @@ impl<T: Triangles + ?Sized, S: Splitter> Ctx<'_, T, S> {
             let grand = self.open_children(sub, kid.info, kid.depth, Some(split));
             let (child, need) = self.serial(sub, grand, piece)?;
             deepest = deepest.max(need);
-            node.set_lane(lane, &kid.bounds, child);
+            node.child[lane] = child;
         }
         piece.nodes[index] = node;
         Ok((index as u32, kids.len() - 1 + deepest))
@@ -213,7 +213,7 @@ impl<T: Triangles + ?Sized, S: Splitter> Ctx<'_, T, S> {
                 let b = if kid.len >= PARALLEL_CUTOFF {
                     self.parallel(sub, grand)
                 } else {
-                    let mut piece = Piece::with_capacity::<N>(kid.len);
+                    let mut piece = Piece::with_capacity(kid.len);
                     self.serial(sub, grand, &mut piece).map(|(_, need)| {
                         piece.need = need;
                         Built::Piece(piece)
@@ -233,7 +233,6 @@ impl<T: Triangles + ?Sized, S: Splitter> Ctx<'_, T, S> {
         children.sort_by_key(|&(lane, _)| lane);
         Ok(Built::Node {
             node,
-            kids: kids.iter().map(|k| k.bounds).collect(),
             blocks,
             children,
             need: kids.len() - 1 + deepest,
@@ -252,7 +251,7 @@ struct Piece<const N: usize> {
 impl<const N: usize> Piece<N> {
     /// Room for the subtree of `prims` triangles, so that it never regrows
     /// (reserving touches no memory).
-    fn with_capacity<const M: usize>(prims: usize) -> Self {
+    fn with_capacity(prims: usize) -> Self {
         Piece {
             nodes: Vec::with_capacity(prims / (N - 1) + 1),
             blocks: Vec::with_capacity(prims / 2 + 1),
@@ -265,10 +264,9 @@ impl<const N: usize> Piece<N> {
 enum Built<const N: usize> {
     Piece(Piece<N>),
     Node {
-        /// Leaf lanes refer to `blocks`; interior lanes are set when stitched.
+        /// Leaf lanes refer to `blocks`; interior lanes' children are set when
+        /// stitched.
         node: WideNode<N>,
-        /// The lane boxes, for the interior lanes.
-        kids: ArrayVec<crate::geometry::Aabb, N>,
         blocks: Vec<Tri4>,
         children: Vec<(usize, Built<N>)>,
         need: usize,
@@ -292,14 +290,12 @@ impl<const N: usize> Built<N> {
             Built::Piece(p) => out.push(Segment::Piece(p)),
             Built::Node {
                 node,
-                kids,
                 blocks,
                 children,
                 ..
             } => {
                 out.push(Segment::Node {
                     node,
-                    kids,
                     blocks,
                     children: Vec::new(),
                 });
@@ -321,7 +317,6 @@ impl<const N: usize> Built<N> {
 enum Segment<const N: usize> {
     Node {
         node: WideNode<N>,
-        kids: ArrayVec<crate::geometry::Aabb, N>,
         blocks: Vec<Tri4>,
         children: Vec<(usize, usize)>,
     },
@@ -411,13 +406,12 @@ fn stitch<const N: usize>(
             }
             Segment::Node {
                 node,
-                kids,
                 blocks: own,
                 children,
             } => {
                 let mut node = shifted(*node, 0, b0);
                 for &(lane, child) in children {
-                    node.set_lane(lane, &kids[lane], offsets[child].0 as u32);
+                    node.child[lane] = offsets[child].0 as u32;
                 }
                 nodes[0] = node;
                 blocks.copy_from_slice(own);
@@ -440,13 +434,7 @@ pub fn build<const N: usize, T: Triangles + ?Sized, S: Splitter>(
     parallel: bool,
     kernel: Kernel,
 ) -> Result<WideBvh<N>> {
-    let kernel = if N == 8 { kernel } else { Kernel::Portable };
-    let mut out = WideBvh {
-        nodes: Vec::new(),
-        blocks: Vec::new(),
-        stack_need: 1,
-        kernel,
-    };
+    let mut out = WideBvh::empty(kernel);
     let mut prims = prim_refs(triangles, parallel);
     if prims.is_empty() {
         return Ok(out);
@@ -462,7 +450,7 @@ pub fn build<const N: usize, T: Triangles + ?Sized, S: Splitter>(
     let built = if parallel && prims.len() >= PARALLEL_CUTOFF {
         ctx.parallel(&mut prims, kids)?
     } else {
-        let mut piece = Piece::with_capacity::<N>(prims.len());
+        let mut piece = Piece::with_capacity(prims.len());
         let (_, need) = ctx.serial(&mut prims, kids, &mut piece)?;
         piece.need = need;
         Built::Piece(piece)

@@ -308,18 +308,8 @@ impl BinnedSah {
             *slot = prims[i as usize];
         }
         prims.copy_from_slice(&sorted[..n]);
-        let side = |part: &[PrimRef]| {
-            let mut i = NodeInfo {
-                bounds: Box4::EMPTY,
-                centroids: Box4::EMPTY,
-            };
-            for p in part {
-                i.bounds = i.bounds.union(Box4 { lo: p.lo, hi: p.hi });
-                i.centroids.grow(p.centroid2());
-            }
-            i
-        };
-        Some((k, side(&prims[..k]), side(&prims[k..])))
+        let (left, right) = side_infos(prims, k, false);
+        Some((k, left, right))
     }
 }
 
