@@ -16,6 +16,27 @@ pub mod simd;
 pub mod traverse;
 pub mod wide;
 
+/// Triangle sets the unit tests of the trees share.
+#[cfg(test)]
+pub(crate) mod test_fixtures {
+    use glam::Vec3;
+
+    use crate::render::rng::Rng;
+
+    /// `n` small random triangles (sides up to 0.5) scattered in a box of side
+    /// 10; the same set for the same `seed`.
+    pub fn random_tris(n: usize, seed: u64) -> Vec<[Vec3; 3]> {
+        let mut rng = Rng::for_pixel(0, seed, 9);
+        let mut v = |s: f32| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * s;
+        (0..n)
+            .map(|_| {
+                let c = v(10.0);
+                [c + v(0.5), c + v(0.5), c + v(0.5)]
+            })
+            .collect()
+    }
+}
+
 use std::time::{Duration, Instant};
 
 use glam::Vec3;

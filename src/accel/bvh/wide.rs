@@ -580,20 +580,10 @@ impl Traversal for WideBvh<8> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::accel::bvh::test_fixtures::random_tris;
     use crate::accel::bvh::BuildParams;
     use crate::geometry::Intersector;
     use crate::render::rng::Rng;
-
-    fn random_tris(n: usize, seed: u64) -> Vec<[Vec3; 3]> {
-        let mut rng = Rng::for_pixel(0, seed, 9);
-        let mut v = |s: f32| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * s;
-        (0..n)
-            .map(|_| {
-                let c = v(10.0);
-                [c + v(0.5), c + v(0.5), c + v(0.5)]
-            })
-            .collect()
-    }
 
     #[test]
     fn nodes_have_no_padding_beyond_row_alignment() {

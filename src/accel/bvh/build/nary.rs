@@ -467,19 +467,8 @@ mod tests {
     use glam::Vec3;
 
     use super::super::{build_skeleton, in_pool, wide_here, BuildParams};
+    use crate::accel::bvh::test_fixtures::random_tris;
     use crate::accel::bvh::wide::WideBvh;
-    use crate::render::rng::Rng;
-
-    fn random_tris(n: usize, seed: u64) -> Vec<[Vec3; 3]> {
-        let mut rng = Rng::for_pixel(0, seed, 5);
-        let mut v = |s: f32| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * s;
-        (0..n)
-            .map(|_| {
-                let c = v(10.0);
-                [c + v(0.3), c + v(0.3), c + v(0.3)]
-            })
-            .collect()
-    }
 
     fn same_as_collapse<const N: usize>(tris: &Vec<[Vec3; 3]>, params: &BuildParams) {
         let direct = in_pool(params.threads, || wide_here::<N, _>(tris, params)).unwrap();
