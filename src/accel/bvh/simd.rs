@@ -140,29 +140,24 @@ pub fn prefetch<T>(value: &T) {
     let _ = value;
 }
 
-/// The bins of the xyz lanes of `f` (each at least 0): each lane truncated
-/// to an integer and capped at `last`, as `(lane as usize).min(last)` computes
-/// it, in one SSE2 conversion on x86-64 (the builder's binning loop).
+/// The bins of the lanes of `f` (each at least 0): each lane truncated to
+/// an integer and capped at `last`, as `(lane as u32).min(last)` computes it,
+/// in one SSE2 conversion on x86-64 (the builder's binning loop). The binner
+/// reads the xyz lanes.
 #[inline(always)]
-pub fn bin_indices(f: Vec4, last: usize) -> [usize; 3] {
+pub fn bin_indices(f: Vec4, last: usize) -> [u32; 4] {
     // Capping before truncating gives the same integer for lanes >= 0 and
     // keeps every lane within i32.
     let f = f.min(Vec4::splat(last as f32));
     #[cfg(target_arch = "x86_64")]
     {
         use std::arch::x86_64::*;
-        // SAFETY: SSE2 is part of every x86-64 CPU; no memory is touched.
-        unsafe {
-            let i = _mm_cvttps_epi32(f.into());
-            [
-                _mm_cvtsi128_si32(i) as usize,
-                _mm_cvtsi128_si32(_mm_shuffle_epi32::<0b01_01_01_01>(i)) as usize,
-                _mm_cvtsi128_si32(_mm_shuffle_epi32::<0b10_10_10_10>(i)) as usize,
-            ]
-        }
+        // SAFETY: SSE2 is part of every x86-64 CPU; the transmute is of one
+        // 16-byte integer vector into four u32 lanes, in lane order.
+        unsafe { std::mem::transmute::<__m128i, [u32; 4]>(_mm_cvttps_epi32(f.into())) }
     }
     #[cfg(not(target_arch = "x86_64"))]
-    [f.x as usize, f.y as usize, f.z as usize]
+    [f.x as u32, f.y as u32, f.z as u32, f.w as u32]
 }
 
 /// Proof that this CPU runs AVX2 (and BMI1 and POPCNT, which the traversal's
@@ -410,8 +405,8 @@ mod tests {
                 _ => rng.next_f32() * 1e12,
             };
             let f = Vec4::new(v(&mut rng), v(&mut rng), v(&mut rng), 0.0);
-            let want = [0, 1, 2].map(|a| (f[a] as usize).min(15));
-            assert_eq!(bin_indices(f, 15), want, "{f}");
+            let want = [0, 1, 2].map(|a| (f[a] as u32).min(15));
+            assert_eq!(bin_indices(f, 15)[..3], want, "{f}");
         }
     }
 
