@@ -14,6 +14,7 @@ pub mod camera;
 pub mod cli;
 pub mod error;
 pub mod geometry;
+pub mod os;
 pub mod progress;
 pub mod render;
 pub mod scene;

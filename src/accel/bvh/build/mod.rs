@@ -563,11 +563,16 @@ pub fn skeleton_here<T: Triangles + ?Sized>(
 /// The references of `triangles`, made in parallel when `parallel`.
 pub(crate) fn prim_refs<T: Triangles + ?Sized>(triangles: &T, parallel: bool) -> Vec<PrimRef> {
     let make = |i: usize| PrimRef::new(&Aabb::from_points(&triangles.get(i)), i as u32);
+    let mut prims = crate::os::huge_vec(triangles.count());
     if parallel {
-        (0..triangles.count()).into_par_iter().map(make).collect()
+        (0..triangles.count())
+            .into_par_iter()
+            .map(make)
+            .collect_into_vec(&mut prims);
     } else {
-        (0..triangles.count()).map(make).collect()
+        prims.extend((0..triangles.count()).map(make));
     }
+    prims
 }
 
 /// Builds the `N`-wide tree with the builder of `params` on the current
@@ -607,7 +612,7 @@ fn top_down<T: Triangles + ?Sized, S: Splitter>(
     let mut prims = prim_refs(triangles, parallel);
     let info = NodeInfo::of(&prims, parallel);
     let count = 2 * prims.len() - 1;
-    let mut slots = Vec::with_capacity(count);
+    let mut slots = crate::os::huge_vec(count);
     if parallel {
         // Filling 32 bytes per slot (and faulting the pages in) is worth two threads.
         slots.par_extend(rayon::iter::repeat_n(UNUSED, count));

@@ -369,8 +369,8 @@ fn stitch<const N: usize>(
             "wide BVH: more than {MAX_SLOTS} triangle slots"
         )));
     }
-    let mut out_nodes = Vec::with_capacity(nodes);
-    let mut out_blocks = Vec::with_capacity(blocks);
+    let mut out_nodes = crate::os::huge_vec(nodes);
+    let mut out_blocks = crate::os::huge_vec(blocks);
     if parallel {
         // Filling first lets both threads take the page faults.
         out_nodes.par_extend(rayon::iter::repeat_n(WideNode::empty(), nodes));
