@@ -149,13 +149,6 @@ fn bin_pairs<const B: usize>(prims: &[PrimRef], lo: Vec4, scale: Vec4) -> Bins<B
     even
 }
 
-/// The bin of doubled-centroid coordinate `c` for a range starting at `lo` with
-/// `scale = bins / extent`; used both for binning and for the partition.
-#[inline]
-fn bin_of(c: f32, lo: f32, scale: f32, bins: usize) -> usize {
-    (((c - lo) * scale) as usize).min(bins - 1)
-}
-
 impl Splitter for BinnedSah {
     fn split(
         &self,
@@ -273,9 +266,14 @@ impl BinnedSah {
             return None;
         }
         let (axis, plane) = (best.axis, best.plane);
-        let (lo, scale) = (lo[axis], scale[axis]);
+        // A primitive goes left when its bin, `min(trunc((c - lo) * scale),
+        // B - 1)` as binning computed it, is below `plane`: for the
+        // non-negative `(c - lo) * scale` and an integer plane of at most
+        // `B - 1`, exactly when `(c - lo) * scale < plane`, a compare of
+        // floats without the conversion.
+        let (lo, scale, plane) = (lo[axis], scale[axis], plane as f32);
         let (mid, left_centroids, right_centroids) =
-            partition(prims, |c| bin_of(c[axis], lo, scale, B) < plane);
+            partition(prims, |c| (c[axis] - lo) * scale < plane);
         Some((
             mid,
             NodeInfo {
