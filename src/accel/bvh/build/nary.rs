@@ -11,9 +11,14 @@
 //! nodes that existed only to be read once.
 //!
 //! Memory: a subtree below [`PARALLEL_CUTOFF`] primitives (or any subtree in
-//! a serial build) is made into arrays of its own with indices relative to
-//! them; the parallel top is stitched together with those pieces once, in
-//! depth-first order, at the end.
+//! a serial build) is made into a piece of its own, indices relative to it;
+//! the parallel top is stitched together with those pieces once, in
+//! depth-first order, at the end. Pieces hold nodes and, for the leaves, only
+//! the scene index of each triangle slot (4 bytes, not a 40-byte share of a
+//! block): the blocks are filled once, in parallel, straight into the final
+//! array after the stitch, so the 40 bytes per triangle are written once
+//! and never copied. A serial build's one piece becomes the tree without a
+//! copy.
 
 use arrayvec::ArrayVec;
 use rayon::prelude::*;
@@ -21,7 +26,7 @@ use rayon::prelude::*;
 use super::{
     padded, prim_refs, try_split, NodeInfo, PrimRef, Splitter, Triangles, PARALLEL_CUTOFF,
 };
-use crate::accel::bvh::leaf::{Tri4, LANES};
+use crate::accel::bvh::leaf::{Tri4, EMPTY_ID, LANES};
 use crate::accel::bvh::simd::Kernel;
 use crate::accel::bvh::wide::{leaf_ref, pack_leaves, WideBvh, WideNode, EMPTY, LEAF, MAX_SLOTS};
 use crate::error::{Error, Result};
@@ -63,13 +68,12 @@ impl Kid {
 }
 
 /// What the builders need at every node.
-struct Ctx<'a, T: ?Sized, S> {
-    triangles: &'a T,
+struct Ctx<'a, S> {
     splitter: &'a S,
     parallel: bool,
 }
 
-impl<T: Triangles + ?Sized, S: Splitter> Ctx<'_, T, S> {
+impl<S: Splitter> Ctx<'_, S> {
     fn split(&self, prims: &mut [PrimRef], info: &NodeInfo, depth: u32) -> Split {
         try_split(self.splitter, prims, info, depth, self.parallel)
     }
@@ -121,26 +125,26 @@ impl<T: Triangles + ?Sized, S: Splitter> Ctx<'_, T, S> {
     }
 
     /// The node of `kids` over `prims`, its leaves packed into new blocks at
-    /// the end of `blocks` and filled (leaf references count from the start of
-    /// `blocks`); interior lanes get their box, and their child is left
+    /// the end of `slot_ids` (the scene index of each triangle slot, four to
+    /// a block, [`EMPTY_ID`] where unused; leaf references count from its
+    /// start); interior lanes get their box, and their child is left
     /// [`EMPTY`] for the caller to set.
     fn node_with_leaves<const N: usize>(
         &self,
         prims: &[PrimRef],
         kids: &ArrayVec<Kid, N>,
-        blocks: &mut Vec<Tri4>,
+        slot_ids: &mut Vec<u32>,
     ) -> Result<WideNode<N>> {
         let mut node = WideNode::empty();
         let leaves: ArrayVec<usize, N> = (0..kids.len()).filter(|&l| kids[l].is_leaf()).collect();
         let counts: ArrayVec<usize, N> = leaves.iter().map(|&l| kids[l].len).collect();
-        let (slots, taken) = pack_leaves::<N>(&counts, blocks.len())?;
-        blocks.resize(blocks.len() + taken, Tri4::empty());
+        let (slots, taken) = pack_leaves::<N>(&counts, slot_ids.len() / LANES)?;
+        slot_ids.resize(slot_ids.len() + taken * LANES, EMPTY_ID);
         for (&lane, &slot) in leaves.iter().zip(&slots) {
             let kid = &kids[lane];
-            for (k, p) in prims[kid.start..kid.start + kid.len].iter().enumerate() {
-                let s = slot + k;
-                let id = p.index();
-                blocks[s / LANES].set_lane(s % LANES, &self.triangles.get(id as usize), id);
+            let leaf = &prims[kid.start..kid.start + kid.len];
+            for (id, p) in slot_ids[slot..slot + kid.len].iter_mut().zip(leaf) {
+                *id = p.index();
             }
             node.set_lane(lane, &kid.bounds, leaf_ref(slot, kid.len));
         }
@@ -160,7 +164,7 @@ impl<T: Triangles + ?Sized, S: Splitter> Ctx<'_, T, S> {
     ) -> Result<(u32, usize)> {
         let index = piece.nodes.len();
         piece.nodes.push(WideNode::empty());
-        let mut node = self.node_with_leaves(prims, &kids, &mut piece.blocks)?;
+        let mut node = self.node_with_leaves(prims, &kids, &mut piece.slot_ids)?;
         let mut deepest = 0;
         for (lane, kid) in kids.iter().enumerate() {
             let Some(Some(split)) = kid.split else {
@@ -183,8 +187,8 @@ impl<T: Triangles + ?Sized, S: Splitter> Ctx<'_, T, S> {
         prims: &mut [PrimRef],
         kids: ArrayVec<Kid, N>,
     ) -> Result<Built<N>> {
-        let mut blocks = Vec::new();
-        let node = self.node_with_leaves(prims, &kids, &mut blocks)?;
+        let mut slot_ids = Vec::new();
+        let node = self.node_with_leaves(prims, &kids, &mut slot_ids)?;
         // The interior children's primitive ranges, carved apart so that each
         // task owns its own.
         let mut order: ArrayVec<usize, N> = (0..kids.len()).collect();
@@ -233,18 +237,19 @@ impl<T: Triangles + ?Sized, S: Splitter> Ctx<'_, T, S> {
         children.sort_by_key(|&(lane, _)| lane);
         Ok(Built::Node {
             node,
-            blocks,
+            slot_ids,
             children,
             need: kids.len() - 1 + deepest,
         })
     }
 }
 
-/// A subtree made serially: nodes and blocks indexed from its own arrays'
-/// starts, its root node first.
+/// A subtree made serially: nodes and leaf slots indexed from its own
+/// arrays' starts, its root node first.
 struct Piece<const N: usize> {
     nodes: Vec<WideNode<N>>,
-    blocks: Vec<Tri4>,
+    /// Scene index of each triangle slot, four slots to a block.
+    slot_ids: Vec<u32>,
     need: usize,
 }
 
@@ -254,7 +259,7 @@ impl<const N: usize> Piece<N> {
     fn with_capacity(prims: usize) -> Self {
         Piece {
             nodes: Vec::with_capacity(prims / (N - 1) + 1),
-            blocks: Vec::with_capacity(prims / 2 + 1),
+            slot_ids: Vec::with_capacity(2 * prims + LANES),
             need: 0,
         }
     }
@@ -264,10 +269,10 @@ impl<const N: usize> Piece<N> {
 enum Built<const N: usize> {
     Piece(Piece<N>),
     Node {
-        /// Leaf lanes refer to `blocks`; interior lanes' children are set when
-        /// stitched.
+        /// Leaf lanes refer to `slot_ids`; interior lanes' children are set
+        /// when stitched.
         node: WideNode<N>,
-        blocks: Vec<Tri4>,
+        slot_ids: Vec<u32>,
         children: Vec<(usize, Built<N>)>,
         need: usize,
     },
@@ -290,13 +295,13 @@ impl<const N: usize> Built<N> {
             Built::Piece(p) => out.push(Segment::Piece(p)),
             Built::Node {
                 node,
-                blocks,
+                slot_ids,
                 children,
                 ..
             } => {
                 out.push(Segment::Node {
                     node,
-                    blocks,
+                    slot_ids,
                     children: Vec::new(),
                 });
                 let ids: Vec<(usize, usize)> = children
@@ -313,36 +318,37 @@ impl<const N: usize> Built<N> {
 }
 
 /// One contiguous run of the final arrays: a parallel node with its own leaf
-/// blocks (children by segment index), or a piece.
+/// leaf slots (children by segment index), or a piece.
 enum Segment<const N: usize> {
     Node {
         node: WideNode<N>,
-        blocks: Vec<Tri4>,
+        slot_ids: Vec<u32>,
         children: Vec<(usize, usize)>,
     },
     Piece(Piece<N>),
 }
 
 impl<const N: usize> Segment<N> {
+    /// Nodes and triangle slots.
     fn size(&self) -> (usize, usize) {
         match self {
-            Segment::Node { blocks, .. } => (1, blocks.len()),
-            Segment::Piece(p) => (p.nodes.len(), p.blocks.len()),
+            Segment::Node { slot_ids, .. } => (1, slot_ids.len()),
+            Segment::Piece(p) => (p.nodes.len(), p.slot_ids.len()),
         }
     }
 }
 
 /// `node` with its node references moved up by `first_node` and its leaf
-/// references by `first_block` blocks.
+/// references by `first_slot` triangle slots.
 fn shifted<const N: usize>(
     mut node: WideNode<N>,
     first_node: usize,
-    first_block: usize,
+    first_slot: usize,
 ) -> WideNode<N> {
     for c in &mut node.child {
         if *c == EMPTY {
         } else if *c & LEAF != 0 {
-            *c += (first_block * LANES) as u32;
+            *c += first_slot as u32;
         } else {
             *c += first_node as u32;
         }
@@ -350,80 +356,111 @@ fn shifted<const N: usize>(
     node
 }
 
-/// Writes the segments into one node array and one block array, each segment
-/// into its own run, in parallel when `parallel`.
+/// Writes the segments into one node array and one slot array, each segment
+/// into its own run, in parallel when `parallel`; a lone piece (a serial
+/// build) is taken as it is.
 fn stitch<const N: usize>(
-    segments: Vec<Segment<N>>,
+    mut segments: Vec<Segment<N>>,
     parallel: bool,
-) -> Result<(Vec<WideNode<N>>, Vec<Tri4>)> {
+) -> Result<(Vec<WideNode<N>>, Vec<u32>)> {
     let mut offsets = Vec::with_capacity(segments.len());
-    let (mut nodes, mut blocks) = (0, 0);
+    let (mut nodes, mut slots) = (0, 0);
     for s in &segments {
-        offsets.push((nodes, blocks));
+        offsets.push((nodes, slots));
         let (n, b) = s.size();
         nodes += n;
-        blocks += b;
+        slots += b;
     }
-    if blocks * LANES > MAX_SLOTS {
+    if slots > MAX_SLOTS {
         return Err(Error::Other(format!(
             "wide BVH: more than {MAX_SLOTS} triangle slots"
         )));
     }
+    if segments.len() == 1 {
+        if let Some(Segment::Piece(p)) = segments.pop() {
+            return Ok((p.nodes, p.slot_ids));
+        }
+        unreachable!("a one-segment tree is one piece");
+    }
     let mut out_nodes = crate::os::huge_vec(nodes);
-    let mut out_blocks = crate::os::huge_vec(blocks);
+    let mut out_slots = crate::os::huge_vec(slots);
     if parallel {
         // Filling first lets both threads take the page faults.
         out_nodes.par_extend(rayon::iter::repeat_n(WideNode::empty(), nodes));
-        out_blocks.par_extend(rayon::iter::repeat_n(Tri4::empty(), blocks));
+        out_slots.par_extend(rayon::iter::repeat_n(EMPTY_ID, slots));
     } else {
         out_nodes.resize(nodes, WideNode::empty());
-        out_blocks.resize(blocks, Tri4::empty());
+        out_slots.resize(slots, EMPTY_ID);
     }
     // Each segment's runs, carved apart.
     let mut jobs = Vec::with_capacity(segments.len());
-    let (mut node_rest, mut block_rest) = (&mut out_nodes[..], &mut out_blocks[..]);
-    for (s, &(n0, b0)) in segments.iter().zip(&offsets) {
+    let (mut node_rest, mut slot_rest) = (&mut out_nodes[..], &mut out_slots[..]);
+    for (s, &(n0, s0)) in segments.iter().zip(&offsets) {
         let (n, b) = s.size();
         let (nn, nr) = std::mem::take(&mut node_rest).split_at_mut(n);
-        let (bb, br) = std::mem::take(&mut block_rest).split_at_mut(b);
+        let (ss, sr) = std::mem::take(&mut slot_rest).split_at_mut(b);
         node_rest = nr;
-        block_rest = br;
-        jobs.push((s, nn, bb, n0, b0));
+        slot_rest = sr;
+        jobs.push((s, nn, ss, n0, s0));
     }
-    let write = |(s, nodes, blocks, n0, b0): (
-        &Segment<N>,
-        &mut [WideNode<N>],
-        &mut [Tri4],
-        usize,
-        usize,
-    )| {
-        match s {
-            Segment::Piece(p) => {
-                for (out, &node) in nodes.iter_mut().zip(&p.nodes) {
-                    *out = shifted(node, n0, b0);
+    let write =
+        |(s, nodes, slots, n0, s0): (&Segment<N>, &mut [WideNode<N>], &mut [u32], usize, usize)| {
+            match s {
+                Segment::Piece(p) => {
+                    for (out, &node) in nodes.iter_mut().zip(&p.nodes) {
+                        *out = shifted(node, n0, s0);
+                    }
+                    slots.copy_from_slice(&p.slot_ids);
                 }
-                blocks.copy_from_slice(&p.blocks);
-            }
-            Segment::Node {
-                node,
-                blocks: own,
-                children,
-            } => {
-                let mut node = shifted(*node, 0, b0);
-                for &(lane, child) in children {
-                    node.child[lane] = offsets[child].0 as u32;
+                Segment::Node {
+                    node,
+                    slot_ids,
+                    children,
+                } => {
+                    let mut node = shifted(*node, 0, s0);
+                    for &(lane, child) in children {
+                        node.child[lane] = offsets[child].0 as u32;
+                    }
+                    nodes[0] = node;
+                    slots.copy_from_slice(slot_ids);
                 }
-                nodes[0] = node;
-                blocks.copy_from_slice(own);
             }
-        }
-    };
+        };
     if parallel {
         jobs.into_par_iter().for_each(write);
     } else {
         jobs.into_iter().for_each(write);
     }
-    Ok((out_nodes, out_blocks))
+    Ok((out_nodes, out_slots))
+}
+
+/// The leaf blocks of `slot_ids` (four slots to a block), each written once
+/// into a fresh array, in parallel when `parallel`.
+fn fill_blocks<T: Triangles + ?Sized>(
+    triangles: &T,
+    slot_ids: &[u32],
+    parallel: bool,
+) -> Vec<Tri4> {
+    let block = |ids: &[u32]| {
+        let mut block = Tri4::empty();
+        for (lane, &id) in ids.iter().enumerate() {
+            if id != EMPTY_ID {
+                block.set_lane(lane, &triangles.get(id as usize), id);
+            }
+        }
+        block
+    };
+    let mut blocks = crate::os::huge_vec(slot_ids.len() / LANES);
+    if parallel {
+        slot_ids
+            .par_chunks_exact(LANES)
+            .with_min_len(1024)
+            .map(block)
+            .collect_into_vec(&mut blocks);
+    } else {
+        blocks.extend(slot_ids.chunks_exact(LANES).map(block));
+    }
+    blocks
 }
 
 /// Builds the `N`-wide tree over `triangles` with `splitter`, in parallel on
@@ -439,11 +476,7 @@ pub fn build<const N: usize, T: Triangles + ?Sized, S: Splitter>(
     if prims.is_empty() {
         return Ok(out);
     }
-    let ctx = Ctx {
-        triangles,
-        splitter,
-        parallel,
-    };
+    let ctx = Ctx { splitter, parallel };
     let info = NodeInfo::of(&prims, parallel);
     let split = ctx.split(&mut prims, &info, 0);
     let kids = ctx.open_children::<N>(&mut prims, info, 0, split);
@@ -458,7 +491,10 @@ pub fn build<const N: usize, T: Triangles + ?Sized, S: Splitter>(
     out.stack_need = built.need() + 1;
     let mut segments = Vec::new();
     built.segments(&mut segments);
-    (out.nodes, out.blocks) = stitch(segments, parallel)?;
+    let slot_ids;
+    (out.nodes, slot_ids) = stitch(segments, parallel)?;
+    drop(prims);
+    out.blocks = fill_blocks(triangles, &slot_ids, parallel);
     Ok(out)
 }
 
