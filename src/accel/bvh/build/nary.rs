@@ -35,13 +35,13 @@ use crate::error::{Error, Result};
 type Split = Option<(usize, NodeInfo, NodeInfo)>;
 
 /// A child of the node being made: a range of the node's primitives, and its
-/// split once tried (`Some(None)`: a leaf).
+/// split (`None`: a leaf).
 struct Kid {
     start: usize,
     len: usize,
     info: NodeInfo,
     depth: u32,
-    split: Option<Split>,
+    split: Split,
     /// The lane box (the node box the binary tree would store) and its area,
     /// which orders the opening as in the collapse.
     bounds: crate::geometry::Aabb,
@@ -49,7 +49,7 @@ struct Kid {
 }
 
 impl Kid {
-    fn new(start: usize, len: usize, info: NodeInfo, depth: u32, split: Option<Split>) -> Kid {
+    fn new(start: usize, len: usize, info: NodeInfo, depth: u32, split: Split) -> Kid {
         let bounds = padded(info.bounds.to_aabb());
         Kid {
             start,
@@ -63,7 +63,7 @@ impl Kid {
     }
 
     fn is_leaf(&self) -> bool {
-        matches!(self.split, Some(None))
+        self.split.is_none()
     }
 }
 
@@ -81,6 +81,12 @@ impl<S: Splitter> Ctx<'_, S> {
     /// The children of the wide node made of binary node `prims` (whose
     /// split is `split`): the open child of largest area is split until there
     /// are `N`, as the collapse opens the binary tree's children.
+    ///
+    /// Every child made gets its split tried (to be opened here, or to become
+    /// a node of its own), so both halves of an opened child are split as
+    /// soon as they exist, at once on two threads where they are large: the
+    /// top of the tree would otherwise partition its largest nodes one after
+    /// another on one thread.
     fn open_children<const N: usize>(
         &self,
         prims: &mut [PrimRef],
@@ -89,7 +95,7 @@ impl<S: Splitter> Ctx<'_, S> {
         split: Split,
     ) -> ArrayVec<Kid, N> {
         let mut kids: ArrayVec<Kid, N> = ArrayVec::new();
-        kids.push(Kid::new(0, prims.len(), info, depth, Some(split)));
+        kids.push(Kid::new(0, prims.len(), info, depth, split));
         while kids.len() < N {
             let Some(i) = kids
                 .iter()
@@ -100,26 +106,21 @@ impl<S: Splitter> Ctx<'_, S> {
             else {
                 break;
             };
-            let k = &mut kids[i];
-            let split = match k.split {
-                Some(s) => s,
-                None => {
-                    let s = self.split(&mut prims[k.start..k.start + k.len], &k.info, k.depth);
-                    k.split = Some(s);
-                    s
-                }
-            };
-            let Some((mid, left, right)) = split else {
-                continue;
+            let k = &kids[i];
+            let Some((mid, left, right)) = k.split else {
+                unreachable!("only split children are opened");
             };
             let (start, len, depth) = (k.start, k.len, k.depth + 1);
-            kids[i] = Kid::new(start, mid, left, depth, None);
-            kids.push(Kid::new(start + mid, len - mid, right, depth, None));
-        }
-        for k in &mut kids {
-            if k.split.is_none() {
-                k.split = Some(self.split(&mut prims[k.start..k.start + k.len], &k.info, k.depth));
-            }
+            let (lp, rp) = prims[start..start + len].split_at_mut(mid);
+            let mut split_left = || self.split(lp, &left, depth);
+            let mut split_right = || self.split(rp, &right, depth);
+            let (left_split, right_split) = if self.parallel && len >= PARALLEL_CUTOFF {
+                rayon::join(split_left, split_right)
+            } else {
+                (split_left(), split_right())
+            };
+            kids[i] = Kid::new(start, mid, left, depth, left_split);
+            kids.push(Kid::new(start + mid, len - mid, right, depth, right_split));
         }
         kids
     }
@@ -167,7 +168,7 @@ impl<S: Splitter> Ctx<'_, S> {
         let mut node = self.node_with_leaves(prims, &kids, &mut piece.slot_ids)?;
         let mut deepest = 0;
         for (lane, kid) in kids.iter().enumerate() {
-            let Some(Some(split)) = kid.split else {
+            let Some(split) = kid.split else {
                 continue;
             };
             let sub = &mut prims[kid.start..kid.start + kid.len];
@@ -210,10 +211,7 @@ impl<S: Splitter> Ctx<'_, S> {
             .into_par_iter()
             .map(|(lane, sub)| {
                 let kid = &kids[lane];
-                let Some(split) = kid.split else {
-                    unreachable!("every child's split is tried")
-                };
-                let grand = self.open_children(sub, kid.info, kid.depth, split);
+                let grand = self.open_children(sub, kid.info, kid.depth, kid.split);
                 let b = if kid.len >= PARALLEL_CUTOFF {
                     self.parallel(sub, grand)
                 } else {
