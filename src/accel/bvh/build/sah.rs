@@ -32,26 +32,34 @@ pub struct BinnedSah {
     /// `log2(block)` when `block` is a power of two (always, but for a
     /// user's odd choice): the tests are then a shift, not a division.
     block_shift: Option<u32>,
+    /// `tests(k)` for the sweep's child sizes `k <= SWEEP_MAX`, looked up.
+    sweep_tests: [f32; SWEEP_MAX + 1],
 }
 
 impl BinnedSah {
     /// Leaves of at most `max_leaf` triangles, tested `block` at a time.
     pub fn new(max_leaf: usize, block: usize) -> Self {
-        BinnedSah {
+        let mut sah = BinnedSah {
             max_leaf: max_leaf.max(1),
             block: block.max(1) as u32,
             block_shift: block
                 .max(1)
                 .is_power_of_two()
                 .then(|| block.max(1).trailing_zeros()),
+            sweep_tests: [0.0; SWEEP_MAX + 1],
+        };
+        for k in 0..=SWEEP_MAX {
+            sah.sweep_tests[k] = sah.tests(k as u32);
         }
+        sah
     }
 
     /// The triangle tests of a leaf of `n` triangles.
     #[inline]
     fn tests(&self, n: u32) -> f32 {
         match self.block_shift {
-            Some(shift) => ((n as u64 + self.block as u64 - 1) >> shift) as f32,
+            // No overflow: `n` is at most `MAX_TRIANGLES` (below 2^31).
+            Some(shift) => ((n + self.block - 1) >> shift) as f32,
             None => n.div_ceil(self.block) as f32,
         }
     }
@@ -334,12 +342,12 @@ impl BinnedSah {
             let mut acc = Box4::EMPTY;
             for k in (1..n).rev() {
                 acc = acc.union(boxed(order[k]));
-                right_cost[k] = acc.area() * self.tests((n - k) as u32);
+                right_cost[k] = acc.area() * self.sweep_tests[n - k];
             }
             let mut acc = Box4::EMPTY;
             for k in 1..n {
                 acc = acc.union(boxed(order[k - 1]));
-                let weighted = acc.area() * self.tests(k as u32) + right_cost[k];
+                let weighted = acc.area() * self.sweep_tests[k] + right_cost[k];
                 if best.as_ref().is_none_or(|b| weighted < b.0) {
                     best = Some((weighted, order, k));
                 }
