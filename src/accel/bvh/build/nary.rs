@@ -35,11 +35,12 @@ use crate::error::{Error, Result};
 type Split = Option<(usize, NodeInfo, NodeInfo)>;
 
 /// A child of the node being made: a range of the node's primitives, and its
-/// split (`None`: a leaf).
+/// split (`None`: a leaf). Kept small and passed by reference: a node's
+/// eight of them were copied whole at every call.
+#[derive(Clone, Copy)]
 struct Kid {
     start: usize,
     len: usize,
-    info: NodeInfo,
     depth: u32,
     split: Split,
     /// The lane box (the node box the binary tree would store) and its area,
@@ -49,12 +50,11 @@ struct Kid {
 }
 
 impl Kid {
-    fn new(start: usize, len: usize, info: NodeInfo, depth: u32, split: Split) -> Kid {
+    fn new(start: usize, len: usize, info: &NodeInfo, depth: u32, split: Split) -> Kid {
         let bounds = padded(info.bounds.to_aabb());
         Kid {
             start,
             len,
-            info,
             depth,
             split,
             bounds,
@@ -64,6 +64,11 @@ impl Kid {
 
     fn is_leaf(&self) -> bool {
         self.split.is_none()
+    }
+
+    /// The same child as the first of its own range (to be opened there).
+    fn rebased(&self) -> Kid {
+        Kid { start: 0, ..*self }
     }
 }
 
@@ -90,12 +95,12 @@ impl<S: Splitter> Ctx<'_, S> {
     fn open_children<const N: usize>(
         &self,
         prims: &mut [PrimRef],
-        info: NodeInfo,
-        depth: u32,
-        split: Split,
-    ) -> ArrayVec<Kid, N> {
-        let mut kids: ArrayVec<Kid, N> = ArrayVec::new();
-        kids.push(Kid::new(0, prims.len(), info, depth, split));
+        root: Kid,
+        kids: &mut ArrayVec<Kid, N>,
+    ) {
+        debug_assert!(root.start == 0 && root.len == prims.len());
+        kids.clear();
+        kids.push(root);
         while kids.len() < N {
             let Some(i) = kids
                 .iter()
@@ -119,10 +124,9 @@ impl<S: Splitter> Ctx<'_, S> {
             } else {
                 (split_left(), split_right())
             };
-            kids[i] = Kid::new(start, mid, left, depth, left_split);
-            kids.push(Kid::new(start + mid, len - mid, right, depth, right_split));
+            kids[i] = Kid::new(start, mid, &left, depth, left_split);
+            kids.push(Kid::new(start + mid, len - mid, &right, depth, right_split));
         }
-        kids
     }
 
     /// The node of `kids` over `prims`, its leaves packed into new blocks at
@@ -160,20 +164,18 @@ impl<S: Splitter> Ctx<'_, S> {
     fn serial<const N: usize>(
         &self,
         prims: &mut [PrimRef],
-        kids: ArrayVec<Kid, N>,
+        kids: &ArrayVec<Kid, N>,
         piece: &mut Piece<N>,
     ) -> Result<(u32, usize)> {
         let index = piece.nodes.len();
         piece.nodes.push(WideNode::empty());
-        let mut node = self.node_with_leaves(prims, &kids, &mut piece.slot_ids)?;
+        let mut node = self.node_with_leaves(prims, kids, &mut piece.slot_ids)?;
         let mut deepest = 0;
-        for (lane, kid) in kids.iter().enumerate() {
-            let Some(split) = kid.split else {
-                continue;
-            };
+        let mut grand = ArrayVec::new();
+        for (lane, kid) in kids.iter().enumerate().filter(|(_, k)| !k.is_leaf()) {
             let sub = &mut prims[kid.start..kid.start + kid.len];
-            let grand = self.open_children(sub, kid.info, kid.depth, Some(split));
-            let (child, need) = self.serial(sub, grand, piece)?;
+            self.open_children(sub, kid.rebased(), &mut grand);
+            let (child, need) = self.serial(sub, &grand, piece)?;
             deepest = deepest.max(need);
             node.child[lane] = child;
         }
@@ -186,10 +188,10 @@ impl<S: Splitter> Ctx<'_, S> {
     fn parallel<const N: usize>(
         &self,
         prims: &mut [PrimRef],
-        kids: ArrayVec<Kid, N>,
+        kids: &ArrayVec<Kid, N>,
     ) -> Result<Built<N>> {
         let mut slot_ids = Vec::new();
-        let node = self.node_with_leaves(prims, &kids, &mut slot_ids)?;
+        let node = self.node_with_leaves(prims, kids, &mut slot_ids)?;
         // The interior children's primitive ranges, carved apart so that each
         // task owns its own.
         let mut order: ArrayVec<usize, N> = (0..kids.len()).collect();
@@ -211,12 +213,13 @@ impl<S: Splitter> Ctx<'_, S> {
             .into_par_iter()
             .map(|(lane, sub)| {
                 let kid = &kids[lane];
-                let grand = self.open_children(sub, kid.info, kid.depth, kid.split);
+                let mut grand = ArrayVec::new();
+                self.open_children(sub, kid.rebased(), &mut grand);
                 let b = if kid.len >= PARALLEL_CUTOFF {
-                    self.parallel(sub, grand)
+                    self.parallel(sub, &grand)
                 } else {
                     let mut piece = Piece::with_capacity(kid.len);
-                    self.serial(sub, grand, &mut piece).map(|(_, need)| {
+                    self.serial(sub, &grand, &mut piece).map(|(_, need)| {
                         piece.need = need;
                         Built::Piece(piece)
                     })
@@ -477,12 +480,14 @@ pub fn build<const N: usize, T: Triangles + ?Sized, S: Splitter>(
     let ctx = Ctx { splitter, parallel };
     let info = NodeInfo::of(&prims, parallel);
     let split = ctx.split(&mut prims, &info, 0);
-    let kids = ctx.open_children::<N>(&mut prims, info, 0, split);
+    let mut kids = ArrayVec::<Kid, N>::new();
+    let root = Kid::new(0, prims.len(), &info, 0, split);
+    ctx.open_children(&mut prims, root, &mut kids);
     let built = if parallel && prims.len() >= PARALLEL_CUTOFF {
-        ctx.parallel(&mut prims, kids)?
+        ctx.parallel(&mut prims, &kids)?
     } else {
         let mut piece = Piece::with_capacity(prims.len());
-        let (_, need) = ctx.serial(&mut prims, kids, &mut piece)?;
+        let (_, need) = ctx.serial(&mut prims, &kids, &mut piece)?;
         piece.need = need;
         Built::Piece(piece)
     };
