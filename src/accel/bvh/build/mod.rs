@@ -168,6 +168,12 @@ pub trait Triangles: Sync {
     fn count(&self) -> usize;
     /// The vertices of triangle `i`.
     fn get(&self, i: usize) -> [Vec3; 3];
+    /// A hint that triangle `i` will be read soon, for reads in an order
+    /// the hardware cannot guess (the leaf fill): `stage` 0 asks for what
+    /// locates its vertices (a scene's index triple), 1 for the vertices
+    /// themselves (reading the triple, which stage 0 should have brought).
+    #[inline]
+    fn prefetch(&self, _i: usize, _stage: u8) {}
 }
 
 /// Slices and vectors of vertex triples.
@@ -190,6 +196,22 @@ impl Triangles for crate::scene::Scene {
     #[inline]
     fn get(&self, i: usize) -> [Vec3; 3] {
         self.triangle(i)
+    }
+    #[inline]
+    fn prefetch(&self, i: usize, stage: u8) {
+        use crate::accel::bvh::simd::prefetch;
+        let Some(triple) = self.triangles.get(i) else {
+            return;
+        };
+        if stage == 0 {
+            prefetch(triple);
+        } else {
+            for &v in triple {
+                if let Some(p) = self.positions.get(v as usize) {
+                    prefetch(p);
+                }
+            }
+        }
     }
 }
 

@@ -435,31 +435,47 @@ fn stitch<const N: usize>(
     Ok((out_nodes, out_slots))
 }
 
+/// Blocks ahead of the one being filled whose triangles' vertices are
+/// prefetched (and twice as far, their index triples).
+const FILL_AHEAD: usize = 8;
+
 /// The leaf blocks of `slot_ids` (four slots to a block), each written once
-/// into a fresh array, in parallel when `parallel`.
+/// into a fresh array, in parallel when `parallel`. Leaf order jumps about
+/// the scene's triangle order, so each block's reads are asked for
+/// [`FILL_AHEAD`] blocks early: the fill was bound by waiting for them.
 fn fill_blocks<T: Triangles + ?Sized>(
     triangles: &T,
     slot_ids: &[u32],
     parallel: bool,
 ) -> Vec<Tri4> {
-    let block = |ids: &[u32]| {
+    let ask = |b: usize, stage: u8| {
+        if let Some(ids) = slot_ids.get(b * LANES..(b + 1) * LANES) {
+            for &id in ids.iter().filter(|&&id| id != EMPTY_ID) {
+                triangles.prefetch(id as usize, stage);
+            }
+        }
+    };
+    let block = |b: usize| {
+        ask(b + 2 * FILL_AHEAD, 0);
+        ask(b + FILL_AHEAD, 1);
         let mut block = Tri4::empty();
-        for (lane, &id) in ids.iter().enumerate() {
+        for (lane, &id) in slot_ids[b * LANES..(b + 1) * LANES].iter().enumerate() {
             if id != EMPTY_ID {
                 block.set_lane(lane, &triangles.get(id as usize), id);
             }
         }
         block
     };
-    let mut blocks = crate::os::huge_vec(slot_ids.len() / LANES);
+    let count = slot_ids.len() / LANES;
+    let mut blocks = crate::os::huge_vec(count);
     if parallel {
-        slot_ids
-            .par_chunks_exact(LANES)
+        (0..count)
+            .into_par_iter()
             .with_min_len(1024)
             .map(block)
             .collect_into_vec(&mut blocks);
     } else {
-        blocks.extend(slot_ids.chunks_exact(LANES).map(block));
+        blocks.extend((0..count).map(block));
     }
     blocks
 }
