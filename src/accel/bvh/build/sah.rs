@@ -310,28 +310,33 @@ impl BinnedSah {
     fn sweep(&self, prims: &mut [PrimRef], info: &NodeInfo) -> Option<(usize, NodeInfo, NodeInfo)> {
         let n = prims.len();
         debug_assert!((2..=SWEEP_MAX).contains(&n));
-        // (area-weighted child tests, order on the best axis, split position)
-        let mut best: Option<(f32, [u8; SWEEP_MAX], usize)> = None;
-        for axis in 0..3 {
-            // Sort keys: the centroid's bits mapped to an order-preserving
-            // integer (the order of `f32::total_cmp`), then the index; all
-            // distinct, so each key's rank (how many keys are smaller) is its
-            // place in the sorted order. Counting ranks has no data-dependent
-            // branch, where a sort of so few keys mispredicts on every other
-            // comparison.
-            let mut keys = [0u64; SWEEP_MAX];
-            for (key, p) in keys.iter_mut().zip(prims.iter()) {
-                let bits = p.centroid2()[axis].to_bits();
+        // Sort keys: each centroid's bits mapped to an order-preserving
+        // integer (the order of `f32::total_cmp`), then the index; all
+        // distinct, so each key's rank (how many keys are smaller) is its
+        // place in the sorted order. Counting ranks has no data-dependent
+        // branch, where a sort of so few keys mispredicts on every other
+        // comparison. Keys of all three axes are made in one pass.
+        let mut keys = [[0u64; SWEEP_MAX]; 3];
+        for (i, p) in prims.iter().enumerate() {
+            let c = p.centroid2();
+            let index = p.index() as u64;
+            for (axis, axis_keys) in keys.iter_mut().enumerate() {
+                let bits = c[axis].to_bits();
                 let ordered = if bits >> 31 == 1 {
                     !bits
                 } else {
                     bits | 1 << 31
                 };
-                *key = (ordered as u64) << 32 | p.index() as u64;
+                axis_keys[i] = (ordered as u64) << 32 | index;
             }
-            let mut order = [0u8; SWEEP_MAX];
-            for (i, &key) in keys[..n].iter().enumerate() {
-                let rank: usize = keys[..n].iter().map(|&k| (k < key) as usize).sum();
+        }
+        let mut orders = [[0u8; SWEEP_MAX]; 3];
+        // (area-weighted child tests, axis, split position)
+        let mut best: Option<(f32, usize, usize)> = None;
+        for axis in 0..3 {
+            let (keys, order) = (&keys[axis][..n], &mut orders[axis]);
+            for (i, &key) in keys.iter().enumerate() {
+                let rank: usize = keys.iter().map(|&k| (k < key) as usize).sum();
                 order[rank] = i as u8;
             }
             let boxed = |i: u8| Box4 {
@@ -348,20 +353,22 @@ impl BinnedSah {
             for k in 1..n {
                 acc = acc.union(boxed(order[k - 1]));
                 let weighted = acc.area() * self.sweep_tests[k] + right_cost[k];
-                if best.as_ref().is_none_or(|b| weighted < b.0) {
-                    best = Some((weighted, order, k));
+                if best.is_none_or(|b| weighted < b.0) {
+                    best = Some((weighted, axis, k));
                 }
             }
         }
-        let (weighted, order, k) = best?;
+        let (weighted, axis, k) = best?;
         if self.leaf_is_cheaper(n, weighted, info) {
             return None;
         }
         let mut sorted = [prims[0]; SWEEP_MAX];
-        for (slot, &i) in sorted.iter_mut().zip(&order[..n]) {
+        for (slot, &i) in sorted.iter_mut().zip(&orders[axis][..n]) {
             *slot = prims[i as usize];
         }
-        prims.copy_from_slice(&sorted[..n]);
+        for (p, s) in prims.iter_mut().zip(&sorted) {
+            *p = *s;
+        }
         let (left, right) = side_infos(prims, k, false);
         Some((k, left, right))
     }
