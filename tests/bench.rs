@@ -118,6 +118,12 @@ fn quick_bench_writes_tables_with_every_cell() {
     assert_eq!(json["baseline"], "naive-serial");
     let md = std::fs::read_to_string(dir.join("bench.md")).unwrap();
     assert!(md.contains("| naive-serial | (0,1,3) | 1.00x |"), "{md}");
+    // The trace part's build table, with the own builds over Embree's.
+    assert!(md.contains("| build ms, 1 thr |"), "{md}");
+    if embree() {
+        assert!(md.contains("| /Embree, 1 thr |"), "{md}");
+        assert!(md.contains("| cornell-water | bvh8-sah |"), "{md}");
+    }
 }
 
 #[test]
@@ -158,6 +164,8 @@ fn quick_bench_runs_every_experiment() {
     assert_eq!(len("trace"), 4 * 3 * trace_threads * backends);
     for p in json["trace"].as_array().unwrap() {
         assert!(p["mrays"]["median"].as_f64().unwrap() > 0.0, "{p}");
+        // Builds are timed on each thread count of the trace.
+        assert!(p["build_ms"].as_f64().is_some_and(|ms| ms > 0.0), "{p}");
         if !p["backend"].as_str().unwrap().starts_with("embree") {
             assert_eq!(p["differing"], 0, "{p}");
         }

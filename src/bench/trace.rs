@@ -43,7 +43,9 @@ pub struct TracePoint {
     /// Answers that differ from the reference backend's (0 for raylab's own
     /// backends, or the bench fails).
     pub differing: usize,
-    /// Build time of the backend (ms, once, on the largest thread count).
+    /// Build time of the backend on `threads` threads: the median (ms) of
+    /// `reps` builds after a warm-up, interleaved with the other backends'
+    /// (NaN when not measured).
     pub build_ms: f64,
     /// Bytes of its acceleration structure ([`Backend::memory_bytes`]).
     pub memory_bytes: Option<usize>,
@@ -132,6 +134,12 @@ pub fn trace_specs(variants: &[super::variants::Variant], threads: usize) -> Vec
 /// Measures every backend of `specs` on the rays of one render of `scene`
 /// with `settings`, on each of `thread_counts`, `reps` times. The first own
 /// (non-Embree) backend is the reference every other is checked against.
+///
+/// Builds are measured too: on each thread count, a warm-up build and `reps`
+/// timed ones per backend, backends interleaved build by build (so a noisy
+/// spell of the machine falls on all of them), each build as the backend
+/// times itself ([`Backend::build_time`]). The rays are traced by the last
+/// build on the largest thread count.
 pub fn trace_throughput(
     scene: &Scene,
     settings: &RenderSettings,
@@ -140,22 +148,43 @@ pub fn trace_throughput(
     reps: usize,
     bar: &StepBar,
 ) -> Result<Vec<TracePoint>> {
-    bar.set_message(format!("trace: building backends for {}", scene.name));
-    let mut backends: Vec<(Box<dyn Backend>, f64)> = Vec::new();
-    for spec in specs {
-        let start = Instant::now();
-        let b = build_backend(spec, scene)?;
-        backends.push((b, start.elapsed().as_secs_f64() * 1e3));
+    let mut kept: Vec<Option<Box<dyn Backend>>> = specs.iter().map(|_| None).collect();
+    let mut builds = vec![vec![Vec::new(); thread_counts.len()]; specs.len()];
+    let largest = (0..thread_counts.len()).max_by_key(|&i| thread_counts[i]);
+    for (ti, &threads) in thread_counts.iter().enumerate() {
+        for run in 0..=reps.max(1) {
+            bar.set_message(format!(
+                "trace: builds of {} on {threads} thread(s), run {run}/{}",
+                scene.name,
+                reps.max(1)
+            ));
+            for (si, spec) in specs.iter().enumerate() {
+                let mut spec = *spec;
+                spec.bvh.threads = threads;
+                let b = build_backend(&spec, scene)?;
+                if run > 0 {
+                    builds[si][ti].push(b.build_time().as_secs_f64() * 1e3);
+                }
+                if Some(ti) == largest {
+                    kept[si] = Some(b);
+                }
+            }
+        }
     }
+    let backends: Vec<(Box<dyn Backend>, Vec<f64>)> = kept
+        .into_iter()
+        .zip(builds)
+        .filter_map(|(b, runs)| Some((b?, runs.iter().map(|r| Stat::of(r).median).collect())))
+        .collect();
     trace_backends(scene, settings, &backends, thread_counts, reps, bar)
 }
 
-/// [`trace_throughput`] over backends already built, each with its build time
-/// in ms.
+/// [`trace_throughput`] over backends already built, each with its median
+/// build time in ms on each of `thread_counts` (empty: not measured).
 pub fn trace_backends(
     scene: &Scene,
     settings: &RenderSettings,
-    backends: &[(Box<dyn Backend>, f64)],
+    backends: &[(Box<dyn Backend>, Vec<f64>)],
     thread_counts: &[usize],
     reps: usize,
     bar: &StepBar,
@@ -244,6 +273,7 @@ pub fn trace_backends(
         bar.step();
         for (bi, (b, build_ms)) in backends.iter().enumerate() {
             for (ti, &threads) in thread_counts.iter().enumerate() {
+                let build_ms = build_ms.get(ti).copied().unwrap_or(f64::NAN);
                 out.push(TracePoint {
                     scene: scene.name.clone(),
                     triangles: scene.triangle_count(),
@@ -253,13 +283,72 @@ pub fn trace_backends(
                     rays: rays.len(),
                     mrays: Stat::of(&rates[bi][ti]),
                     differing: differing[bi],
-                    build_ms: *build_ms,
+                    build_ms,
                     memory_bytes: b.memory_bytes(),
                 });
             }
         }
     }
     Ok(out)
+}
+
+/// The build table: per scene and backend, the median build time on each
+/// thread count, the own backends' time over Embree's on the same count (at
+/// most 1: as fast as Embree or faster), and bytes per triangle.
+fn build_markdown(points: &[TracePoint]) -> String {
+    let mut counts: Vec<usize> = points.iter().map(|p| p.threads).collect();
+    counts.sort_unstable();
+    counts.dedup();
+    let has_embree = points.iter().any(|p| p.backend.starts_with("embree"));
+    let mut out = String::from(
+        "\nBuild time (median ms of the timed builds, backends interleaved) and memory of each backend:\n\n| scene | backend |",
+    );
+    for t in &counts {
+        out.push_str(&format!(" build ms, {t} thr |"));
+        if has_embree {
+            out.push_str(&format!(" /Embree, {t} thr |"));
+        }
+    }
+    out.push_str(" bytes/triangle |\n|---|---|");
+    out.push_str(&"---:|".repeat(counts.len() * if has_embree { 2 } else { 1 } + 1));
+    out.push('\n');
+    let mut seen: Vec<(&str, &str)> = Vec::new();
+    for p in points {
+        if seen.contains(&(p.scene.as_str(), p.backend.as_str())) {
+            continue;
+        }
+        seen.push((&p.scene, &p.backend));
+        out.push_str(&format!("| {} | {} |", p.scene, p.backend));
+        for &t in &counts {
+            let build = |backend: &dyn Fn(&str) -> bool| {
+                points
+                    .iter()
+                    .find(|q| q.scene == p.scene && q.threads == t && backend(&q.backend))
+                    .map(|q| q.build_ms)
+            };
+            let own = build(&|b| b == p.backend);
+            out.push_str(&match own {
+                Some(ms) if ms.is_finite() => format!(" {ms:.1} |"),
+                _ => " - |".to_string(),
+            });
+            if has_embree {
+                let embree = build(&|b| b.starts_with("embree"));
+                out.push_str(&match (own, embree) {
+                    (Some(o), Some(e))
+                        if !p.backend.starts_with("embree") && o.is_finite() && e > 0.0 =>
+                    {
+                        format!(" {:.2} |", o / e)
+                    }
+                    _ => " |".to_string(),
+                });
+            }
+        }
+        let bytes = p.memory_bytes.map_or("-".to_string(), |b| {
+            format!("{:.1}", b as f64 / p.triangles.max(1) as f64)
+        });
+        out.push_str(&format!(" {bytes} |\n"));
+    }
+    out
 }
 
 /// The trace table: one row per scene, ray kind and thread count, Mrays/s per
@@ -329,21 +418,7 @@ pub fn markdown(points: &[TracePoint]) -> String {
         }
         out.push('\n');
     }
-    out.push_str("\nBuild (once, on the largest thread count) and memory of each backend:\n\n| scene | backend | build ms | bytes/triangle |\n|---|---|---:|---:|\n");
-    let mut seen: Vec<(&str, &str)> = Vec::new();
-    for p in points {
-        if seen.contains(&(p.scene.as_str(), p.backend.as_str())) {
-            continue;
-        }
-        seen.push((&p.scene, &p.backend));
-        let bytes = p.memory_bytes.map_or("-".to_string(), |b| {
-            format!("{:.1}", b as f64 / p.triangles.max(1) as f64)
-        });
-        out.push_str(&format!(
-            "| {} | {} | {:.1} | {bytes} |\n",
-            p.scene, p.backend, p.build_ms
-        ));
-    }
+    out.push_str(&build_markdown(points));
     out.push('\n');
     out
 }
@@ -407,6 +482,17 @@ mod tests {
         assert!(md.contains("| cornell-sphere | 2188 | ao ("), "{md}");
         assert!(md.contains("| cornell-sphere | bvh8-sah |"), "{md}");
         assert!(points.iter().all(|p| p.memory_bytes.is_some_and(|b| b > 0)));
+        // Every backend's builds were timed on each thread count.
+        assert!(
+            points
+                .iter()
+                .all(|p| p.build_ms.is_finite() && p.build_ms > 0.0),
+            "{points:?}"
+        );
+        assert!(
+            md.contains("| build ms, 1 thr | build ms, 2 thr | bytes/triangle |"),
+            "{md}"
+        );
         assert!(
             !md.contains("own/Embree"),
             "no Embree column without Embree: {md}"
@@ -417,8 +503,10 @@ mod tests {
     fn a_wrong_own_backend_fails_the_trace() {
         let (scene, settings) = setup();
         let build = || BvhBackend::new(&scene, &BuildParams::sah()).unwrap();
-        let backends: Vec<(Box<dyn Backend>, f64)> =
-            vec![(Box::new(build()), 0.0), (Box::new(Planted(build())), 0.0)];
+        let backends: Vec<(Box<dyn Backend>, Vec<f64>)> = vec![
+            (Box::new(build()), Vec::new()),
+            (Box::new(Planted(build())), Vec::new()),
+        ];
         let bar = StepBar::new(0, true);
         let err = trace_backends(&scene, &settings, &backends, &[1], 1, &bar)
             .unwrap_err()
