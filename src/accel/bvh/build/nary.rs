@@ -12,13 +12,14 @@
 //!
 //! Memory: a subtree below [`PARALLEL_CUTOFF`] primitives (or any subtree in
 //! a serial build) is made into a piece of its own, indices relative to it;
-//! the parallel top is stitched together with those pieces once, in
-//! depth-first order, at the end. Pieces hold nodes and, for the leaves, only
-//! the scene index of each triangle slot (4 bytes, not a 40-byte share of a
-//! block): the blocks are filled once, in parallel, straight into the final
-//! array after the stitch, so the 40 bytes per triangle are written once
-//! and never copied. A serial build's one piece becomes the tree without a
-//! copy.
+//! the parallel top's nodes and the pieces are laid out in depth-first order
+//! at the end ([`Layout`]). Pieces hold nodes and, for the leaves, only the
+//! scene index of each triangle slot (4 bytes, not a 40-byte share of a
+//! block). The final arrays are then written once each, in parallel, by
+//! index: node `i` is read from its segment with its references made global,
+//! block `b` is filled from its segment's slot indices and the scene. Nothing
+//! is written twice (no zero fill, no copy of pieces into place), and a
+//! serial build's one piece keeps its node array.
 
 use arrayvec::ArrayVec;
 use rayon::prelude::*;
@@ -357,128 +358,139 @@ fn shifted<const N: usize>(
     node
 }
 
-/// Writes the segments into one node array and one slot array, each segment
-/// into its own run, in parallel when `parallel`; a lone piece (a serial
-/// build) is taken as it is.
-fn stitch<const N: usize>(
-    mut segments: Vec<Segment<N>>,
-    parallel: bool,
-) -> Result<(Vec<WideNode<N>>, Vec<u32>)> {
-    let mut offsets = Vec::with_capacity(segments.len());
-    let (mut nodes, mut slots) = (0, 0);
-    for s in &segments {
-        offsets.push((nodes, slots));
-        let (n, b) = s.size();
-        nodes += n;
-        slots += b;
+/// The segments in their final order and where each one's nodes and
+/// triangle slots start in the tree's arrays.
+struct Layout<const N: usize> {
+    segments: Vec<Segment<N>>,
+    /// `first_node[s]`, `first_slot[s]`: segment `s`'s first node and slot;
+    /// one more entry holds the totals.
+    first_node: Vec<usize>,
+    first_slot: Vec<usize>,
+}
+
+/// The segment whose run `[starts[s], starts[s + 1])` holds `i`, found from
+/// `hint` (the last answer): the nodes and blocks are written in increasing
+/// order within each parallel job, so this is nearly always `hint` or the next.
+#[inline]
+fn segment_of(starts: &[usize], i: usize, hint: &mut usize) -> usize {
+    let s = *hint;
+    if !(s + 1 < starts.len() && starts[s] <= i && i < starts[s + 1]) {
+        *hint = starts.partition_point(|&start| start <= i) - 1;
     }
-    if slots > MAX_SLOTS {
-        return Err(Error::Other(format!(
-            "wide BVH: more than {MAX_SLOTS} triangle slots"
-        )));
-    }
-    if segments.len() == 1 {
-        if let Some(Segment::Piece(p)) = segments.pop() {
-            return Ok((p.nodes, p.slot_ids));
+    *hint
+}
+
+impl<const N: usize> Layout<N> {
+    fn new(segments: Vec<Segment<N>>) -> Result<Self> {
+        let (mut first_node, mut first_slot) = (vec![0], vec![0]);
+        for s in &segments {
+            let (n, b) = s.size();
+            first_node.push(first_node.last().unwrap() + n);
+            first_slot.push(first_slot.last().unwrap() + b);
         }
-        unreachable!("a one-segment tree is one piece");
+        if *first_slot.last().unwrap() > MAX_SLOTS {
+            return Err(Error::Other(format!(
+                "wide BVH: more than {MAX_SLOTS} triangle slots"
+            )));
+        }
+        Ok(Layout {
+            segments,
+            first_node,
+            first_slot,
+        })
     }
-    let mut out_nodes = crate::os::huge_vec(nodes);
-    let mut out_slots = crate::os::huge_vec(slots);
-    if parallel {
-        // Filling first lets both threads take the page faults.
-        out_nodes.par_extend(rayon::iter::repeat_n(WideNode::empty(), nodes));
-        out_slots.par_extend(rayon::iter::repeat_n(EMPTY_ID, slots));
-    } else {
-        out_nodes.resize(nodes, WideNode::empty());
-        out_slots.resize(slots, EMPTY_ID);
-    }
-    // Each segment's runs, carved apart.
-    let mut jobs = Vec::with_capacity(segments.len());
-    let (mut node_rest, mut slot_rest) = (&mut out_nodes[..], &mut out_slots[..]);
-    for (s, &(n0, s0)) in segments.iter().zip(&offsets) {
-        let (n, b) = s.size();
-        let (nn, nr) = std::mem::take(&mut node_rest).split_at_mut(n);
-        let (ss, sr) = std::mem::take(&mut slot_rest).split_at_mut(b);
-        node_rest = nr;
-        slot_rest = sr;
-        jobs.push((s, nn, ss, n0, s0));
-    }
-    let write =
-        |(s, nodes, slots, n0, s0): (&Segment<N>, &mut [WideNode<N>], &mut [u32], usize, usize)| {
-            match s {
-                Segment::Piece(p) => {
-                    for (out, &node) in nodes.iter_mut().zip(&p.nodes) {
-                        *out = shifted(node, n0, s0);
-                    }
-                    slots.copy_from_slice(&p.slot_ids);
+
+    /// Node `i` of the tree, its references made global.
+    fn node(&self, i: usize, hint: &mut usize) -> WideNode<N> {
+        let s = segment_of(&self.first_node, i, hint);
+        let (n0, s0) = (self.first_node[s], self.first_slot[s]);
+        match &self.segments[s] {
+            Segment::Piece(p) => shifted(p.nodes[i - n0], n0, s0),
+            Segment::Node { node, children, .. } => {
+                let mut node = shifted(*node, 0, s0);
+                for &(lane, child) in children {
+                    node.child[lane] = self.first_node[child] as u32;
                 }
-                Segment::Node {
-                    node,
-                    slot_ids,
-                    children,
-                } => {
-                    let mut node = shifted(*node, 0, s0);
-                    for &(lane, child) in children {
-                        node.child[lane] = offsets[child].0 as u32;
-                    }
-                    nodes[0] = node;
-                    slots.copy_from_slice(slot_ids);
+                node
+            }
+        }
+    }
+
+    /// The scene indices of block `b`'s four slots.
+    fn block_ids(&self, b: usize, hint: &mut usize) -> &[u32] {
+        let slot = b * LANES;
+        let s = segment_of(&self.first_slot, slot, hint);
+        let local = slot - self.first_slot[s];
+        let ids = match &self.segments[s] {
+            Segment::Piece(p) => &p.slot_ids,
+            Segment::Node { slot_ids, .. } => slot_ids,
+        };
+        &ids[local..local + LANES]
+    }
+
+    /// The tree's nodes, each written once into a fresh array, in parallel
+    /// when `parallel`; a lone piece (a serial build) is taken as it is.
+    fn nodes(&mut self, parallel: bool) -> Vec<WideNode<N>> {
+        let total = *self.first_node.last().unwrap();
+        if let [Segment::Piece(p)] = &mut self.segments[..] {
+            return std::mem::take(&mut p.nodes);
+        }
+        let mut nodes = crate::os::huge_vec(total);
+        if parallel {
+            (0..total)
+                .into_par_iter()
+                .with_min_len(256)
+                .map_init(|| 0, |hint, i| self.node(i, hint))
+                .collect_into_vec(&mut nodes);
+        } else {
+            let mut hint = 0;
+            nodes.extend((0..total).map(|i| self.node(i, &mut hint)));
+        }
+        nodes
+    }
+
+    /// The leaf blocks, each written once into a fresh array, in parallel
+    /// when `parallel`. Leaf order jumps about the scene's triangle order, so
+    /// each block's reads are asked for [`FILL_AHEAD`] blocks early: the fill
+    /// was bound by waiting for them.
+    fn blocks<T: Triangles + ?Sized>(&self, triangles: &T, parallel: bool) -> Vec<Tri4> {
+        let count = *self.first_slot.last().unwrap() / LANES;
+        let ask = |b: usize, stage: u8, hint: &mut usize| {
+            if b < count {
+                for &id in self.block_ids(b, hint).iter().filter(|&&id| id != EMPTY_ID) {
+                    triangles.prefetch(id as usize, stage);
                 }
             }
         };
-    if parallel {
-        jobs.into_par_iter().for_each(write);
-    } else {
-        jobs.into_iter().for_each(write);
+        let block = |hints: &mut [usize; 3], b: usize| {
+            ask(b + 2 * FILL_AHEAD, 0, &mut hints[0]);
+            ask(b + FILL_AHEAD, 1, &mut hints[1]);
+            let mut block = Tri4::empty();
+            for (lane, &id) in self.block_ids(b, &mut hints[2]).iter().enumerate() {
+                if id != EMPTY_ID {
+                    block.set_lane(lane, &triangles.get(id as usize), id);
+                }
+            }
+            block
+        };
+        let mut blocks = crate::os::huge_vec(count);
+        if parallel {
+            (0..count)
+                .into_par_iter()
+                .with_min_len(1024)
+                .map_init(|| [0; 3], block)
+                .collect_into_vec(&mut blocks);
+        } else {
+            let mut hints = [0; 3];
+            blocks.extend((0..count).map(|b| block(&mut hints, b)));
+        }
+        blocks
     }
-    Ok((out_nodes, out_slots))
 }
 
 /// Blocks ahead of the one being filled whose triangles' vertices are
 /// prefetched (and twice as far, their index triples).
 const FILL_AHEAD: usize = 8;
-
-/// The leaf blocks of `slot_ids` (four slots to a block), each written once
-/// into a fresh array, in parallel when `parallel`. Leaf order jumps about
-/// the scene's triangle order, so each block's reads are asked for
-/// [`FILL_AHEAD`] blocks early: the fill was bound by waiting for them.
-fn fill_blocks<T: Triangles + ?Sized>(
-    triangles: &T,
-    slot_ids: &[u32],
-    parallel: bool,
-) -> Vec<Tri4> {
-    let ask = |b: usize, stage: u8| {
-        if let Some(ids) = slot_ids.get(b * LANES..(b + 1) * LANES) {
-            for &id in ids.iter().filter(|&&id| id != EMPTY_ID) {
-                triangles.prefetch(id as usize, stage);
-            }
-        }
-    };
-    let block = |b: usize| {
-        ask(b + 2 * FILL_AHEAD, 0);
-        ask(b + FILL_AHEAD, 1);
-        let mut block = Tri4::empty();
-        for (lane, &id) in slot_ids[b * LANES..(b + 1) * LANES].iter().enumerate() {
-            if id != EMPTY_ID {
-                block.set_lane(lane, &triangles.get(id as usize), id);
-            }
-        }
-        block
-    };
-    let count = slot_ids.len() / LANES;
-    let mut blocks = crate::os::huge_vec(count);
-    if parallel {
-        (0..count)
-            .into_par_iter()
-            .with_min_len(1024)
-            .map(block)
-            .collect_into_vec(&mut blocks);
-    } else {
-        blocks.extend((0..count).map(block));
-    }
-    blocks
-}
 
 /// Builds the `N`-wide tree over `triangles` with `splitter`, in parallel on
 /// the current rayon pool when `parallel`.
@@ -508,12 +520,12 @@ pub fn build<const N: usize, T: Triangles + ?Sized, S: Splitter>(
         Built::Piece(piece)
     };
     out.stack_need = built.need() + 1;
+    drop(prims);
     let mut segments = Vec::new();
     built.segments(&mut segments);
-    let slot_ids;
-    (out.nodes, slot_ids) = stitch(segments, parallel)?;
-    drop(prims);
-    out.blocks = fill_blocks(triangles, &slot_ids, parallel);
+    let mut layout = Layout::new(segments)?;
+    out.blocks = layout.blocks(triangles, parallel);
+    out.nodes = layout.nodes(parallel);
     Ok(out)
 }
 
