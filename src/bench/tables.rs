@@ -40,13 +40,15 @@ pub fn speedup(ms: &[Measurement], m: &Measurement) -> Option<f64> {
         .then(|| base.total_ms.median / m.total_ms.median)
 }
 
-fn fmt_ms(x: f64) -> String {
+pub(crate) fn fmt_ms(x: f64) -> String {
     if x >= 100.0 {
         format!("{x:.0}")
     } else if x >= 10.0 {
         format!("{x:.1}")
-    } else {
+    } else if x >= 0.1 {
         format!("{x:.2}")
+    } else {
+        format!("{x:.3}")
     }
 }
 

@@ -328,7 +328,7 @@ fn build_markdown(points: &[TracePoint]) -> String {
             };
             let own = build(&|b| b == p.backend);
             out.push_str(&match own {
-                Some(ms) if ms.is_finite() => format!(" {ms:.1} |"),
+                Some(ms) if ms.is_finite() => format!(" {} |", super::tables::fmt_ms(ms)),
                 _ => " - |".to_string(),
             });
             if has_embree {
