@@ -906,6 +906,29 @@ mod tests {
     }
 
     #[test]
+    fn wide_build_over_a_scene_equals_the_build_over_its_vertices() {
+        // A scene is read through its index list (and prefetched through it
+        // in the leaf fill); the tree must not notice.
+        let scene = crate::scene::builtin::builtin("cornell-water").unwrap();
+        let vertices = scene.triangle_vertices();
+        for threads in [1, 2] {
+            let params = BuildParams::sah().with_width(8).with_threads(threads);
+            let from_scene = in_pool(threads, || wide_here::<8, _>(&scene, &params)).unwrap();
+            let from_vertices = in_pool(threads, || wide_here::<8, _>(&vertices, &params)).unwrap();
+            assert!(from_scene.nodes == from_vertices.nodes, "{threads} threads");
+            assert!(
+                from_scene.blocks == from_vertices.blocks,
+                "{threads} threads"
+            );
+        }
+        // Hints past the end are ignored.
+        for stage in [0, 1] {
+            scene.prefetch(scene.triangle_count(), stage);
+            scene.prefetch(usize::MAX, stage);
+        }
+    }
+
+    #[test]
     fn median_partition_matches_a_sort() {
         let prims: Vec<PrimRef> = (0..101u32)
             .map(|i| {

@@ -400,3 +400,161 @@ fn partition(prims: &mut [PrimRef], left: impl Fn(Vec4) -> bool) -> (usize, Box4
     }
     (i, lc, rc)
 }
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+
+    use super::*;
+    use crate::accel::bvh::test_fixtures::random_tris;
+    use crate::geometry::Aabb;
+
+    fn prims_of(tris: &[[Vec3; 3]]) -> Vec<PrimRef> {
+        tris.iter()
+            .enumerate()
+            .map(|(i, t)| PrimRef::new(&Aabb::from_points(t), i as u32))
+            .collect()
+    }
+
+    /// Triangles on a coarse grid, so that many centroids coincide on some
+    /// axis and the index tie-break decides the order.
+    fn gridded(n: usize, seed: u64) -> Vec<[Vec3; 3]> {
+        random_tris(n, seed)
+            .into_iter()
+            .map(|t| {
+                let snap = (t[0] * 0.5).round();
+                [snap, snap + Vec3::X * 0.25, snap + Vec3::Y * 0.25]
+            })
+            .collect()
+    }
+
+    fn union(prims: &[PrimRef]) -> Box4 {
+        prims
+            .iter()
+            .fold(Box4::EMPTY, |b, p| b.union(Box4 { lo: p.lo, hi: p.hi }))
+    }
+
+    /// The split the exact sweep must find: every axis sorted by (centroid,
+    /// index), every position costed, strictly lower wins.
+    fn brute_force(sah: &BinnedSah, prims: &[PrimRef]) -> Option<(usize, Vec<u32>)> {
+        let n = prims.len();
+        let mut best: Option<(f32, Vec<PrimRef>, usize)> = None;
+        for axis in 0..3 {
+            let mut sorted = prims.to_vec();
+            sorted.sort_by(|a, b| {
+                a.centroid2()[axis]
+                    .total_cmp(&b.centroid2()[axis])
+                    .then(a.index().cmp(&b.index()))
+            });
+            for k in 1..n {
+                let weighted = union(&sorted[..k]).area() * sah.tests(k as u32)
+                    + union(&sorted[k..]).area() * sah.tests((n - k) as u32);
+                if best.as_ref().is_none_or(|b| weighted < b.0) {
+                    best = Some((weighted, sorted.clone(), k));
+                }
+            }
+        }
+        let (weighted, sorted, k) = best?;
+        let info = NodeInfo::of(prims, false);
+        if sah.leaf_is_cheaper(n, weighted, &info) {
+            return None;
+        }
+        let mut left: Vec<u32> = sorted[..k].iter().map(PrimRef::index).collect();
+        left.sort_unstable();
+        Some((k, left))
+    }
+
+    #[test]
+    fn exact_sweep_finds_the_brute_force_best_split() {
+        let mut splits = 0;
+        for (seed, n) in (0..400u64).map(|s| (s, 2 + (s as usize % (SWEEP_MAX - 1)))) {
+            let tris = if seed % 2 == 0 {
+                random_tris(n, seed)
+            } else {
+                gridded(n, seed)
+            };
+            for block in [1, 2, 4] {
+                let sah = BinnedSah::new(4, block);
+                let mut prims = prims_of(&tris);
+                let info = NodeInfo::of(&prims, false);
+                let got = sah.split(&mut prims, &info, 0, false);
+                let want = brute_force(&sah, &prims_of(&tris));
+                let what = format!("seed {seed}, n {n}, block {block}");
+                match (got, want) {
+                    (None, None) => {}
+                    (Some((mid, left, right)), Some((k, want_left))) => {
+                        splits += 1;
+                        assert_eq!(mid, k, "{what}");
+                        let mut got_left: Vec<u32> =
+                            prims[..mid].iter().map(PrimRef::index).collect();
+                        got_left.sort_unstable();
+                        assert_eq!(got_left, want_left, "{what}");
+                        assert_eq!(left, NodeInfo::of(&prims[..mid], false), "{what}");
+                        assert_eq!(right, NodeInfo::of(&prims[mid..], false), "{what}");
+                    }
+                    (got, want) => panic!("{what}: split {got:?}, brute force {want:?}"),
+                }
+            }
+        }
+        assert!(splits > 500, "too few splits to mean anything: {splits}");
+    }
+
+    #[test]
+    fn binned_splits_return_their_sides_own_bounds_serial_or_parallel() {
+        // The side bounds come from the bins and the centroid bounds from
+        // the partition: they equal the sides' own only if the partition
+        // sent each primitive to the side its bin is on. 70,000 triangles
+        // take the parallel binning.
+        for (n, seed) in [
+            (17, 1),
+            (63, 2),
+            (64, 3),
+            (511, 4),
+            (512, 5),
+            (5000, 6),
+            (70_000, 7),
+        ] {
+            // Centres on whole numbers 0..=8 along x: with 8 bins over that
+            // extent, every centroid lies exactly on a bin boundary, where a
+            // partition that rounds differently from the binning shows.
+            let on_boundaries: Vec<[Vec3; 3]> = (0..n)
+                .map(|i| {
+                    let c = Vec3::new((i % 9) as f32, (i % 7) as f32 * 0.01, 0.0);
+                    [c - Vec3::Y * 0.1, c + Vec3::Y * 0.1, c + Vec3::Z * 0.1]
+                })
+                .collect();
+            for tris in [random_tris(n, seed), gridded(n, seed), on_boundaries] {
+                let sah = BinnedSah::new(4, 2);
+                let mut results = Vec::new();
+                for parallel in [false, true] {
+                    let mut prims = prims_of(&tris);
+                    let info = NodeInfo::of(&prims, parallel);
+                    let (mid, left, right) = sah
+                        .split(&mut prims, &info, 0, parallel)
+                        .unwrap_or_else(|| panic!("n {n}: a split"));
+                    assert!(mid > 0 && mid < n, "n {n}");
+                    assert_eq!(left, NodeInfo::of(&prims[..mid], false), "n {n}");
+                    assert_eq!(right, NodeInfo::of(&prims[mid..], false), "n {n}");
+                    results.push(prims.iter().map(PrimRef::index).collect::<Vec<_>>());
+                }
+                assert_eq!(
+                    results[0], results[1],
+                    "n {n}: parallel binning changed the split"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn leaf_tests_count_blocks() {
+        for block in [1usize, 2, 3, 4, 8] {
+            let sah = BinnedSah::new(4, block);
+            for n in 0..100u32 {
+                assert_eq!(sah.tests(n), n.div_ceil(block as u32) as f32, "{block} {n}");
+            }
+            for k in 0..=SWEEP_MAX {
+                assert_eq!(sah.sweep_tests[k], sah.tests(k as u32));
+            }
+        }
+    }
+}
