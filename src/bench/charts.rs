@@ -254,8 +254,18 @@ where
     )
 }
 
-/// A scene name without the `cornell-` prefix, for labels under bars.
+/// A scene name short enough to sit under a bar: without the `cornell-`
+/// prefix, and `mesh:N` with a power of ten as `mesh 1eK`.
 fn short(scene: &str) -> String {
+    if let Some(n) = scene
+        .strip_prefix("mesh:")
+        .and_then(|n| n.parse::<u64>().ok())
+    {
+        let k = n.checked_ilog10().unwrap_or(0);
+        if 10u64.pow(k) == n {
+            return format!("mesh 1e{k}");
+        }
+    }
     scene.strip_prefix("cornell-").unwrap_or(scene).to_string()
 }
 
@@ -713,4 +723,17 @@ where
     legend(&mut chart, SeriesLabelPosition::UpperRight)?;
     root.present()?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn bar_labels_are_short() {
+        assert_eq!(super::short("cornell-water"), "water");
+        assert_eq!(super::short("mesh:100000"), "mesh 1e5");
+        assert_eq!(super::short("mesh:1"), "mesh 1e0");
+        assert_eq!(super::short("mesh:123456"), "mesh:123456");
+        assert_eq!(super::short("mesh:0"), "mesh:0");
+        assert_eq!(super::short("/some/scene.obj"), "/some/scene.obj");
+    }
 }
