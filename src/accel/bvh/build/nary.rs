@@ -256,8 +256,9 @@ struct Piece<const N: usize> {
 }
 
 impl<const N: usize> Piece<N> {
-    /// Room for the subtree of `prims` triangles, so that it never regrows
-    /// (reserving touches no memory).
+    /// Room for the subtree of `prims` triangles as trees usually come out
+    /// (more than that is a regrowth, not an error; reserving touches no
+    /// memory).
     fn with_capacity(prims: usize) -> Self {
         Piece {
             nodes: Vec::with_capacity(prims / (N - 1) + 1),
@@ -272,7 +273,7 @@ enum Built<const N: usize> {
     Piece(Piece<N>),
     Node {
         /// Leaf lanes refer to `slot_ids`; interior lanes' children are set
-        /// when stitched.
+        /// when laid out ([`Layout::node`]).
         node: WideNode<N>,
         slot_ids: Vec<u32>,
         children: Vec<(usize, Built<N>)>,
