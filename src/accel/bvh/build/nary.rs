@@ -29,7 +29,9 @@ use super::{
 };
 use crate::accel::bvh::leaf::{Tri4, EMPTY_ID, LANES};
 use crate::accel::bvh::simd::Kernel;
-use crate::accel::bvh::wide::{leaf_ref, pack_leaves, WideBvh, WideNode, EMPTY, LEAF, MAX_SLOTS};
+use crate::accel::bvh::wide::{
+    leaf_ref, pack_leaves, WideBvh, WideNode, EMPTY, LEAF, MAX_SLOTS, MERGE_MAX,
+};
 use crate::error::{Error, Result};
 
 /// A split as [`Splitter::split`] returns it (`None`: a leaf).
@@ -44,6 +46,9 @@ struct Kid {
     len: usize,
     depth: u32,
     split: Split,
+    /// The splits of the two halves of `split`, when already tried (to see
+    /// whether the child is small enough to be one leaf, [`MERGE_MAX`]).
+    halves: Option<(Split, Split)>,
     /// The lane box (the node box the binary tree would store) and its area,
     /// which orders the opening as in the collapse.
     bounds: crate::geometry::Aabb,
@@ -58,6 +63,7 @@ impl Kid {
             len,
             depth,
             split,
+            halves: None,
             bounds,
             area: bounds.surface_area(),
         }
@@ -117,16 +123,41 @@ impl<S: Splitter> Ctx<'_, S> {
                 unreachable!("only split children are opened");
             };
             let (start, len, depth) = (k.start, k.len, k.depth + 1);
-            let (lp, rp) = prims[start..start + len].split_at_mut(mid);
-            let mut split_left = || self.split(lp, &left, depth);
-            let mut split_right = || self.split(rp, &right, depth);
-            let (left_split, right_split) = if self.parallel && len >= PARALLEL_CUTOFF {
-                rayon::join(split_left, split_right)
-            } else {
-                (split_left(), split_right())
+            let (left_split, right_split) = match k.halves {
+                Some(halves) => halves,
+                None => {
+                    let (lp, rp) = prims[start..start + len].split_at_mut(mid);
+                    let mut split_left = || self.split(lp, &left, depth);
+                    let mut split_right = || self.split(rp, &right, depth);
+                    if self.parallel && len >= PARALLEL_CUTOFF {
+                        rayon::join(split_left, split_right)
+                    } else {
+                        (split_left(), split_right())
+                    }
+                }
             };
             kids[i] = Kid::new(start, mid, &left, depth, left_split);
             kids.push(Kid::new(start + mid, len - mid, &right, depth, right_split));
+        }
+        // A full node's small interior children whose halves are both leaves
+        // become one leaf each (the collapse does the same, [`MERGE_MAX`]).
+        for k in kids.iter_mut() {
+            let Some((mid, left, right)) = k.split else {
+                continue;
+            };
+            if k.len > MERGE_MAX {
+                continue;
+            }
+            let (lp, rp) = prims[k.start..k.start + k.len].split_at_mut(mid);
+            let halves = (
+                self.split(lp, &left, k.depth + 1),
+                self.split(rp, &right, k.depth + 1),
+            );
+            if halves.0.is_none() && halves.1.is_none() {
+                k.split = None;
+            } else {
+                k.halves = Some(halves);
+            }
         }
     }
 
