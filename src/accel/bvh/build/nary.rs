@@ -351,7 +351,7 @@ impl<const N: usize> Built<N> {
     }
 }
 
-/// One contiguous run of the final arrays: a parallel node with its own leaf
+/// One contiguous run of the final arrays: a parallel node with its own
 /// leaf slots (children by segment index), or a piece.
 enum Segment<const N: usize> {
     Node {
