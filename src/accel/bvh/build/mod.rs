@@ -550,30 +550,57 @@ pub fn build<T: Triangles + ?Sized>(triangles: &T, params: &BuildParams) -> crat
 /// per build also gave each build fresh per-thread heaps whose pages all
 /// faulted again (mesh:1e5 on 2 threads: 1770 page faults a build).
 pub fn in_pool<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> R {
-    use std::collections::HashMap;
-    use std::sync::{Arc, Mutex, OnceLock};
     if threads <= 1 {
         return f();
     }
-    static POOLS: OnceLock<Mutex<HashMap<usize, Arc<rayon::ThreadPool>>>> = OnceLock::new();
-    let pool = {
-        let mut pools = POOLS
-            .get_or_init(Default::default)
-            .lock()
-            .unwrap_or_else(|poisoned| poisoned.into_inner());
-        match pools.get(&threads) {
-            Some(pool) => Some(pool.clone()),
-            None => rayon::ThreadPoolBuilder::new()
+    static POOLS: KeptPerThreads<rayon::ThreadPool> = KeptPerThreads::new();
+    let pool = POOLS
+        .get(threads, || {
+            rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
                 .build()
-                .ok()
-                .map(|pool| pools.entry(threads).or_insert(Arc::new(pool)).clone()),
-        }
-    };
+                .map(std::sync::Arc::new)
+        })
+        .ok();
     match pool {
         Some(pool) => pool.install(f),
         // No threads to be had: the same result, computed serially.
         None => f(),
+    }
+}
+
+/// Values made once per thread count and kept for the process: the build
+/// thread pools and the Embree builder's devices (starting threads is not
+/// part of a build).
+struct KeptPerThreads<T>(
+    std::sync::OnceLock<std::sync::Mutex<std::collections::HashMap<usize, std::sync::Arc<T>>>>,
+);
+
+impl<T> KeptPerThreads<T> {
+    const fn new() -> Self {
+        KeptPerThreads(std::sync::OnceLock::new())
+    }
+
+    /// The value for `threads`, made by `make` the first time it is asked
+    /// for (a failed `make` is not kept, so a later call tries again).
+    fn get<E>(
+        &self,
+        threads: usize,
+        make: impl FnOnce() -> Result<std::sync::Arc<T>, E>,
+    ) -> Result<std::sync::Arc<T>, E> {
+        // Entries are only ever added, so a map poisoned by a panic in
+        // another caller is still whole.
+        let mut kept = self
+            .0
+            .get_or_init(Default::default)
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        if let Some(value) = kept.get(&threads) {
+            return Ok(value.clone());
+        }
+        let value = make()?;
+        kept.insert(threads, value.clone());
+        Ok(value)
     }
 }
 
@@ -770,27 +797,13 @@ fn build_with_embree(
     params: &BuildParams,
     quality: crate::accel::embree::Quality,
 ) -> crate::Result<Skeleton> {
-    use std::collections::HashMap;
-    use std::sync::{Arc, Mutex, OnceLock};
-
     use crate::accel::embree::Device;
     // One device per thread count, made once: device start-up (thread pool) is
     // not part of a build.
-    static DEVICES: OnceLock<Mutex<HashMap<usize, Arc<Device>>>> = OnceLock::new();
-    let device = {
-        let mut devices = DEVICES
-            .get_or_init(Default::default)
-            .lock()
-            .map_err(|_| crate::Error::Other("embree device cache poisoned".into()))?;
-        match devices.get(&params.threads) {
-            Some(d) => d.clone(),
-            None => {
-                let d = Device::new(&format!("threads={}", params.threads.max(1)))?;
-                devices.insert(params.threads, d.clone());
-                d
-            }
-        }
-    };
+    static DEVICES: KeptPerThreads<Device> = KeptPerThreads::new();
+    let device = DEVICES.get(params.threads, || {
+        Device::new(&format!("threads={}", params.threads.max(1)))
+    })?;
     crate::accel::embree::builder::build(
         &device,
         triangles,
