@@ -30,6 +30,7 @@ fn ao_rays(scene: &raylab::scene::Scene) -> Vec<Ray> {
         ao_dist: 0.2,
         light_samples: 1,
         seed: 1,
+        two_sided_lights: false,
     };
     let bvh = raylab::accel::bvh::BvhBackend::new(scene, &BuildParams::sah()).unwrap();
     raylab::validate::recorded_rays(scene, &bvh, &settings)

@@ -5,7 +5,7 @@
 use glam::Vec3;
 
 use crate::error::{Error, Result};
-use crate::geometry::Ray;
+use crate::geometry::{Aabb, Ray};
 
 #[derive(Clone, Copy, Debug)]
 pub struct Camera {
@@ -79,6 +79,27 @@ impl Camera {
     }
 }
 
+/// The direction, from the scene's centre, of the default view of a scene that
+/// is not a built-in box, in the frame of [`crate::scene::light::frame_axes`]:
+/// mostly from the front, a little from the right and from above.
+pub const FRAMING_DIRECTION: [f32; 3] = [0.5, 0.4, 1.0];
+
+/// The default view of a scene with bounds `bounds` (the README's rule): look at
+/// the box's centre from [`FRAMING_DIRECTION`] (right, up, front) at the distance
+/// where the bounding sphere (radius half the box's diagonal) just fits the
+/// narrower of the vertical and horizontal fields of view. Returns (eye, look).
+pub fn framing(bounds: &Aabb, up: Vec3, fov_deg: f32, width: u32, height: u32) -> (Vec3, Vec3) {
+    let (up, front, right) = crate::scene::light::frame_axes(up);
+    let [r, u, f] = FRAMING_DIRECTION;
+    let dir = (right * r + up * u + front * f).normalize();
+    let look = bounds.center();
+    let radius = (0.5 * (bounds.max - bounds.min).length()).max(f32::MIN_POSITIVE);
+    let half_v = (fov_deg.to_radians() * 0.5).clamp(1e-4, 1.55);
+    let half_h = (half_v.tan() * width as f32 / height.max(1) as f32).atan();
+    let dist = radius / half_v.min(half_h).sin();
+    (look + dir * dist, look)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -125,6 +146,41 @@ mod tests {
         let right = c.ray(199, 50).dir;
         let half_w = 2.0 * 30f32.to_radians().tan() * (1.0 - 1.0 / 200.0);
         assert!((right.x / -right.z - half_w).abs() < 1e-3);
+    }
+
+    #[test]
+    fn framing_puts_the_whole_bounding_sphere_in_view() {
+        let b = Aabb::EMPTY
+            .grown(Vec3::new(10.0, -3.0, 100.0))
+            .grown(Vec3::new(14.0, 5.0, 104.0));
+        for (w, h) in [(64, 48), (48, 64), (100, 100)] {
+            let (eye, look) = framing(&b, Vec3::Y, 60.0, w, h);
+            assert_eq!(look, b.center());
+            assert!(eye.z > look.z && eye.y > look.y && eye.x > look.x, "{eye}");
+            let cam = Camera::new(eye, look, Vec3::Y, 60.0, w, h).unwrap();
+            // The corner pixels' rays miss the bounding sphere; the centre's hits it.
+            let radius = 0.5 * (b.max - b.min).length();
+            let dist_to_ray = |x: u32, y: u32| {
+                let r = cam.ray(x, y);
+                let v = look - r.origin;
+                (v - r.dir * v.dot(r.dir)).length()
+            };
+            assert!(dist_to_ray(w / 2, h / 2) < 0.05 * radius);
+            // Every edge's middle pixel sees past the sphere; along the narrower
+            // field of view, only just.
+            let narrow: [(u32, u32); 2] = if w >= h {
+                [(w / 2, 0), (w / 2, h - 1)]
+            } else {
+                [(0, h / 2), (w - 1, h / 2)]
+            };
+            for (x, y) in [(0, h / 2), (w - 1, h / 2), (w / 2, 0), (w / 2, h - 1)] {
+                let d = dist_to_ray(x, y);
+                assert!(d > 0.95 * radius, "{w}x{h} ({x},{y}): {d} vs {radius}");
+                if narrow.contains(&(x, y)) {
+                    assert!(d < 1.1 * radius, "{w}x{h} ({x},{y}): {d} vs {radius}");
+                }
+            }
+        }
     }
 
     #[test]

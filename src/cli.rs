@@ -18,6 +18,7 @@ use crate::geometry::Intersector;
 use crate::progress::Progress;
 use crate::render::{self, output, AoMode, RenderSettings, Schedule};
 use crate::scene::builtin::{builtin, BUILTIN_SCENES, PROCEDURAL_SCENES};
+use crate::scene::light::LightArg;
 use crate::scene::obj::load_obj;
 use crate::scene::Scene;
 
@@ -55,15 +56,30 @@ enum Command {
 struct BenchArgs {
     /// .obj files or built-in names [default: the four built-in Cornell boxes].
     scenes: Vec<String>,
-    /// Camera positions looking at (0,1,0): `paper` for the study's (0,1,3) and
-    /// (2,1,3), or eye positions separated by spaces or semicolons ("0,1,3;2,1,3").
+    /// Views: `default` (the study's (0,1,3) and (2,1,3) for the built-in boxes,
+    /// the framing rule for other scenes), `paper` (the study's two for every
+    /// scene), or eye positions separated by spaces or semicolons ("0,1,3;2,1,3"),
+    /// each looking at --look or the scene's default look-at point.
     #[arg(
         long,
-        value_name = "paper|X,Y,Z...",
-        default_value = "paper",
+        value_name = "default|paper|X,Y,Z...",
+        default_value = "default",
         allow_hyphen_values = true
     )]
     views: String,
+    /// One eye position for every scene (instead of --views).
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_vec3)]
+    eye: Option<Vec3>,
+    /// Point looked at [default: (0,1,0) in the built-in boxes, the bounding box's
+    /// centre in other scenes].
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_vec3)]
+    look: Option<Vec3>,
+    /// Up vector.
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, default_value = "0,1,0", value_parser = parse_vec3)]
+    up: Vec3,
+    /// Vertical field of view in degrees, in (0, 180).
+    #[arg(long, value_name = "DEG", default_value_t = 60.0, value_parser = parse_fov)]
+    fov: f32,
     /// Variants: all, paper (the study's combinations), or names separated by commas.
     #[arg(long, value_name = "LIST", default_value = "all")]
     variants: String,
@@ -102,34 +118,51 @@ struct BenchArgs {
     quiet: bool,
 }
 
-/// Parses `--views`.
-fn parse_views(s: &str) -> Result<Vec<crate::bench::measure::View>> {
-    use crate::bench::measure::View;
-    if s.trim() == "paper" {
-        return Ok(View::PAPER.to_vec());
+/// Parses `--views` with `--eye`, `--look`, `--up` and `--fov`.
+fn parse_views(args: &BenchArgs) -> Result<crate::bench::measure::ViewPlan> {
+    use crate::bench::measure::ViewPlan;
+    let s = args.views.trim();
+    let explicit = s != "default";
+    if explicit && args.eye.is_some() {
+        return Err(Error::usage(
+            "--eye",
+            "give either --eye or --views, not both",
+        ));
     }
-    let views = s
-        .split([';', ' '])
-        .map(str::trim)
-        .filter(|p| !p.is_empty())
-        .map(|p| {
-            let eye = parse_vec3(p).map_err(|e| Error::usage("--views", format!("'{p}': {e}")))?;
-            if eye == Vec3::new(0.0, 1.0, 0.0) {
-                return Err(Error::usage(
-                    "--views",
-                    format!("'{p}' is the point looked at"),
-                ));
+    let mut plan = match s {
+        "default" => ViewPlan::default(),
+        "paper" => ViewPlan::paper(),
+        _ => {
+            let eyes = s
+                .split([';', ' '])
+                .map(str::trim)
+                .filter(|p| !p.is_empty())
+                .map(|p| parse_vec3(p).map_err(|e| Error::usage("--views", format!("'{p}': {e}"))))
+                .collect::<Result<Vec<_>>>()?;
+            if eyes.is_empty() {
+                return Err(Error::usage("--views", "no view given"));
             }
-            Ok(View {
-                eye,
-                look: Vec3::new(0.0, 1.0, 0.0),
-            })
-        })
-        .collect::<Result<Vec<_>>>()?;
-    if views.is_empty() {
-        return Err(Error::usage("--views", "no view given"));
+            ViewPlan {
+                eyes: Some(eyes),
+                ..ViewPlan::default()
+            }
+        }
+    };
+    plan.eye = args.eye;
+    if args.look.is_some() {
+        plan.look = args.look;
     }
-    Ok(views)
+    plan.up = args.up;
+    plan.fov = args.fov;
+    if let (Some(eyes), Some(look)) = (&plan.eyes, plan.look) {
+        if let Some(e) = eyes.iter().find(|&&e| e == look) {
+            return Err(Error::usage(
+                "--views",
+                format!("{},{},{} is the point looked at", e.x, e.y, e.z),
+            ));
+        }
+    }
+    Ok(plan)
 }
 
 fn parse_parts(s: &str) -> Result<Vec<&'static str>> {
@@ -162,7 +195,7 @@ fn run_bench(args: &BenchArgs) -> Result<()> {
             "must be a positive number of seconds",
         ));
     }
-    let views = parse_views(&args.views)?;
+    let views = parse_views(args)?;
     let variants = bench::variants::parse_variants(&args.variants)?;
     let ao_modes = match args.ao.as_str() {
         "off" => vec![AoMode::Off],
@@ -190,10 +223,32 @@ fn run_bench(args: &BenchArgs) -> Result<()> {
     } else {
         cfg.scenes.clone()
     };
-    let scenes = names
+    let mut scenes = names
         .iter()
         .map(|n| load_scene(n))
         .collect::<Result<Vec<_>>>()?;
+    for scene in &mut scenes {
+        // A view whose eye is the point it looks at: refused before any work.
+        for view in cfg.views.views_for(scene, cfg.size) {
+            if view.eye == view.look {
+                let flag = if args.eye.is_some() {
+                    "--eye"
+                } else {
+                    "--views"
+                };
+                return Err(Error::usage(
+                    flag,
+                    format!("{} is the point looked at in {}", view.label(), scene.name),
+                ));
+            }
+        }
+        scene.set_extra_light(None, args.up);
+        if !args.quiet {
+            for w in &scene.warnings {
+                eprintln!("warning: {}: {w}", scene.name);
+            }
+        }
+    }
     let report = bench::run(&cfg, &scenes)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -220,16 +275,18 @@ fn run_bench(args: &BenchArgs) -> Result<()> {
     Ok(())
 }
 
-/// Camera and shading flags shared by commands that render.
+/// Camera, lighting and shading flags shared by commands that render.
 #[derive(Args, Debug, Clone)]
 pub struct ViewArgs {
-    /// Eye position.
-    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, default_value = "0,1,3", value_parser = parse_vec3)]
-    pub eye: Vec3,
-    /// Point looked at.
-    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, default_value = "0,1,0", value_parser = parse_vec3)]
-    pub look: Vec3,
-    /// Up vector.
+    /// Eye position [default: (0,1,3) for the built-in boxes; for other scenes
+    /// the framing rule (see the README)].
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_vec3)]
+    pub eye: Option<Vec3>,
+    /// Point looked at [default: (0,1,0) for the built-in boxes; the centre of
+    /// the scene's bounding box for other scenes].
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_vec3)]
+    pub look: Option<Vec3>,
+    /// Up vector (also the axis the default light and view are placed along).
     #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, default_value = "0,1,0", value_parser = parse_vec3)]
     pub up: Vec3,
     /// Vertical field of view in degrees, in (0, 180).
@@ -241,37 +298,86 @@ pub struct ViewArgs {
     /// Ambient occlusion: off, paper (the study's 14 fixed directions) or cosine:N.
     #[arg(long, value_name = "MODE", default_value = "paper")]
     pub ao: AoMode,
-    /// Length of AO rays in scene units.
-    #[arg(
-        long,
-        value_name = "D",
-        default_value_t = 0.2,
-        allow_negative_numbers = true
-    )]
-    pub ao_dist: f32,
-    /// Shadow rays per pixel towards the emissive triangles.
+    /// Length of AO rays in scene units [default: 0.2 for the built-in boxes,
+    /// 1/16 of the bounding box's diagonal for other scenes].
+    #[arg(long, value_name = "D", allow_negative_numbers = true)]
+    pub ao_dist: Option<f32>,
+    /// Shadow rays per pixel towards the lights.
     #[arg(long, value_name = "N", default_value_t = 1)]
     pub light_samples: u32,
+    /// A light that is not geometry: point:X,Y,Z[:INTENSITY] or
+    /// quad:X,Y,Z:SIZE[:RADIANCE] (a square facing down -Y); without a power it
+    /// gives the default light's irradiance at the scene's centre. It is added to
+    /// the scene's emitters, and replaces the default light of a scene without.
+    #[arg(long, value_name = "SPEC", allow_hyphen_values = true)]
+    pub light: Option<LightArg>,
+    /// Emitters shine from both faces, not only from the side their winding's
+    /// normal points to.
+    #[arg(long)]
+    pub two_sided_lights: bool,
     /// Seed of the per-pixel random streams.
     #[arg(long, value_name = "S", default_value_t = 1)]
     pub seed: u64,
 }
 
 impl ViewArgs {
-    pub fn settings(&self) -> Result<RenderSettings> {
+    /// Lights `scene` as the flags say (a `--light`, or the default light of a
+    /// scene without emissive triangles, with a warning) and makes the render
+    /// settings: the camera from the flags or, where they are not given, the
+    /// scene's default view.
+    pub fn prepare(&self, scene: &mut Scene) -> Result<RenderSettings> {
+        let light = self.light.map(|l| l.emitter(&scene.bounds()));
+        scene.set_extra_light(light, self.up);
         let (width, height) = self.size;
-        let camera = Camera::new(self.eye, self.look, self.up, self.fov, width, height)?;
+        let (eye, look) = default_view(scene, self.eye, self.look, self.up, self.fov, self.size);
+        let camera = Camera::new(eye, look, self.up, self.fov, width, height)?;
         let settings = RenderSettings {
             width,
             height,
             camera,
             ao: self.ao,
-            ao_dist: self.ao_dist,
+            ao_dist: self.ao_dist.unwrap_or_else(|| default_ao_dist(scene)),
             light_samples: self.light_samples,
             seed: self.seed,
+            two_sided_lights: self.two_sided_lights,
         };
         settings.validate()?;
         Ok(settings)
+    }
+}
+
+/// The eye and look-at point: the given ones, else the study's view for a
+/// built-in box, else the framing of the scene's bounds (a given `look` moves
+/// the framed eye with it).
+pub fn default_view(
+    scene: &Scene,
+    eye: Option<Vec3>,
+    look: Option<Vec3>,
+    up: Vec3,
+    fov: f32,
+    (width, height): (u32, u32),
+) -> (Vec3, Vec3) {
+    let (framed_eye, framed_look) = if scene.study_frame {
+        (Vec3::new(0.0, 1.0, 3.0), Vec3::new(0.0, 1.0, 0.0))
+    } else {
+        crate::camera::framing(&scene.bounds(), up, fov, width, height)
+    };
+    match (eye, look) {
+        (Some(e), Some(l)) => (e, l),
+        (Some(e), None) => (e, framed_look),
+        (None, Some(l)) => (l + (framed_eye - framed_look), l),
+        (None, None) => (framed_eye, framed_look),
+    }
+}
+
+/// 0.2 (the study's) in the built-in boxes, else 1/16 of the bounding box's
+/// diagonal (0.22 for the box, so files of any scale get the same look).
+pub fn default_ao_dist(scene: &Scene) -> f32 {
+    if scene.study_frame {
+        0.2
+    } else {
+        let b = scene.bounds();
+        ((b.max - b.min).length() / 16.0).max(f32::MIN_POSITIVE)
     }
 }
 
@@ -280,8 +386,9 @@ struct RenderArgs {
     /// An .obj file or a built-in scene name (see `raylab scenes`).
     #[arg(default_value = "cornell-original")]
     scene: String,
-    /// Acceleration structure.
-    #[arg(long, value_enum, default_value_t = BackendKind::Naive)]
+    /// Acceleration structure [default: bvh, raylab's fastest; naive is the
+    /// study's O(N) baseline, hours on a large model].
+    #[arg(long, value_enum, default_value_t = BackendKind::Bvh)]
     backend: BackendKind,
     #[command(flatten)]
     bvh: BvhArgs,
@@ -488,7 +595,6 @@ fn diff_image_path(base: &Path, scene: &str, several: bool) -> PathBuf {
 
 fn run_validate(args: &ValidateArgs) -> Result<()> {
     use crate::validate::{compare, mismatch_image, ray_sets, RaySet};
-    let settings = args.view.settings()?;
     let threads = args.threads.unwrap_or_else(default_threads);
     let names: Vec<String> = if args.scenes.is_empty() {
         BUILTIN_SCENES.iter().map(|(n, _)| n.to_string()).collect()
@@ -512,7 +618,8 @@ fn run_validate(args: &ValidateArgs) -> Result<()> {
         BackendSpec::bvh(BuildParams::sah().with_threads(threads)).with_kind(args.against);
     let mut reports = Vec::new();
     for name in &names {
-        let scene = load_scene(name)?;
+        let mut scene = load_scene(name)?;
+        let settings = args.view.prepare(&mut scene)?;
         let tested = build_backend(&spec, &scene)?;
         let reference = build_backend(&reference_spec, &scene)?;
         let triangles = scene.triangle_vertices();
@@ -716,7 +823,6 @@ fn run_stress(args: &StressArgs) -> Result<()> {
 }
 
 fn run_stats(args: &StatsArgs) -> Result<()> {
-    let settings = args.view.settings()?;
     let threads = args.threads.unwrap_or_else(default_threads);
     let builders: Vec<BuilderKind> = if args.builder == "all" {
         BuilderKind::ALL
@@ -736,7 +842,8 @@ fn run_stats(args: &StatsArgs) -> Result<()> {
     };
     let mut reports = Vec::new();
     for name in &names {
-        let scene = load_scene(name)?;
+        let mut scene = load_scene(name)?;
+        let settings = args.view.prepare(&mut scene)?;
         for &builder in &builders {
             let mut params = BuildParams::for_builder(builder);
             if let Some(n) = args.leaf_size {
@@ -758,7 +865,7 @@ fn run_stats(args: &StatsArgs) -> Result<()> {
         print!("{}", crate::stats::markdown_table(&reports));
         println!(
             "Render for work per ray: {}x{}, ao {}, {} light sample(s); builds on 1 and {} threads, median of {}.",
-            settings.width, settings.height, settings.ao, settings.light_samples, threads, args.reps
+            args.view.size.0, args.view.size.1, args.view.ao, args.view.light_samples, threads, args.reps
         );
     }
     Ok(())
@@ -898,7 +1005,6 @@ struct RenderReport {
 }
 
 fn run_render(args: &RenderArgs) -> Result<()> {
-    let settings = args.view.settings()?;
     output::check_writable(&args.output)?;
     let threads = args.threads.unwrap_or_else(default_threads);
     let say = |line: String| {
@@ -908,16 +1014,11 @@ fn run_render(args: &RenderArgs) -> Result<()> {
     };
 
     let start = Instant::now();
-    let scene = load_scene(&args.scene)?;
+    let mut scene = load_scene(&args.scene)?;
     let load_time = start.elapsed();
+    let settings = args.view.prepare(&mut scene)?;
     for w in &scene.warnings {
         say(format!("warning: {w}"));
-    }
-    if scene.lights.is_empty() {
-        say(
-            "warning: the scene has no emissive triangles; lighting it with a headlight at the eye"
-                .into(),
-        );
     }
     say(format!(
         "scene {}: {} triangles ({} emissive), loaded in {:.1} ms",
@@ -939,25 +1040,37 @@ fn run_render(args: &RenderArgs) -> Result<()> {
 
     let progress = Progress::new();
     let total_pixels = settings.width as u64 * settings.height as u64;
-    let start = Instant::now();
-    let (frame, stats) = progress.watch(
+    // The clock stops inside the watched work, so the progress monitor's
+    // shutdown is never part of the render time.
+    let (rendered, render_time) = progress.watch(
         "render",
         total_pixels,
         args.quiet,
         Duration::from_secs(1),
         || {
-            render::render(
+            let start = Instant::now();
+            let rendered = render::render(
                 &scene,
                 backend.as_ref(),
                 &settings,
                 args.schedule,
                 threads,
                 &progress,
-            )
+            );
+            (rendered, start.elapsed())
         },
-    )?;
-    let render_time = start.elapsed();
+    );
+    let (frame, stats) = rendered?;
 
+    let mut warnings = scene.warnings.clone();
+    if stats.primary_hits * 100 < stats.primary_rays {
+        let w = format!(
+            "only {} of {} primary rays hit the scene (under 1%): check --eye, --look and --up",
+            stats.primary_hits, stats.primary_rays
+        );
+        say(format!("warning: {w}"));
+        warnings.push(w);
+    }
     let rgb8 = output::to_srgb8(&frame);
     let hash = output::image_hash(&rgb8);
     output::write_png(&args.output, frame.width, frame.height, &rgb8)?;
@@ -1022,7 +1135,7 @@ fn run_render(args: &RenderArgs) -> Result<()> {
             mrays_per_s: mrays,
             output: args.output.display().to_string(),
             image_hash: hash,
-            warnings: scene.warnings.clone(),
+            warnings,
             embree_version: (args.backend == BackendKind::Embree).then(embree_version),
         };
         let text = serde_json::to_string(&report)?;

@@ -434,15 +434,62 @@ pub fn triangle_normal(tri: &[Vec3; 3]) -> Vec3 {
     (tri[1] - tri[0]).cross(tri[2] - tri[0])
 }
 
-/// Triangle area (0 for degenerate triangles, NaN for non-finite vertices).
+/// The unit geometric normal, by winding (the direction of
+/// `(v1 - v0) x (v2 - v0)`); zero for a triangle of zero area or with a
+/// non-finite vertex. Exact to f32 rounding at any scale: where the f32 cross
+/// product would overflow (edges above about 1e19) or underflow (below about
+/// 1e-19), it is taken in f64 instead, so a triangle of size 1e10 or with
+/// coordinates near 3e38 still has a normal.
+#[inline]
+pub fn triangle_unit_normal(tri: &[Vec3; 3]) -> Vec3 {
+    let n = triangle_normal(tri);
+    let len2 = n.length_squared();
+    if len2.is_finite() && len2 >= f32::MIN_POSITIVE {
+        return n.normalize();
+    }
+    let n = (tri[1].as_dvec3() - tri[0].as_dvec3()).cross(tri[2].as_dvec3() - tri[0].as_dvec3());
+    if !n.is_finite() {
+        return Vec3::ZERO;
+    }
+    n.normalize_or_zero().as_vec3()
+}
+
+/// Triangle area, taken in f64 (0 for degenerate triangles, NaN for non-finite
+/// vertices; +inf only where the area itself exceeds f32).
 #[inline]
 pub fn triangle_area(tri: &[Vec3; 3]) -> f32 {
-    0.5 * triangle_normal(tri).length()
+    let n = (tri[1].as_dvec3() - tri[0].as_dvec3()).cross(tri[2].as_dvec3() - tri[0].as_dvec3());
+    (0.5 * n.length()) as f32
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn unit_normals_survive_huge_and_tiny_triangles() {
+        for scale in [1e-30f32, 1e-20, 1.0, 1e10, 1e20, 1e36] {
+            let tri = [Vec3::ZERO, Vec3::X * scale, Vec3::Y * scale];
+            assert_eq!(triangle_unit_normal(&tri), Vec3::Z, "scale {scale}");
+            // The area itself fits an f32 from about 1e-19 up.
+            if scale >= 1e-19 {
+                assert!(triangle_area(&tri) > 0.0, "scale {scale}");
+            }
+        }
+        // Coordinates near f32::MAX: the f32 edges overflow, the f64 ones do not.
+        let m = 3e38f32;
+        let tri = [
+            Vec3::new(-m, -m, 0.0),
+            Vec3::new(m, -m, 0.0),
+            Vec3::new(-m, m, 0.0),
+        ];
+        assert_eq!(triangle_unit_normal(&tri), Vec3::Z);
+        let flat = [Vec3::ZERO, Vec3::X, Vec3::X * 2.0];
+        assert_eq!(triangle_unit_normal(&flat), Vec3::ZERO);
+        assert_eq!(triangle_area(&flat), 0.0);
+        let bad = [Vec3::NAN, Vec3::X, Vec3::Y];
+        assert_eq!(triangle_unit_normal(&bad), Vec3::ZERO);
+    }
 
     fn unit_tri() -> [Vec3; 3] {
         [

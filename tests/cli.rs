@@ -20,7 +20,10 @@ fn bad_flags_fail_with_one_line_naming_the_flag() {
     assert_one_line_error(&["render", "--threads", "0", "-o", o], "--threads");
     assert_one_line_error(&["render", "--ao", "sometimes", "-o", o], "--ao");
     assert_one_line_error(&["render", "--ao-dist", "-1", "-o", o], "--ao-dist");
-    assert_one_line_error(&["render", "--look", "0,1,3", "-o", o], "--look");
+    assert_one_line_error(
+        &["render", "--eye", "0,1,3", "--look", "0,1,3", "-o", o],
+        "--look",
+    );
     assert_one_line_error(&["render", "--backend", "magic", "-o", o], "--backend");
     assert_one_line_error(&["render", "--schedule", "chaos", "-o", o], "--schedule");
     assert!(!std::path::Path::new(o).exists());
@@ -97,7 +100,8 @@ fn json_report_has_the_stable_keys_and_matches_the_png() {
         assert!(v.get(key).is_some(), "missing key {key} in {v}");
     }
     assert_eq!(v["triangles"], 36);
-    assert_eq!(v["backend"], "naive");
+    // The default backend is raylab's fastest own one, not the naive scan.
+    assert_eq!(v["backend"], "bvh8-sah");
     assert_eq!(v["schedule"], "rayon");
     assert_eq!(v["width"], 40);
     assert_eq!(v["rays"]["primary"], 1200);

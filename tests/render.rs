@@ -160,26 +160,125 @@ fn ray_counts_follow_the_ao_mode() {
 }
 
 #[test]
-fn scene_without_lights_still_renders() {
-    let scene = raylab::scene::obj::load_obj_str(
-        "v -1 0 -1\nv 1 0 -1\nv 1 2 -1\nv -1 2 -1\nf 1 2 3 4\n",
-        std::path::Path::new("wall.obj"),
+fn scene_without_emitters_gets_the_default_light_with_shadows() {
+    // A floor with a small block on it, no emitters.
+    let mut scene = raylab::scene::obj::load_obj_str(
+        "v -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nf 1 3 2\nf 1 4 3\n\
+         v -0.2 0.4 -0.2\nv 0.2 0.4 -0.2\nv 0.2 0.4 0.2\nv -0.2 0.4 0.2\nf 5 7 6\nf 5 8 7\n",
+        std::path::Path::new("floor.obj"),
         std::path::Path::new("."),
     )
     .unwrap();
+    assert!(scene.lights.is_empty());
+    scene.set_extra_light(None, glam::Vec3::Y);
+    assert!(scene.lights.extra.is_some());
+    assert!(scene
+        .warnings
+        .iter()
+        .any(|w| w.contains("default area light")));
     let backend = Naive::new(&scene);
+    let settings = settings_looking_down(48, 48);
     let (f, stats) = render(
         &scene,
         &backend,
-        &settings(32, 24, AoMode::Paper),
+        &settings,
         Schedule::Serial,
         1,
         &Progress::new(),
     )
     .unwrap();
-    assert_eq!(stats.shadow_rays, 0);
+    assert!(stats.shadow_rays > 0, "the default light casts shadow rays");
+    // The floor is lit; under the block (seen past its edge) lies its shadow.
+    let lit = luminance(at(&f, 4, 24));
+    assert!(lit > 0.1, "floor should be lit: {lit}");
+    let (dark, _) = (0..48u32)
+        .flat_map(|y| (0..48u32).map(move |x| (x, y)))
+        .map(|(x, y)| (luminance(at(&f, x, y)), (x, y)))
+        .fold((f32::MAX, (0, 0)), |a, b| if b.0 < a.0 { b } else { a });
     assert!(
-        luminance(at(&f, 16, 12)) > 0.1,
-        "headlight should light the wall"
+        dark < 0.5 * lit,
+        "a shadow darker than the lit floor: {dark} vs {lit}"
     );
+}
+
+/// Looking down at the origin from (0.3, 3, 0.9), wide enough to see the floor's
+/// edges.
+fn settings_looking_down(w: u32, h: u32) -> raylab::render::RenderSettings {
+    let mut s = settings(w, h, AoMode::Off);
+    s.camera = raylab::camera::Camera::new(
+        glam::Vec3::new(0.3, 3.0, 0.9),
+        glam::Vec3::ZERO,
+        glam::Vec3::Y,
+        45.0,
+        w,
+        h,
+    )
+    .unwrap();
+    s
+}
+
+#[test]
+fn emitters_shine_from_their_front_face_only_unless_two_sided() {
+    // A floor under an emitting quad 0.5 above it whose winding faces up (away
+    // from the floor): one-sided, the floor gets no light from it.
+    let obj = |facing_down: bool| {
+        let light = if facing_down {
+            "f 5 6 7\nf 5 7 8\n"
+        } else {
+            "f 5 7 6\nf 5 8 7\n"
+        };
+        format!(
+            "mtllib none.mtl\nv -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nf 1 3 2\nf 1 4 3\n\
+             v -0.3 0.5 -0.3\nv 0.3 0.5 -0.3\nv 0.3 0.5 0.3\nv -0.3 0.5 0.3\nusemtl light\n{light}"
+        )
+    };
+    let dir = common::temp_dir("one-sided");
+    std::fs::write(dir.join("none.mtl"), "newmtl light\nKd 0 0 0\nKe 5 5 5\n").unwrap();
+    let floor_light = |facing_down: bool, two_sided: bool, samples: u32| {
+        let scene = raylab::scene::obj::load_obj_str(
+            &obj(facing_down),
+            std::path::Path::new("light.obj"),
+            &dir,
+        )
+        .unwrap();
+        assert_eq!(scene.lights.triangles.len(), 2);
+        let mut s = settings_looking_down(32, 32);
+        s.two_sided_lights = two_sided;
+        s.light_samples = samples;
+        let (f, _) = render(
+            &scene,
+            &Naive::new(&scene),
+            &s,
+            Schedule::Serial,
+            1,
+            &Progress::new(),
+        )
+        .unwrap();
+        // Floor pixels beside the light, averaged.
+        (4..9u32)
+            .flat_map(|x| (14..19u32).map(move |y| (x, y)))
+            .map(|(x, y)| luminance(at(&f, x, y)))
+            .sum::<f32>()
+            / 25.0
+    };
+    let ambient_only = floor_light(true, false, 0);
+    let down = floor_light(true, false, 16);
+    let up = floor_light(false, false, 16);
+    let up_two = floor_light(false, true, 16);
+    assert!(
+        down > ambient_only + 0.02,
+        "the light facing the floor lights it: {down}"
+    );
+    assert_eq!(
+        up, ambient_only,
+        "a light facing away adds nothing to the floor"
+    );
+    // Two-sided, the back face lights the floor as the front face did (other
+    // triangles, so other samples: equal within the noise).
+    let direct = down - ambient_only;
+    assert!(
+        (up_two - down).abs() < 0.1 * direct,
+        "two-sided: {up_two} vs {down}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
 }

@@ -25,45 +25,133 @@ use crate::scene::Scene;
 /// A run at least this long is measured even when it is the warm-up.
 pub const WARMUP_COUNTS_S: f64 = 2.0;
 
-/// A camera position looking at a point (up is +y, vertical FOV 60 degrees).
+/// A camera position looking at a point, with the scene's AO distance.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct View {
     pub eye: Vec3,
     pub look: Vec3,
+    pub up: Vec3,
+    /// Vertical field of view in degrees.
+    pub fov: f32,
+    /// The AO ray length of the scene the view belongs to.
+    pub ao_dist: f32,
+    /// The scene's default framing (labelled `framed`, not by its eye).
+    pub framed: bool,
 }
 
 impl View {
     /// The study's two views of the box.
-    pub const PAPER: [View; 2] = [
-        View {
-            eye: Vec3::new(0.0, 1.0, 3.0),
-            look: Vec3::new(0.0, 1.0, 0.0),
-        },
-        View {
-            eye: Vec3::new(2.0, 1.0, 3.0),
-            look: Vec3::new(0.0, 1.0, 0.0),
-        },
-    ];
+    pub const PAPER: [View; 2] = [View::study(0.0), View::study(2.0)];
 
-    /// `(x,y,z)` of the eye, as the study's tables name views.
+    /// The study's view from eye (x, 1, 3) looking at (0, 1, 0).
+    const fn study(x: f32) -> View {
+        View {
+            eye: Vec3::new(x, 1.0, 3.0),
+            look: Vec3::new(0.0, 1.0, 0.0),
+            up: Vec3::Y,
+            fov: 60.0,
+            ao_dist: 0.2,
+            framed: false,
+        }
+    }
+
+    /// `(x,y,z)` of the eye, as the study's tables name views; `framed` for a
+    /// scene's default framing.
     pub fn label(&self) -> String {
+        if self.framed {
+            return "framed".into();
+        }
         let f = |x: f32| format!("{x}");
         format!("({},{},{})", f(self.eye.x), f(self.eye.y), f(self.eye.z))
     }
 
     pub fn settings(&self, size: (u32, u32), ao: AoMode, seed: u64) -> Result<RenderSettings> {
-        let camera = Camera::new(self.eye, self.look, Vec3::Y, 60.0, size.0, size.1)?;
+        let camera = Camera::new(self.eye, self.look, self.up, self.fov, size.0, size.1)?;
         let settings = RenderSettings {
             width: size.0,
             height: size.1,
             camera,
             ao,
-            ao_dist: 0.2,
+            ao_dist: self.ao_dist,
             light_samples: 1,
             seed,
+            two_sided_lights: false,
         };
         settings.validate()?;
         Ok(settings)
+    }
+}
+
+/// The views of `raylab bench`: what `--views`, `--eye`, `--look`, `--up` and
+/// `--fov` say, made concrete per scene by [`ViewPlan::views_for`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct ViewPlan {
+    /// `--views`: eye positions, each looking at `look` (or the scene's default
+    /// look-at point); `None` for the default.
+    pub eyes: Option<Vec<Vec3>>,
+    pub eye: Option<Vec3>,
+    pub look: Option<Vec3>,
+    pub up: Vec3,
+    pub fov: f32,
+}
+
+impl Default for ViewPlan {
+    /// The default: the study's two views of a built-in box, the framing of any
+    /// other scene.
+    fn default() -> Self {
+        ViewPlan {
+            eyes: None,
+            eye: None,
+            look: None,
+            up: Vec3::Y,
+            fov: 60.0,
+        }
+    }
+}
+
+impl ViewPlan {
+    /// The study's two views for every scene (`--views paper`).
+    pub fn paper() -> Self {
+        ViewPlan {
+            eyes: Some(View::PAPER.iter().map(|v| v.eye).collect()),
+            look: Some(View::PAPER[0].look),
+            ..ViewPlan::default()
+        }
+    }
+
+    /// The concrete views of `scene` at image size `size`.
+    pub fn views_for(&self, scene: &Scene, size: (u32, u32)) -> Vec<View> {
+        let ao_dist = crate::cli::default_ao_dist(scene);
+        let view = |eye: Option<Vec3>, look: Option<Vec3>| {
+            let (e, l) = crate::cli::default_view(scene, eye, look, self.up, self.fov, size);
+            View {
+                eye: e,
+                look: l,
+                up: self.up,
+                fov: self.fov,
+                ao_dist,
+                framed: !scene.study_frame && eye.is_none() && look.is_none(),
+            }
+        };
+        match &self.eyes {
+            Some(eyes) => eyes.iter().map(|&e| view(Some(e), self.look)).collect(),
+            None if self.eye.is_some() || self.look.is_some() || !scene.study_frame => {
+                vec![view(self.eye, self.look)]
+            }
+            None => View::PAPER
+                .iter()
+                .map(|v| View {
+                    up: self.up,
+                    fov: self.fov,
+                    ..*v
+                })
+                .collect(),
+        }
+    }
+
+    /// The first view of `scene` (the one the single-view parts use).
+    pub fn first_for(&self, scene: &Scene, size: (u32, u32)) -> View {
+        self.views_for(scene, size)[0]
     }
 }
 
@@ -163,7 +251,7 @@ pub struct Measurement {
 #[derive(Clone, Debug)]
 pub struct Matrix<'a> {
     pub scenes: &'a [Scene],
-    pub views: &'a [View],
+    pub views: &'a ViewPlan,
     pub ao_modes: &'a [AoMode],
     pub variants: &'a [Variant],
     pub size: (u32, u32),
@@ -200,7 +288,8 @@ impl Matrix<'_> {
         for scene in self.scenes {
             for &ao in self.ao_modes {
                 for v in self.variants {
-                    total += self.planned_ms(v, scene, ao) * self.views.len() as u64;
+                    total += self.planned_ms(v, scene, ao)
+                        * self.views.views_for(scene, self.size).len() as u64;
                 }
             }
         }
@@ -230,7 +319,7 @@ impl Matrix<'_> {
         let mut out = Vec::new();
         let mut kept = Vec::new();
         for (si, scene) in self.scenes.iter().enumerate() {
-            for (vi, view) in self.views.iter().enumerate() {
+            for (vi, view) in self.views.views_for(scene, self.size).iter().enumerate() {
                 for &ao in self.ao_modes {
                     let settings = view.settings(self.size, ao, self.seed)?;
                     let cell = format!("{} {} ao {ao}", scene.name, view.label());

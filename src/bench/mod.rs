@@ -25,7 +25,7 @@ use crate::progress::StepBar;
 use crate::render::{output, AoMode};
 use crate::scene::Scene;
 use extras::{AoErrorPoint, BuilderPoint, GrowthPoint, ScalingPoint, ValidationRow};
-use measure::{Matrix, Measurement, View};
+use measure::{Matrix, Measurement, View, ViewPlan};
 use variants::Variant;
 
 /// The parts of a bench run, in the order they run.
@@ -37,7 +37,7 @@ pub const PARTS: [&str; 8] = [
 #[derive(Clone, Debug)]
 pub struct BenchConfig {
     pub scenes: Vec<String>,
-    pub views: Vec<View>,
+    pub views: ViewPlan,
     pub variants: Vec<Variant>,
     pub ao_modes: Vec<AoMode>,
     pub reps: usize,
@@ -261,12 +261,13 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
     };
     let reps = cfg.extra_reps();
     let last = scenes.last().expect("at least one scene");
-    let paper_view = cfg.views.first().copied().unwrap_or(View::PAPER[0]);
+    // The parts that render one view use each scene's first view.
+    let first_view = |scene: &Scene, size| cfg.views.first_for(scene, size);
     let mut trace_points = Vec::new();
     if cfg.wants("trace") && !trace_specs.is_empty() {
-        let settings = paper_view.settings(cfg.size, AoMode::Paper, 1)?;
         let trace_reps = if cfg.quick { 1 } else { cfg.reps.clamp(1, 5) };
         for scene in scenes {
+            let settings = first_view(scene, cfg.size).settings(cfg.size, AoMode::Paper, 1)?;
             trace_points.extend(trace::trace_throughput(
                 scene,
                 &settings,
@@ -278,7 +279,8 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
         }
     }
     let scaling = if cfg.wants("scaling") {
-        let settings = paper_view.settings(cfg.smaller(2), AoMode::Paper, 1)?;
+        let size = cfg.smaller(2);
+        let settings = first_view(last, size).settings(size, AoMode::Paper, 1)?;
         extras::thread_scaling(last, &settings, &cfg.thread_counts(), reps, &bar)?
     } else {
         Vec::new()
@@ -304,20 +306,22 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
     let mut ao_error = Vec::new();
     if cfg.wants("ao-error") {
         let (samples, reference) = cfg.ao_samples();
-        let setup = extras::AoErrorSetup {
-            view: paper_view,
-            size: if cfg.quick { (48, 36) } else { (256, 192) },
-            samples,
-            reference,
-        };
+        let size = if cfg.quick { (48, 36) } else { (256, 192) };
         for scene in &last_two {
+            let setup = extras::AoErrorSetup {
+                view: first_view(scene, size),
+                size,
+                samples: samples.clone(),
+                reference,
+            };
             ao_error.extend(extras::ao_error(scene, &setup, cfg.threads, reps, &bar)?);
         }
     }
     let mut builders = Vec::new();
     if cfg.wants("builders") {
-        let settings = paper_view.settings(cfg.smaller(2), AoMode::Paper, 1)?;
+        let size = cfg.smaller(2);
         for scene in &last_two {
+            let settings = first_view(scene, size).settings(size, AoMode::Paper, 1)?;
             builders.extend(extras::builder_quality(
                 scene,
                 &settings,
@@ -342,7 +346,8 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
     if cfg.wants("validate") {
         let count = if cfg.quick { 2_000 } else { 20_000 };
         for scene in scenes {
-            let settings = paper_view.settings(cfg.smaller(4), AoMode::Paper, 1)?;
+            let size = cfg.smaller(4);
+            let settings = first_view(scene, size).settings(size, AoMode::Paper, 1)?;
             validation.extend(extras::validation(
                 scene,
                 &settings,
@@ -361,7 +366,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
         reps: cfg.reps,
         quick: cfg.quick,
         max_variant_s: cfg.max_variant_s,
-        views: cfg.views.iter().map(View::label).collect(),
+        views: distinct_labels(scenes.iter().flat_map(|s| cfg.views.views_for(s, cfg.size))),
         ao_modes: cfg.ao_modes.iter().map(|a| a.to_string()).collect(),
         variants: cfg
             .variants
@@ -725,4 +730,16 @@ fn report_html(r: &BenchReport, md: &str) -> String {
         body: markdown_to_html(md),
     });
     html::page("raylab bench", &meta, &sections)
+}
+
+/// The labels of `views` in first-seen order, each once.
+fn distinct_labels(views: impl Iterator<Item = View>) -> Vec<String> {
+    let mut out: Vec<String> = Vec::new();
+    for v in views {
+        let label = v.label();
+        if !out.contains(&label) {
+            out.push(label);
+        }
+    }
+    out
 }

@@ -110,6 +110,9 @@ pub struct RenderSettings {
     pub light_samples: u32,
     /// Seeds every pixel's random stream together with the pixel index.
     pub seed: u64,
+    /// Emitters shine from both faces (the old behaviour) instead of only the
+    /// side their winding's normal points to.
+    pub two_sided_lights: bool,
 }
 
 impl RenderSettings {
@@ -158,6 +161,8 @@ impl Rect {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct RenderStats {
     pub primary_rays: u64,
+    /// Primary rays that hit a triangle.
+    pub primary_hits: u64,
     pub shadow_rays: u64,
     pub ao_rays: u64,
     pub primary_time: Duration,
@@ -174,6 +179,7 @@ impl RenderStats {
 impl AddAssign for RenderStats {
     fn add_assign(&mut self, o: Self) {
         self.primary_rays += o.primary_rays;
+        self.primary_hits += o.primary_hits;
         self.shadow_rays += o.shadow_rays;
         self.ao_rays += o.ao_rays;
         self.primary_time += o.primary_time;

@@ -6,7 +6,10 @@
 //! ambient term `AMBIENT * Ka * visibility` (visibility is the AO fraction, 1 with
 //! AO off), plus Lambert (`Kd / pi`) and normalised Blinn-Phong
 //! (`Ks (Ns + 2) / 2pi cos^Ns`) reflection of light sampled by area on the emissive
-//! triangles, one shadow ray per sample. Emitters emit from both sides.
+//! triangles (and the scene's extra light, see [`crate::scene::light`]), one
+//! shadow ray per sample. Emitters are one-sided: they emit on the side their
+//! winding's normal points to (pbrt-v4's and Mitsuba's area lights are too), and
+//! from both sides with `two_sided_lights`.
 //!
 //! Self-intersection: secondary rays start at the hit point moved along the
 //! geometric normal (on the side they leave from) by [`ray_offset`], an
@@ -20,13 +23,12 @@ use glam::Vec3;
 
 use super::rng::{Rng, STREAM_AO, STREAM_LIGHT};
 use super::{AoMode, Rect, RenderSettings, RenderStats, Tracer};
-use crate::geometry::{triangle_normal, OffsetStrategy, Ray};
+use crate::geometry::{triangle_unit_normal, OffsetStrategy, Ray};
+use crate::scene::light::Emitter;
 use crate::scene::Scene;
 
 /// Radiance of the uniform ambient light that `Ka` reflects.
 pub const AMBIENT: f32 = 0.15;
-/// Radiance of the headlight used when a scene has no emissive triangles.
-pub const HEADLIGHT: f32 = 0.8;
 /// Shadow rays end at `(1 - SHADOW_END)` of the distance to the light sample.
 const SHADOW_END: f32 = 1e-3;
 
@@ -112,15 +114,19 @@ pub fn render_rect<T: Tracer + ?Sized>(
             };
             let tri = scene.triangle(hit.tri as usize);
             let wo = -ray.dir;
-            let mut ng = triangle_normal(&tri).normalize();
-            if ng.dot(wo) < 0.0 {
+            let mut ng = triangle_unit_normal(&tri);
+            let front = ng.dot(wo) >= 0.0;
+            if !front {
                 ng = -ng;
             }
             let mut ns = scene.shading_normal(hit.tri, hit.u, hit.v).unwrap_or(ng);
             if ns.dot(wo) < 0.0 {
                 ns = -ns;
             }
-            out[slot] = scene.material_of(hit.tri).ke;
+            // An emitter is seen glowing from its emitting side only.
+            if front || settings.two_sided_lights {
+                out[slot] = scene.material_of(hit.tri).ke;
+            }
             surfaces.push(Surface {
                 slot,
                 pixel: y as u64 * settings.width as u64 + x as u64,
@@ -133,6 +139,7 @@ pub fn render_rect<T: Tracer + ?Sized>(
         }
     }
     stats.primary_rays = out.len() as u64;
+    stats.primary_hits = surfaces.len() as u64;
     stats.primary_time = start.elapsed();
 
     // Pass 2: direct light.
@@ -164,24 +171,65 @@ fn direct_light<T: Tracer + ?Sized>(
 ) -> (Vec3, u64) {
     let mat = scene.material_of(s.tri);
     let lights = &scene.lights;
-    if lights.is_empty() {
-        // No emitters: a light at the eye, which sees every visible point unshadowed.
-        return (mat.kd / PI * HEADLIGHT * s.ns.dot(s.wo).max(0.0), 0);
-    }
-    if settings.light_samples == 0 {
+    if lights.is_empty() || settings.light_samples == 0 {
         return (Vec3::ZERO, 0);
     }
+    let has_tris = !lights.triangles.is_empty();
+    // With both emissive triangles and an extra light, each sample picks one of
+    // the two with probability 1/2 (the first random number decides and, rescaled,
+    // picks the triangle), so the estimate divides by that probability.
+    let sources = has_tris as u32 + lights.extra.is_some() as u32;
     let mut rng = Rng::for_pixel(s.pixel, settings.seed, STREAM_LIGHT);
     let origin = ray_offset(s.p, s.ng);
-    let mut sum = Vec3::ZERO;
+    let mut sum_tris = Vec3::ZERO;
+    let mut sum_extra = Vec3::ZERO;
     let mut rays = 0;
     for _ in 0..settings.light_samples {
-        let light = lights.triangles[lights.pick(rng.next_f32())];
+        let mut u = rng.next_f32();
         let (r1, r2) = (rng.next_f32(), rng.next_f32());
-        let tri = scene.triangle(light as usize);
-        // Uniform point on the triangle (square-root warp).
-        let su = r1.sqrt();
-        let q = tri[0] * (1.0 - su) + tri[1] * (su * (1.0 - r2)) + tri[2] * (su * r2);
+        let use_extra = match (has_tris, lights.extra.is_some()) {
+            (true, true) => {
+                let extra = u >= 0.5;
+                u = (u * 2.0).fract();
+                extra
+            }
+            (false, _) => true,
+            (true, false) => false,
+        };
+        // The sampled point, its emitted radiance towards the surface and the
+        // geometry factor's light side (cos at the light / pdf in area measure
+        // or, for a point light, 1).
+        let (q, le, light_normal, point_light) = if use_extra {
+            match lights.extra.expect("an extra light") {
+                Emitter::Point {
+                    position,
+                    intensity,
+                } => (position, intensity, Vec3::ZERO, true),
+                Emitter::Quad {
+                    corner,
+                    edge_u,
+                    edge_v,
+                    radiance,
+                } => (
+                    corner + edge_u * r1 + edge_v * r2,
+                    radiance,
+                    edge_u.cross(edge_v),
+                    false,
+                ),
+            }
+        } else {
+            let light = lights.triangles[lights.pick(u)];
+            let tri = scene.triangle(light as usize);
+            // Uniform point on the triangle (square-root warp).
+            let su = r1.sqrt();
+            let q = tri[0] * (1.0 - su) + tri[1] * (su * (1.0 - r2)) + tri[2] * (su * r2);
+            (
+                q,
+                scene.material_of(light).ke,
+                triangle_unit_normal(&tri),
+                false,
+            )
+        };
         let to_light = q - origin;
         let dist2 = to_light.length_squared();
         if !(dist2 > 0.0) {
@@ -193,7 +241,18 @@ fn direct_light<T: Tracer + ?Sized>(
         if s.ng.dot(wi) <= 0.0 || cos_s <= 0.0 {
             continue; // light below the surface: no ray needed
         }
-        let cos_l = triangle_normal(&tri).normalize().dot(wi).abs();
+        let cos_l = if point_light {
+            1.0
+        } else {
+            // Emitters shine on the side their winding's normal points to
+            // (towards the surface: against wi), unless --two-sided-lights.
+            let c = -light_normal.normalize_or_zero().dot(wi);
+            if settings.two_sided_lights {
+                c.abs()
+            } else {
+                c
+            }
+        };
         if cos_l <= 0.0 {
             continue;
         }
@@ -205,12 +264,25 @@ fn direct_light<T: Tracer + ?Sized>(
         let h = (wi + s.wo).normalize_or_zero();
         let spec = mat.ks * ((mat.ns + 2.0) / (2.0 * PI)) * s.ns.dot(h).max(0.0).powf(mat.ns);
         let brdf = mat.kd / PI + spec;
-        let le = scene.material_of(light).ke;
-        sum += le * brdf * (cos_s * cos_l / dist2);
+        let contribution = le * brdf * (cos_s * cos_l / dist2);
+        if use_extra {
+            sum_extra += contribution;
+        } else {
+            sum_tris += contribution;
+        }
     }
-    // Monte Carlo estimate with pdf = 1 / total light area.
+    // Monte Carlo estimate: the triangles' pdf is 1 / total light area; the extra
+    // quad's 1 / its area, a point light's a delta.
+    let extra_area = match lights.extra {
+        Some(Emitter::Quad { edge_u, edge_v, .. }) => edge_u.cross(edge_v).length(),
+        _ => 1.0,
+    };
+    // (area * sources) / samples, in that order: with one source this is the
+    // same float as before extra lights existed, so old images stay bit-identical.
+    let n = settings.light_samples as f32;
+    let sources = sources as f32;
     (
-        sum * (lights.total_area / settings.light_samples as f32),
+        sum_tris * (lights.total_area * sources / n) + sum_extra * (extra_area * sources / n),
         rays,
     )
 }

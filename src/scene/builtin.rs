@@ -81,14 +81,16 @@ pub fn builtin(name: &str) -> Result<Scene> {
             ));
         }
     }
-    Scene::new(
+    let mut scene = Scene::new(
         name,
         b.positions,
         Some(b.normals),
         b.triangles,
         b.material_ids,
         b.materials,
-    )
+    )?;
+    scene.study_frame = true;
+    Ok(scene)
 }
 
 /// The `N` of `mesh:N` (accepts `1e5`-style exponents).

@@ -4,12 +4,14 @@
 //! triangles with their areas for light sampling. No scene graph.
 
 pub mod builtin;
+pub mod light;
 pub mod obj;
+pub mod polygon;
 
 use glam::Vec3;
 
 use crate::error::{Error, Result};
-use crate::geometry::{triangle_area, triangle_normal, Aabb};
+use crate::geometry::{triangle_area, triangle_unit_normal, Aabb};
 
 /// The MTL values the shader uses; everything else in an MTL file is ignored.
 #[derive(Clone, Debug, PartialEq)]
@@ -57,9 +59,14 @@ impl Material {
 }
 
 /// The emissive triangles and a cumulative distribution over their areas, so a
-/// light sample picks a triangle with probability proportional to its area.
+/// light sample picks a triangle with probability proportional to its area; and
+/// at most one light that is not geometry (the default light of a scene without
+/// emitters, or `--light`).
 #[derive(Clone, Debug, Default)]
 pub struct Lights {
+    /// A light outside the triangles; a shadow sample picks it or the emissive
+    /// triangles with probability 1/2 each when both exist.
+    pub extra: Option<light::Emitter>,
     /// Indices of emissive triangles.
     pub triangles: Vec<u32>,
     /// `cdf[i]` = (area of lights 0..=i) / total area; the last entry is 1.
@@ -69,8 +76,9 @@ pub struct Lights {
 }
 
 impl Lights {
+    /// No light at all: neither emissive triangles nor an extra light.
     pub fn is_empty(&self) -> bool {
-        self.triangles.is_empty()
+        self.triangles.is_empty() && self.extra.is_none()
     }
 
     /// The light (an index into `triangles`) for a uniform `u` in [0, 1).
@@ -98,6 +106,10 @@ pub struct Scene {
     pub dropped_degenerate: usize,
     /// Non-fatal problems met while loading, one line each (shown to the user).
     pub warnings: Vec<String>,
+    /// The scene is one of the built-in boxes, in the study's frame: the study's
+    /// view (eye (0,1,3) looking at (0,1,0)) and AO distance (0.2) are its
+    /// defaults. Other scenes are framed by their bounds ([`crate::camera::framing`]).
+    pub study_frame: bool,
 }
 
 impl Scene {
@@ -144,8 +156,8 @@ impl Scene {
                 return Err(fail(format!("triangle {i} has a material id out of range")));
             }
             let verts = tri.map(|v| positions[v as usize]);
-            // Zero area, or so small that its normal underflows: no ray can hit it.
-            if !(triangle_normal(&verts).length_squared() > 0.0) {
+            // Zero area: no ray can hit it, and it has no normal to shade with.
+            if triangle_unit_normal(&verts) == Vec3::ZERO {
                 dropped += 1;
                 continue;
             }
@@ -170,6 +182,7 @@ impl Scene {
             lights: Lights::default(),
             dropped_degenerate: dropped,
             warnings: Vec::new(),
+            study_frame: false,
         };
         scene.lights = scene.find_lights();
         if dropped > 0 {
@@ -193,9 +206,24 @@ impl Scene {
         }
         let cdf = cumulative.iter().map(|&c| (c / total) as f32).collect();
         Lights {
+            extra: None,
             triangles,
             cdf,
             total_area: total as f32,
+        }
+    }
+
+    /// Gives the scene its light outside the triangles: `light` when given, else
+    /// the default area light ([`light::Emitter::default_for`], placed along
+    /// `up`) when it has no emissive triangles, with a warning saying so.
+    pub fn set_extra_light(&mut self, light: Option<light::Emitter>, up: Vec3) {
+        self.lights.extra = light;
+        if light.is_none() && self.lights.triangles.is_empty() {
+            self.lights.extra = Some(light::Emitter::default_for(&self.bounds(), up));
+            self.warnings.push(
+                "the scene has no emissive triangles: lit by the default area light above it (--light places one)"
+                    .into(),
+            );
         }
     }
 
@@ -280,7 +308,7 @@ mod tests {
         assert!((s.lights.total_area - 0.5).abs() < 1e-6);
         assert_eq!(s.lights.pick(0.0), 0);
         assert_eq!(s.lights.pick(0.9999), 0);
-        assert!(quad_scene(false).unwrap().lights.is_empty());
+        assert!(quad_scene(false).unwrap().lights.triangles.is_empty());
     }
 
     #[test]

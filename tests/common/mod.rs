@@ -26,6 +26,7 @@ pub fn settings(width: u32, height: u32, ao: AoMode) -> RenderSettings {
         ao_dist: 0.2,
         light_samples: 1,
         seed: 1,
+        two_sided_lights: false,
     }
 }
 
