@@ -1,19 +1,33 @@
-//! OBJ/MTL loading: `tobj` triangulates and single-indexes the OBJ; a line-by-line
-//! check runs first so that every error carries its file and line, and the MTL
-//! files are read here (only Ka, Kd, Ks, Ns, Ke), because tobj's MTL reader panics on
-//! short colour lines and cannot name a line.
+//! OBJ/MTL loading, by raylab's own reader: every record is checked as it is
+//! read, so every error names its file and line, and the reader does what
+//! users' exports need (Blender's, scanners', old tools'):
+//!
+//! - `f` records of 3 or more vertices; convex polygons are fanned, concave ones
+//!   ear-clipped in their best-fit plane ([`super::polygon`]); faces of fewer
+//!   than 3 vertices (Blender 2.6x wrote loose edges as 2-vertex faces) are
+//!   skipped with one counted warning, like degenerate triangles;
+//! - `l` and `p` records (lines and points) never become triangles;
+//! - vertex normals per face corner: a face without `vn` leaves only its own
+//!   corners without a shading normal;
+//! - texture indices are checked for syntax (raylab uses no texture
+//!   coordinates): one out of range is a warning, not an error;
+//! - a `\` at the end of a line continues the record on the next line;
+//! - MTL files: `Ka`, `Kd`, `Ks`, `Ns`, `Ke`, nothing else.
+//!
+//! (tobj, used before, fan-triangulated concave polygons, filled `l` polylines,
+//! rejected 2-vertex faces, dropped a whole object's normals when one face had
+//! none, and could not name the line of an error.)
 //!
 //! Contract: returns a valid [`Scene`] or an [`Error`] naming the file (and line
-//! where there is one). A missing MTL file or an unknown `usemtl` name is a warning
-//! (the faces get [`Material::default_grey`]), not an error.
+//! where there is one). A missing MTL file or an unknown `usemtl` name is a
+//! warning (the faces get [`Material::default_grey`]), not an error.
 
-use std::cell::RefCell;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-use super::{Material, Scene};
+use super::{polygon, Material, Scene};
 use crate::error::{Error, Result};
 
 /// Loads an OBJ file (and the MTL files it names, relative to its folder).
@@ -27,253 +41,401 @@ pub fn load_obj(path: &Path) -> Result<Scene> {
 /// Loads OBJ text; `path` names it in messages and `mtl_dir` is where `mtllib`
 /// names are looked up. Used by [`load_obj`] and by tests with fixture strings.
 pub fn load_obj_str(text: &str, path: &Path, mtl_dir: &Path) -> Result<Scene> {
-    check_obj_lines(text, path)?;
-
-    let materials: RefCell<Vec<Material>> = RefCell::new(Vec::new());
-    let warnings: RefCell<Vec<String>> = RefCell::new(Vec::new());
-    let mtl_error: RefCell<Option<Error>> = RefCell::new(None);
-    let load_options = tobj::LoadOptions {
-        single_index: true,
-        triangulate: true,
-        ignore_points: true,
-        ignore_lines: true,
+    let mut reader = ObjReader {
+        path,
+        mtl_dir,
+        positions: Vec::new(),
+        normals: Vec::new(),
+        texcoords: 0,
+        max_texcoord_ref: (0, 0),
+        faces: Vec::new(),
+        short_faces: 0,
+        lines_and_points: 0,
+        materials: Vec::new(),
+        by_name: HashMap::new(),
+        current: None,
+        warnings: Vec::new(),
     };
-    let loader = |mtl_name: &Path| -> tobj::MTLLoadResult {
-        let mtl_path = mtl_dir.join(mtl_name);
-        match std::fs::read(&mtl_path) {
-            Ok(bytes) => match parse_mtl(&String::from_utf8_lossy(&bytes), &mtl_path) {
-                Ok(mats) => {
-                    let map: HashMap<String, usize> = mats
-                        .iter()
-                        .enumerate()
-                        .map(|(i, m)| (m.name.clone(), i))
-                        .collect();
-                    let stubs = mats
-                        .iter()
-                        .map(|m| tobj::Material {
-                            name: m.name.clone(),
-                            ..Default::default()
-                        })
-                        .collect();
-                    materials.borrow_mut().extend(mats);
-                    Ok((stubs, map))
-                }
-                Err(e) => {
-                    mtl_error.borrow_mut().get_or_insert(e);
-                    Err(tobj::LoadError::MaterialParseError)
-                }
-            },
-            Err(e) => {
-                warnings.borrow_mut().push(format!(
-                    "{}: material library {}: {e}; using default grey",
-                    path.display(),
-                    mtl_path.display()
-                ));
-                Err(tobj::LoadError::OpenFileFailed)
-            }
-        }
-    };
-    let mut reader = std::io::BufReader::new(text.as_bytes());
-    let loaded = tobj::load_obj_buf(&mut reader, &load_options, loader);
-    if let Some(e) = mtl_error.into_inner() {
-        return Err(e);
+    for (line_no, line) in logical_lines(text) {
+        reader.record(line_no, &line)?;
     }
-    let (models, _) = loaded.map_err(|e| Error::Parse {
-        path: path.to_path_buf(),
-        line: 0,
-        msg: format!("OBJ parser: {e}"),
-    })?;
+    reader.finish()
+}
 
-    let mut materials = materials.into_inner();
-    let mut warnings = warnings.into_inner();
-    let grey = materials.len() as u32;
-    materials.push(Material::default_grey());
-    let mut unnamed_faces = 0usize;
+/// A face corner as written, resolved to 1-based indices (0: none given).
+#[derive(Clone, Copy)]
+struct Corner {
+    position: i64,
+    normal: i64,
+}
 
-    let mut positions = Vec::new();
-    let mut normals = Vec::new();
-    let mut any_normals = false;
-    let mut triangles = Vec::new();
-    let mut material_ids = Vec::new();
-    for model in &models {
-        let mesh = &model.mesh;
-        let base = positions.len() as u32;
-        let count = mesh.positions.len() / 3;
-        positions.extend(
-            mesh.positions
-                .chunks_exact(3)
-                .map(|p| Vec3::new(p[0], p[1], p[2])),
-        );
-        if mesh.normals.len() == mesh.positions.len() {
-            any_normals = true;
-            normals.extend(
-                mesh.normals
-                    .chunks_exact(3)
-                    .map(|n| Vec3::new(n[0], n[1], n[2])),
-            );
-        } else {
-            normals.extend(std::iter::repeat_n(Vec3::ZERO, count));
-        }
-        let mat = match mesh.material_id {
-            Some(id) if id < grey as usize => id as u32,
-            _ => {
-                unnamed_faces += mesh.indices.len() / 3;
-                grey
-            }
-        };
-        for idx in mesh.indices.chunks_exact(3) {
-            triangles.push([idx[0] + base, idx[1] + base, idx[2] + base]);
-            material_ids.push(mat);
-        }
-    }
-    if unnamed_faces > 0 && grey > 0 {
-        warnings.push(format!(
-            "{}: {unnamed_faces} triangles name no known material; using default grey",
-            path.display()
-        ));
-    }
-    let mut scene = Scene::new(
-        path.display().to_string(),
-        positions,
-        any_normals.then_some(normals),
-        triangles,
-        material_ids,
-        materials,
-    )
-    .map_err(|e| match e {
-        Error::Scene { msg, .. } => Error::Parse {
-            path: path.to_path_buf(),
-            line: 0,
+struct Face {
+    corners: Vec<Corner>,
+    /// Index into the MTL materials; `None` before any `usemtl` or for an
+    /// unknown name.
+    material: Option<u32>,
+    line: usize,
+}
+
+/// The reader's state between records.
+struct ObjReader<'a> {
+    path: &'a Path,
+    mtl_dir: &'a Path,
+    positions: Vec<Vec3>,
+    normals: Vec<Vec3>,
+    texcoords: i64,
+    /// The largest texture index any corner names, and its line.
+    max_texcoord_ref: (i64, usize),
+    faces: Vec<Face>,
+    short_faces: usize,
+    lines_and_points: usize,
+    materials: Vec<Material>,
+    by_name: HashMap<String, u32>,
+    current: Option<u32>,
+    warnings: Vec<String>,
+}
+
+impl ObjReader<'_> {
+    fn err(&self, line: usize, msg: String) -> Error {
+        Error::Parse {
+            path: self.path.to_path_buf(),
+            line,
             msg,
-        },
-        other => other,
-    })?;
-    warnings.append(&mut scene.warnings);
-    scene.warnings = warnings;
-    Ok(scene)
-}
+        }
+    }
 
-/// Checks every OBJ line tobj will read, so errors name their line: vertex
-/// records need finite numbers, face records need valid, in-range indices.
-fn check_obj_lines(text: &str, path: &Path) -> Result<()> {
-    let err = |line: usize, msg: String| Error::Parse {
-        path: path.to_path_buf(),
-        line,
-        msg,
-    };
-    // Counts of v, vt, vn seen so far (negative indices are relative to these).
-    let mut counts = [0i64; 3];
-    // The largest positive index of each kind and the line it is on, checked at the end.
-    let mut max_ref = [(0i64, 0usize); 3];
-    let mut faces = 0usize;
-    for (n, raw) in text.lines().enumerate() {
-        let line_no = n + 1;
-        let line = raw.split('#').next().unwrap_or("").trim();
+    /// Reads one record (a line, continuations joined).
+    fn record(&mut self, line_no: usize, line: &str) -> Result<()> {
+        let line = line.split('#').next().unwrap_or("").trim();
         let mut words = line.split_whitespace();
-        let Some(key) = words.next() else { continue };
-        let (kind, need) = match key {
-            "v" => (0, 3),
-            "vt" => (1, 2),
-            "vn" => (2, 3),
-            "f" => {
-                let refs: Vec<&str> = words.collect();
-                if refs.len() < 3 {
-                    return Err(err(line_no, "face needs at least 3 vertices".into()));
-                }
-                for r in refs {
-                    let parts: Vec<&str> = r.split('/').collect();
-                    if parts.len() > 3 || parts[0].is_empty() {
-                        return Err(err(line_no, format!("malformed face vertex '{r}'")));
-                    }
-                    for (kind, part) in parts.iter().enumerate() {
-                        if part.is_empty() {
-                            continue; // "v//vn" has no texture index
-                        }
-                        let i: i64 = part.parse().map_err(|_| {
-                            err(line_no, format!("malformed face index '{part}' in '{r}'"))
-                        })?;
-                        let name = ["vertex", "texture", "normal"][kind];
-                        if i == 0 {
-                            return Err(err(
-                                line_no,
-                                format!("{name} index 0 (OBJ counts from 1)"),
-                            ));
-                        }
-                        if i < 0 && -i > counts[kind] {
-                            return Err(err(
-                                line_no,
-                                format!(
-                                    "{name} index {i} points before the first {name} ({} defined so far)",
-                                    counts[kind]
-                                ),
-                            ));
-                        }
-                        if i > max_ref[kind].0 {
-                            max_ref[kind] = (i, line_no);
-                        }
-                    }
-                }
-                faces += 1;
-                continue;
-            }
-            _ => continue, // g, o, s, usemtl, mtllib, l, p and unknown keys
+        let Some(key) = words.next() else {
+            return Ok(());
         };
-        let mut numbers = 0;
-        for w in words.by_ref().take(need) {
-            let x: f32 = w
-                .parse()
-                .map_err(|_| err(line_no, format!("'{key}' record: '{w}' is not a number")))?;
-            if !x.is_finite() {
-                return Err(err(
+        let rest = line[key.len()..].trim();
+        match key {
+            "v" | "vn" => {
+                let mut xyz = [0f32; 3];
+                let mut found = 0;
+                for (slot, w) in xyz.iter_mut().zip(words.by_ref()) {
+                    *slot = number(w, key).map_err(|m| self.err(line_no, m))?;
+                    found += 1;
+                }
+                if found < 3 {
+                    return Err(self.err(
+                        line_no,
+                        format!("'{key}' record needs 3 numbers, found {found}"),
+                    ));
+                }
+                let v = Vec3::from_array(xyz);
+                if key == "v" {
+                    self.positions.push(v);
+                } else {
+                    self.normals.push(v);
+                }
+            }
+            "vt" => {
+                let mut found = 0;
+                for w in words.by_ref().take(2) {
+                    number(w, key).map_err(|m| self.err(line_no, m))?;
+                    found += 1;
+                }
+                if found == 0 {
+                    return Err(self.err(line_no, "'vt' record needs a number".into()));
+                }
+                self.texcoords += 1;
+            }
+            "f" => {
+                let corners = words
+                    .map(|r| self.corner(r, line_no))
+                    .collect::<Result<Vec<_>>>()?;
+                if corners.len() < 3 {
+                    self.short_faces += 1;
+                } else {
+                    self.faces.push(Face {
+                        corners,
+                        material: self.current,
+                        line: line_no,
+                    });
+                }
+            }
+            "l" | "p" => self.lines_and_points += 1,
+            "usemtl" => self.current = self.by_name.get(rest).copied(),
+            "mtllib" => {
+                for file in mtl_names(rest, self.mtl_dir) {
+                    self.read_mtl(&self.mtl_dir.join(file))?;
+                }
+            }
+            _ => {} // o, g, s, and keys raylab has no use for
+        }
+        Ok(())
+    }
+
+    /// Parses a face corner `v`, `v/vt`, `v//vn` or `v/vt/vn`; negative indices
+    /// count back from the records read so far.
+    fn corner(&mut self, r: &str, line_no: usize) -> Result<Corner> {
+        let parts: Vec<&str> = r.split('/').collect();
+        if parts.len() > 3 || parts[0].is_empty() {
+            return Err(self.err(line_no, format!("malformed face vertex '{r}'")));
+        }
+        let counts = [
+            self.positions.len() as i64,
+            self.texcoords,
+            self.normals.len() as i64,
+        ];
+        let mut resolved = [0i64; 3];
+        for (kind, part) in parts.iter().enumerate() {
+            if part.is_empty() {
+                continue; // "v//vn" has no texture index
+            }
+            let i: i64 = part.parse().map_err(|_| {
+                self.err(line_no, format!("malformed face index '{part}' in '{r}'"))
+            })?;
+            let name = ["vertex", "texture", "normal"][kind];
+            if i == 0 {
+                return Err(self.err(line_no, format!("{name} index 0 (OBJ counts from 1)")));
+            }
+            if i < 0 && -i > counts[kind] {
+                return Err(self.err(
                     line_no,
-                    format!("'{key}' record: coordinate '{w}' is not finite"),
+                    format!(
+                        "{name} index {i} points before the first {name} ({} defined so far)",
+                        counts[kind]
+                    ),
                 ));
             }
-            numbers += 1;
+            resolved[kind] = if i < 0 { counts[kind] + i + 1 } else { i };
         }
-        if numbers < need {
-            return Err(err(
-                line_no,
-                format!("'{key}' record needs {need} numbers, found {numbers}"),
+        if resolved[1] > self.max_texcoord_ref.0 {
+            self.max_texcoord_ref = (resolved[1], line_no);
+        }
+        Ok(Corner {
+            position: resolved[0],
+            normal: resolved[2],
+        })
+    }
+
+    fn read_mtl(&mut self, mtl_path: &Path) -> Result<()> {
+        match std::fs::read(mtl_path) {
+            Ok(bytes) => {
+                let (mats, mut warnings) = parse_mtl(&String::from_utf8_lossy(&bytes), mtl_path)?;
+                self.warnings.append(&mut warnings);
+                for m in mats {
+                    self.by_name
+                        .insert(m.name.clone(), self.materials.len() as u32);
+                    self.materials.push(m);
+                }
+            }
+            Err(e) => self.warnings.push(format!(
+                "{}: material library {}: {e}; using default grey",
+                self.path.display(),
+                mtl_path.display()
+            )),
+        }
+        Ok(())
+    }
+
+    /// Checks the indices against the whole file, triangulates and makes the scene.
+    fn finish(mut self) -> Result<Scene> {
+        let path = self.path;
+        if self.faces.is_empty() {
+            let mut msg = "no faces: nothing to render".to_string();
+            if self.short_faces + self.lines_and_points > 0 {
+                msg = format!(
+                    "no faces of 3 or more vertices: nothing to render ({} shorter faces, {} line and point records)",
+                    self.short_faces, self.lines_and_points
+                );
+            }
+            return Err(self.err(0, msg));
+        }
+        let (np, nn) = (self.positions.len() as i64, self.normals.len() as i64);
+        for f in &self.faces {
+            for c in &f.corners {
+                if c.position > np {
+                    return Err(self.err(
+                        f.line,
+                        format!("vertex index {} out of range (file has {np})", c.position),
+                    ));
+                }
+                if c.normal > nn {
+                    return Err(self.err(
+                        f.line,
+                        format!("normal index {} out of range (file has {nn})", c.normal),
+                    ));
+                }
+            }
+        }
+        let (max_vt, vt_line) = self.max_texcoord_ref;
+        if max_vt > self.texcoords {
+            self.warnings.push(format!(
+                "{}:{vt_line}: texture index {max_vt} out of range (file has {}); ignored, raylab uses no texture coordinates",
+                path.display(),
+                self.texcoords
             ));
         }
-        counts[kind] += 1;
-    }
-    for (kind, &(i, line_no)) in max_ref.iter().enumerate() {
-        if i > counts[kind] {
-            let name = ["vertex", "texture", "normal"][kind];
-            return Err(err(
-                line_no,
-                format!("{name} index {i} out of range (file has {})", counts[kind]),
+        if self.short_faces > 0 {
+            self.warnings.push(format!(
+                "{}: skipped {} faces of fewer than 3 vertices (loose edges, as Blender 2.6x exports them)",
+                path.display(),
+                self.short_faces
             ));
         }
+        if self.lines_and_points > 0 {
+            self.warnings.push(format!(
+                "{}: ignored {} line and point records (l, p): they are not surfaces",
+                path.display(),
+                self.lines_and_points
+            ));
+        }
+
+        // One output vertex per distinct (position, normal) pair when any corner
+        // has a normal; otherwise the positions as they are.
+        let any_normals = self
+            .faces
+            .iter()
+            .flat_map(|f| &f.corners)
+            .any(|c| c.normal > 0);
+        let mut positions = Vec::new();
+        let mut normals = Vec::new();
+        let mut vertex_of: HashMap<(i64, i64), u32> = HashMap::new();
+        if !any_normals {
+            positions = std::mem::take(&mut self.positions);
+        }
+        let grey = self.materials.len() as u32;
+        let mut unnamed = 0usize;
+        let mut triangles = Vec::new();
+        let mut material_ids = Vec::new();
+        let mut corner_pos = Vec::new();
+        let mut local = Vec::new();
+        for f in &self.faces {
+            let ids: Vec<u32> = f
+                .corners
+                .iter()
+                .map(|c| {
+                    if !any_normals {
+                        return (c.position - 1) as u32;
+                    }
+                    *vertex_of.entry((c.position, c.normal)).or_insert_with(|| {
+                        positions.push(self.positions[(c.position - 1) as usize]);
+                        normals.push(if c.normal > 0 {
+                            self.normals[(c.normal - 1) as usize]
+                        } else {
+                            Vec3::ZERO
+                        });
+                        (positions.len() - 1) as u32
+                    })
+                })
+                .collect();
+            corner_pos.clear();
+            corner_pos.extend(ids.iter().map(|&i| positions[i as usize]));
+            local.clear();
+            polygon::triangulate(&corner_pos, &mut local);
+            let material = f.material.unwrap_or(grey);
+            if f.material.is_none() {
+                unnamed += local.len();
+            }
+            for t in &local {
+                triangles.push(t.map(|i| ids[i]));
+                material_ids.push(material);
+            }
+        }
+        if unnamed > 0 && grey > 0 {
+            self.warnings.push(format!(
+                "{}: {unnamed} triangles name no known material; using default grey",
+                path.display()
+            ));
+        }
+        let mut materials = std::mem::take(&mut self.materials);
+        materials.push(Material::default_grey());
+        let mut scene = Scene::new(
+            path.display().to_string(),
+            positions,
+            any_normals.then_some(normals),
+            triangles,
+            material_ids,
+            materials,
+        )
+        .map_err(|e| match e {
+            Error::Scene { msg, .. } => Error::Parse {
+                path: path.to_path_buf(),
+                line: 0,
+                msg,
+            },
+            other => other,
+        })?;
+        self.warnings.append(&mut scene.warnings);
+        scene.warnings = self.warnings;
+        Ok(scene)
     }
-    if faces == 0 {
-        return Err(err(0, "no faces: nothing to render".into()));
-    }
-    Ok(())
 }
 
-/// Reads the MTL values raylab uses. Colours take one or three non-negative
-/// numbers; `Ka` defaults to `Kd` when a material gives none, so AO has an ambient
-/// term to darken.
-pub fn parse_mtl(text: &str, path: &Path) -> Result<Vec<Material>> {
+/// The file's records with their 1-based line numbers: a line ending in `\`
+/// continues on the next one (the record keeps the first line's number).
+fn logical_lines(text: &str) -> impl Iterator<Item = (usize, String)> + '_ {
+    let mut lines = text.lines().enumerate();
+    std::iter::from_fn(move || {
+        let (n, first) = lines.next()?;
+        let mut record = String::from(first);
+        while record.trim_end().ends_with('\\') {
+            let keep = record.trim_end().len() - 1;
+            record.truncate(keep);
+            record.push(' ');
+            match lines.next() {
+                Some((_, next)) => record.push_str(next),
+                None => break,
+            }
+        }
+        Some((n + 1, record))
+    })
+}
+
+/// A finite f32 of a `key` record.
+fn number(w: &str, key: &str) -> std::result::Result<f32, String> {
+    let x: f32 = w
+        .parse()
+        .map_err(|_| format!("'{key}' record: '{w}' is not a number"))?;
+    if !x.is_finite() {
+        return Err(format!("'{key}' record: coordinate '{w}' is not finite"));
+    }
+    Ok(x)
+}
+
+/// The files of an `mtllib` record: the whole rest of the line when a file of
+/// that name exists (names with spaces), else its words.
+fn mtl_names(rest: &str, dir: &Path) -> Vec<String> {
+    if rest.contains(char::is_whitespace) && dir.join(rest).is_file() {
+        return vec![rest.to_string()];
+    }
+    rest.split_whitespace().map(str::to_string).collect()
+}
+
+/// Reads the MTL values raylab uses, and warnings about what it skipped. Colours
+/// take one or three non-negative numbers. The ambient reflectance is `Ka`, or
+/// `Kd` where `Ka` is absent or zero (Blender writes `Ka 0 0 0`, which would
+/// switch AO off), so AO has an ambient term to darken. A `newmtl` without a
+/// name is a warning, and the values under it are ignored.
+pub fn parse_mtl(text: &str, path: &Path) -> Result<(Vec<Material>, Vec<String>)> {
     let err = |line: usize, msg: String| Error::Parse {
         path: PathBuf::from(path),
         line,
         msg,
     };
     let mut out: Vec<Material> = Vec::new();
-    let mut ka_given = Vec::new();
-    for (n, raw) in text.lines().enumerate() {
-        let line_no = n + 1;
+    let mut warnings = Vec::new();
+    // Under a nameless newmtl: its values go nowhere.
+    let mut skipping = false;
+    for (line_no, raw) in logical_lines(text) {
         let line = raw.split('#').next().unwrap_or("").trim();
         let mut words = line.split_whitespace();
         let Some(key) = words.next() else { continue };
         if key == "newmtl" {
             let name = line["newmtl".len()..].trim();
-            if name.is_empty() {
-                return Err(err(line_no, "newmtl without a name".into()));
+            skipping = name.is_empty();
+            if skipping {
+                warnings.push(format!(
+                    "{}:{line_no}: newmtl without a name; its values are ignored",
+                    path.display()
+                ));
+                continue;
             }
             out.push(Material {
                 name: name.to_string(),
@@ -283,10 +445,9 @@ pub fn parse_mtl(text: &str, path: &Path) -> Result<Vec<Material>> {
                 ns: 10.0,
                 ke: Vec3::ZERO,
             });
-            ka_given.push(false);
             continue;
         }
-        if !matches!(key, "Ka" | "Kd" | "Ks" | "Ke" | "Ns") {
+        if !matches!(key, "Ka" | "Kd" | "Ks" | "Ke" | "Ns") || skipping {
             continue;
         }
         let Some(mat) = out.last_mut() else {
@@ -323,21 +484,18 @@ pub fn parse_mtl(text: &str, path: &Path) -> Result<Vec<Material>> {
             }
         };
         match key {
-            "Ka" => {
-                mat.ka = colour;
-                *ka_given.last_mut().unwrap() = true;
-            }
+            "Ka" => mat.ka = colour,
             "Kd" => mat.kd = colour,
             "Ks" => mat.ks = colour,
             _ => mat.ke = colour,
         }
     }
-    for (m, given) in out.iter_mut().zip(ka_given) {
-        if !given {
+    for m in &mut out {
+        if m.ka == Vec3::ZERO {
             m.ka = m.kd;
         }
     }
-    Ok(out)
+    Ok((out, warnings))
 }
 
 #[cfg(test)]
@@ -402,14 +560,86 @@ mod tests {
         assert!(e.contains(":3:") && e.contains("before the first"), "{e}");
         let e = error_of("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n");
         assert!(e.contains("index 0"), "{e}");
-        let e = error_of("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/1 2/1 3/1\n");
-        assert!(e.contains("texture index 1 out of range"), "{e}");
+        let e = error_of("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1//1 2//1 3//1\n");
+        assert!(
+            e.contains(":4:") && e.contains("normal index 1 out of range"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn unused_texture_indices_out_of_range_are_a_warning() {
+        let s = load("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/1 2/1 3/7\n").unwrap();
+        assert_eq!(s.triangle_count(), 1);
+        assert!(
+            s.warnings
+                .iter()
+                .any(|w| w.contains(":4: texture index 7 out of range")),
+            "{:?}",
+            s.warnings
+        );
+    }
+
+    #[test]
+    fn two_vertex_faces_are_skipped_with_one_counted_warning() {
+        // Blender 2.6x wrote loose edges as 2-vertex faces.
+        let s = load("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\nf 2 3\nf 1 2 3\nf 3\n").unwrap();
+        assert_eq!(s.triangle_count(), 1);
+        let w: Vec<_> = s
+            .warnings
+            .iter()
+            .filter(|w| w.contains("fewer than 3"))
+            .collect();
+        assert_eq!(w.len(), 1, "{:?}", s.warnings);
+        assert!(w[0].contains("skipped 3 faces"), "{w:?}");
+    }
+
+    #[test]
+    fn lines_and_points_never_become_triangles() {
+        let s = load("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 5 5 5\nl 1 2 3 4\np 1 2 3\nf 1 2 3\n").unwrap();
+        assert_eq!(s.triangle_count(), 1);
+        assert!(s
+            .warnings
+            .iter()
+            .any(|w| w.contains("2 line and point records")));
+        let e = error_of("v 0 0 0\nv 1 0 0\nv 0 1 0\nl 1 2 3\n");
+        assert!(e.contains("no faces of 3 or more vertices"), "{e}");
+    }
+
+    #[test]
+    fn concave_polygons_are_ear_clipped_not_fanned() {
+        // A U whose fan from vertex 1 would cover the notch.
+        let u = "v 0 0 0\nv 3 0 0\nv 3 3 0\nv 2 3 0\nv 2 1 0\nv 1 1 0\nv 1 3 0\nv 0 3 0\nf 1 2 3 4 5 6 7 8\n";
+        let s = load(u).unwrap();
+        assert_eq!(s.triangle_count(), 6);
+        let area: f32 = (0..6)
+            .map(|i| crate::geometry::triangle_area(&s.triangle(i)))
+            .sum();
+        assert!((area - 7.0).abs() < 1e-5, "{area}");
+    }
+
+    #[test]
+    fn a_face_without_normals_leaves_the_others_their_normals() {
+        let s = load(
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvn 0 0 1\n\
+             f 1//1 2//1 3//1\nf 2 4 3\n",
+        )
+        .unwrap();
+        assert_eq!(s.triangle_count(), 2);
+        assert_eq!(s.shading_normal(0, 0.2, 0.2), Some(Vec3::Z));
+        assert_eq!(s.shading_normal(1, 0.2, 0.2), None);
+    }
+
+    #[test]
+    fn backslash_continues_a_record() {
+        let s = load("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 \\\n  4 3\n").unwrap();
+        assert_eq!(s.triangle_count(), 2);
+        let e = error_of("v 0 0 \\\n0\nv 1 x 0\n");
+        assert!(e.starts_with("fixture.obj:3:"), "{e}");
     }
 
     #[test]
     fn malformed_faces_are_rejected() {
-        let e = error_of("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n");
-        assert!(e.contains(":4:") && e.contains("at least 3"), "{e}");
         let e = error_of("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 a\n");
         assert!(e.contains("malformed face index"), "{e}");
     }
@@ -433,7 +663,7 @@ mod tests {
 
     #[test]
     fn mtl_values_are_read() {
-        let m = parse_mtl(
+        let (m, _) = parse_mtl(
             "newmtl red\nKa 0.1 0.2 0.3 # comment\nKd 0.63 0.065 0.05\nNs 20\n\
              newmtl light\nKd 0.78 0.78 0.78\nKe 17 12 4\nKs 0.5\n",
             Path::new("x.mtl"),
@@ -446,6 +676,9 @@ mod tests {
         assert_eq!(m[1].ka, m[1].kd, "Ka defaults to Kd");
         assert_eq!(m[1].ks, Vec3::splat(0.5));
         assert!(m[1].is_emissive() && !m[0].is_emissive());
+        // Blender's Ka 0 0 0 means "none": the ambient term uses Kd.
+        let (m, _) = parse_mtl("newmtl b\nKa 0 0 0\nKd 0.5 0.4 0.3\n", Path::new("x.mtl")).unwrap();
+        assert_eq!(m[0].ka, Vec3::new(0.5, 0.4, 0.3));
     }
 
     #[test]
@@ -456,6 +689,14 @@ mod tests {
         assert!(e.to_string().contains("before any newmtl"), "{e}");
         let e = parse_mtl("newmtl a\nKe nan 1 1\n", Path::new("x.mtl")).unwrap_err();
         assert!(e.to_string().contains("finite"), "{e}");
+        // A nameless newmtl is skipped with its values, with a warning.
+        let (m, w) = parse_mtl("newmtl\nKd 1 1 1\nnewmtl b\nKd 0.5\n", Path::new("x.mtl")).unwrap();
+        assert_eq!(m.len(), 1);
+        assert_eq!(m[0].kd, Vec3::splat(0.5));
+        assert!(
+            w[0].starts_with("x.mtl:1:") && w[0].contains("without a name"),
+            "{w:?}"
+        );
     }
 
     #[test]
