@@ -19,7 +19,7 @@ use crate::progress::Progress;
 use crate::render::{self, output, AoMode, RenderSettings, Schedule};
 use crate::scene::builtin::{builtin, BUILTIN_SCENES, PROCEDURAL_SCENES};
 use crate::scene::light::LightArg;
-use crate::scene::obj::load_obj;
+use crate::scene::load::load_file;
 use crate::scene::Scene;
 
 #[derive(Parser, Debug)]
@@ -938,15 +938,17 @@ pub fn default_threads() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
-/// Loads `spec`: a path to an OBJ file, or else a built-in scene name.
+/// Loads `spec`: a scene file (an existing file, a path, or a name with a scene
+/// extension), or else a built-in scene name.
 pub fn load_scene(spec: &str) -> Result<Scene> {
     let path = Path::new(spec);
-    let looks_like_file = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("obj"))
-        || spec.contains(std::path::MAIN_SEPARATOR);
+    let has_scene_extension = path.extension().is_some_and(|e| {
+        let e = e.to_string_lossy().to_ascii_lowercase();
+        crate::scene::load::EXTENSIONS.contains(&e.as_str())
+    });
+    let looks_like_file = has_scene_extension || spec.contains(std::path::MAIN_SEPARATOR);
     if looks_like_file || path.is_file() {
-        load_obj(path)
+        load_file(path)
     } else {
         builtin(spec)
     }
@@ -959,6 +961,8 @@ fn ms(d: Duration) -> f64 {
 #[derive(Serialize)]
 struct RayCounts {
     primary: u64,
+    /// Primary rays that hit the scene.
+    primary_hits: u64,
     shadow: u64,
     ao: u64,
 }
@@ -1124,6 +1128,7 @@ fn run_render(args: &RenderArgs) -> Result<()> {
             render_ms: ms(render_time),
             rays: RayCounts {
                 primary: stats.primary_rays,
+                primary_hits: stats.primary_hits,
                 shadow: stats.shadow_rays,
                 ao: stats.ao_rays,
             },

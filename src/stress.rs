@@ -219,7 +219,7 @@ pub fn obj_mesh(path: &Path) -> Result<TestMesh> {
     fn unknown(_: Vec3) -> Option<Vec3> {
         None
     }
-    let scene = crate::scene::obj::load_obj(path)?;
+    let scene = crate::scene::load::load_file(path)?;
     Ok(TestMesh {
         name: path.display().to_string(),
         positions: scene.positions,

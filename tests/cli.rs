@@ -275,3 +275,143 @@ fn stats_report_the_wide_trees_beside_the_binary_one() {
         }
     }
 }
+
+/// A unit cube, 8 vertices and 6 quads, wound outward, in ASCII PLY.
+const CUBE_PLY: &str = "ply\nformat ascii 1.0\nelement vertex 8\nproperty float x\nproperty float y\nproperty float z\n\
+element face 6\nproperty list uchar int vertex_indices\nend_header\n\
+0 0 0\n1 0 0\n1 1 0\n0 1 0\n0 0 1\n1 0 1\n1 1 1\n0 1 1\n\
+4 0 3 2 1\n4 4 5 6 7\n4 0 1 5 4\n4 2 3 7 6\n4 1 2 6 5\n4 0 4 7 3\n";
+
+/// Renders `scene` at 64x48 with --json; the parsed report.
+fn render_json(
+    scene: &std::path::Path,
+    out: &std::path::Path,
+    extra: &[&str],
+) -> serde_json::Value {
+    let mut args = vec![
+        "render",
+        scene.to_str().unwrap(),
+        "--size",
+        "64x48",
+        "--json",
+        "-q",
+        "-o",
+        out.to_str().unwrap(),
+    ];
+    args.extend(extra);
+    let o = raylab(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
+#[test]
+fn files_that_are_not_boxes_are_framed_lit_and_shadowed() {
+    let d = temp_dir("formats");
+    // The cube far from the origin and small: the study's view would miss it.
+    let far: String = CUBE_PLY
+        .lines()
+        .map(|l| {
+            let w: Vec<f32> = l.split(' ').filter_map(|x| x.parse().ok()).collect();
+            if w.len() == 3 && !l.starts_with('4') {
+                format!(
+                    "{} {} {}\n",
+                    40.0 + w[0] * 0.01,
+                    -7.0 + w[1] * 0.01,
+                    12.0 + w[2] * 0.01
+                )
+            } else {
+                format!("{l}\n")
+            }
+        })
+        .collect();
+    let ply = d.join("cube.ply");
+    std::fs::write(&ply, far).unwrap();
+    let v = render_json(&ply, &d.join("cube.png"), &[]);
+    assert_eq!(v["triangles"], 12);
+    let hits = v["rays"]["primary_hits"].as_u64().unwrap() as f64;
+    assert!(
+        hits / 3072.0 > 0.05,
+        "the framed view sees the cube: {hits} of 3072"
+    );
+    // The default light casts shadow rays, and says so.
+    assert!(v["rays"]["shadow"].as_u64().unwrap() > 0);
+    let w = v["warnings"].to_string();
+    assert!(w.contains("default area light"), "{w}");
+    // The study's view, given explicitly, misses it, with a warning.
+    let v = render_json(
+        &ply,
+        &d.join("miss.png"),
+        &["--eye", "0,1,3", "--look", "0,1,0"],
+    );
+    assert_eq!(v["rays"]["primary_hits"], 0);
+    assert!(
+        v["warnings"].to_string().contains("under 1%"),
+        "{}",
+        v["warnings"]
+    );
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn gltf_with_an_embedded_buffer_renders_through_the_cli() {
+    let d = temp_dir("gltf");
+    // One triangle, its 3 positions in a base64 data URI.
+    let mut bin = Vec::new();
+    for x in [0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0] {
+        bin.extend(x.to_le_bytes());
+    }
+    let b64 = base64_encode(&bin);
+    let json = format!(
+        r#"{{"asset":{{"version":"2.0"}},"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0,"scale":[2,2,2]}}],
+        "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}}}}]}}],
+        "buffers":[{{"uri":"data:application/octet-stream;base64,{b64}","byteLength":36}}],
+        "bufferViews":[{{"buffer":0,"byteLength":36}}],
+        "accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}}]}}"#
+    );
+    let path = d.join("tri.gltf");
+    std::fs::write(&path, json).unwrap();
+    let v = render_json(&path, &d.join("tri.png"), &[]);
+    assert_eq!(v["triangles"], 1);
+    assert!(v["rays"]["primary_hits"].as_u64().unwrap() > 100);
+    std::fs::remove_dir_all(&d).ok();
+}
+
+/// Standard base64 with padding (the test's own, to need no crate).
+fn base64_encode(bytes: &[u8]) -> String {
+    const A: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut out = String::new();
+    for c in bytes.chunks(3) {
+        let n = (c[0] as u32) << 16
+            | (*c.get(1).unwrap_or(&0) as u32) << 8
+            | *c.get(2).unwrap_or(&0) as u32;
+        for k in 0..4 {
+            if k <= c.len() {
+                out.push(A[(n >> (18 - 6 * k) & 63) as usize] as char);
+            } else {
+                out.push('=');
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn files_raylab_does_not_read_get_one_line_naming_the_format() {
+    let d = temp_dir("unread");
+    let o = d.join("x.png");
+    let o = o.to_str().unwrap();
+    let cases: [(&str, &[u8], &str); 6] = [
+        ("part.stl", b"solid part\nfacet normal 0 0 1\n", "STL files are not read"),
+        ("rig.fbx", b"Kaydara FBX Binary  \0\x1a\0", "FBX files are not read"),
+        ("tool", b"\x7fELF\x02\x01\x01\0\0\0", "a binary file"),
+        ("wide.obj", b"\xff\xfev\0 \x001\0", "UTF-16"),
+        ("cloud.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n", "point cloud"),
+        ("mesh.off", b"OFF\n3 1 0\n", "OFF files are not read"),
+    ];
+    for (name, bytes, needle) in cases {
+        let path = d.join(name);
+        std::fs::write(&path, bytes).unwrap();
+        assert_one_line_error(&["render", path.to_str().unwrap(), "-o", o], needle);
+    }
+    std::fs::remove_dir_all(&d).ok();
+}

@@ -4,8 +4,11 @@
 //! triangles with their areas for light sampling. No scene graph.
 
 pub mod builtin;
+pub mod gltf;
 pub mod light;
+pub mod load;
 pub mod obj;
+pub mod ply;
 pub mod polygon;
 
 use glam::Vec3;
