@@ -31,8 +31,10 @@ pub fn load_gltf_bytes(bytes: &[u8], path: &Path) -> Result<Scene> {
     let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| {
         if is_gltf1(bytes) {
             err(format!("a glTF 1.0 file: {}", super::load::READS))
+        } else if uses_draco(bytes) {
+            err("Draco-compressed meshes (KHR_draco_mesh_compression) are not read: raylab reads uncompressed glTF 2.0".into())
         } else {
-            err(format!("glTF: {e}"))
+            err(format!("glTF: {}", first_complaint(&e)))
         }
     })?;
     let buffers = load_buffers(&gltf, path)?;
@@ -95,15 +97,51 @@ pub fn load_gltf_bytes(bytes: &[u8], path: &Path) -> Result<Scene> {
 /// Whether `bytes` declare glTF 1.0 (`"version": "1.0"` in the asset, or a
 /// version-1 GLB header), which the 2.0 reader cannot read.
 fn is_gltf1(bytes: &[u8]) -> bool {
-    if bytes.starts_with(b"glTF") {
-        return bytes.get(4..8) == Some(&1u32.to_le_bytes()[..]);
+    if bytes.starts_with(b"glTF") && bytes.get(4..8) == Some(&1u32.to_le_bytes()[..]) {
+        return true;
     }
-    let Ok(v) = serde_json::from_slice::<serde_json::Value>(bytes) else {
+    let Some(v) = gltf_json(bytes) else {
         return false;
     };
-    v["asset"]["version"]
-        .as_str()
-        .is_some_and(|s| s.starts_with('1'))
+    // 1.0 files name their version "1.0" (or 1), and key their arrays by id.
+    let version = &v["asset"]["version"];
+    version.as_str().is_some_and(|s| s.starts_with('1'))
+        || version.as_f64() == Some(1.0)
+        || v["accessors"].is_object()
+        || v["meshes"].is_object()
+}
+
+/// Whether the file's JSON lists the Draco extension as used or required.
+fn uses_draco(bytes: &[u8]) -> bool {
+    let Some(v) = gltf_json(bytes) else {
+        return false;
+    };
+    ["extensionsUsed", "extensionsRequired"].iter().any(|k| {
+        v[k].as_array()
+            .is_some_and(|a| a.iter().any(|e| e == "KHR_draco_mesh_compression"))
+    })
+}
+
+/// The JSON of a .gltf, or of a .glb's first chunk.
+fn gltf_json(bytes: &[u8]) -> Option<serde_json::Value> {
+    let json = if bytes.starts_with(b"glTF") {
+        let len = u32::from_le_bytes(bytes.get(12..16)?.try_into().ok()?) as usize;
+        bytes.get(20..20usize.checked_add(len)?)?
+    } else {
+        bytes
+    };
+    serde_json::from_slice(json).ok()
+}
+
+/// The gltf crate's message, cut to its first complaint: its validation lists
+/// every failing field, hundreds for one missing extension.
+fn first_complaint(e: &gltf::Error) -> String {
+    let text = e.to_string();
+    let parts: Vec<&str> = text.split("; ").filter(|p| !p.trim().is_empty()).collect();
+    match parts.len() {
+        0 | 1 => text.trim_end_matches(';').to_string(),
+        n => format!("{} (and {} more problems)", parts[0], n - 1),
+    }
 }
 
 /// Every buffer's bytes: the GLB's binary chunk, a base64 data URI, or a file

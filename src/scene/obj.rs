@@ -239,7 +239,12 @@ impl ObjReader<'_> {
         let path = self.path;
         if self.faces.is_empty() {
             let mut msg = "no faces: nothing to render".to_string();
-            if self.short_faces + self.lines_and_points > 0 {
+            if self.short_faces + self.lines_and_points == 0 && !self.positions.is_empty() {
+                msg = format!(
+                    "a point cloud ({} vertices, no faces): nothing to render",
+                    self.positions.len()
+                );
+            } else if self.short_faces + self.lines_and_points > 0 {
                 msg = format!(
                     "no faces of 3 or more vertices: nothing to render ({} shorter faces, {} line and point records)",
                     self.short_faces, self.lines_and_points
@@ -646,7 +651,7 @@ mod tests {
 
     #[test]
     fn no_triangles_is_an_error() {
-        assert!(error_of("v 0 0 0\n").contains("no faces"));
+        assert!(error_of("v 0 0 0\n").contains("a point cloud (1 vertices, no faces)"));
         assert!(error_of("").contains("no faces"));
         // Only degenerate triangles: nothing left to render.
         let e = error_of("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n");
