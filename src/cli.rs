@@ -83,8 +83,9 @@ struct BenchArgs {
     /// Variants: all, paper (the study's combinations), or names separated by commas.
     #[arg(long, value_name = "LIST", default_value = "all")]
     variants: String,
-    /// AO modes of the tables: off, paper or both.
-    #[arg(long, value_name = "MODE", default_value = "both", value_parser = ["off", "paper", "both"])]
+    /// AO modes of the tables, separated by commas: off, paper, cosine:N, or
+    /// both (off and paper).
+    #[arg(long, value_name = "LIST", default_value = "both")]
     ao: String,
     /// Measured runs per variant and cell, after one warm-up [default: 10; 1 and
     /// no warm-up with --quick].
@@ -165,6 +166,30 @@ fn parse_views(args: &BenchArgs) -> Result<crate::bench::measure::ViewPlan> {
     Ok(plan)
 }
 
+/// Parses bench's `--ao`: modes separated by commas, `both` for off and paper;
+/// each mode once, in the order given.
+fn parse_ao_list(s: &str) -> Result<Vec<AoMode>> {
+    let mut out = Vec::new();
+    for p in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let modes = if p == "both" {
+            vec![AoMode::Off, AoMode::Paper]
+        } else {
+            vec![p
+                .parse::<AoMode>()
+                .map_err(|e| Error::usage("--ao", format!("{e} (or both)")))?]
+        };
+        for m in modes {
+            if !out.contains(&m) {
+                out.push(m);
+            }
+        }
+    }
+    if out.is_empty() {
+        return Err(Error::usage("--ao", "no AO mode given"));
+    }
+    Ok(out)
+}
+
 fn parse_parts(s: &str) -> Result<Vec<&'static str>> {
     use crate::bench::PARTS;
     let mut out = Vec::new();
@@ -197,11 +222,7 @@ fn run_bench(args: &BenchArgs) -> Result<()> {
     }
     let views = parse_views(args)?;
     let variants = bench::variants::parse_variants(&args.variants)?;
-    let ao_modes = match args.ao.as_str() {
-        "off" => vec![AoMode::Off],
-        "paper" => vec![AoMode::Paper],
-        _ => vec![AoMode::Off, AoMode::Paper],
-    };
+    let ao_modes = parse_ao_list(&args.ao)?;
     let cfg = BenchConfig {
         scenes: args.scenes.clone(),
         views,
@@ -433,9 +454,9 @@ pub struct BvhArgs {
     /// Ray/triangle test of the naive and bvh backends.
     #[arg(long, value_enum, default_value_t = Intersector::Mt)]
     pub intersector: Intersector,
-    /// Children per BVH node traversed: 4 (the built tree collapsed into 4-wide
-    /// nodes whose boxes are tested together with SIMD; the fastest), or 2 (the
-    /// binary tree as built).
+    /// Children per BVH node traversed: 8 (8-wide nodes built directly and tested
+    /// with AVX2 where the CPU has it; the fastest), 4 (the built tree collapsed
+    /// into 4-wide nodes tested with SSE), or 2 (the binary tree as built).
     #[arg(long, value_name = "N", default_value_t = 8, value_parser = parse_bvh_width)]
     pub bvh_width: usize,
 }
@@ -1165,8 +1186,13 @@ pub fn main() -> i32 {
             .unwrap_or_default();
         eprintln!("raylab: internal error{place}: {msg} (please report this)");
     }));
-    let cli = match Cli::try_parse() {
-        Ok(cli) => cli,
+    crate::os::quiet_on_closed_pipe();
+    use clap::{CommandFactory, FromArgMatches};
+    let parsed = Cli::command()
+        .try_get_matches()
+        .and_then(|m| Cli::from_arg_matches(&m).map(|cli| (cli, m)));
+    let (cli, matches) = match parsed {
+        Ok(parsed) => parsed,
         Err(e) => {
             use clap::error::ErrorKind;
             if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion)
@@ -1179,17 +1205,19 @@ pub fn main() -> i32 {
                     0
                 };
             }
-            // clap's message is several lines (usage, hint): keep the first.
-            let text = e.render().to_string();
-            let first = text.lines().next().unwrap_or("invalid arguments");
-            eprintln!("raylab: {}", first.trim_start_matches("error: "));
+            eprintln!("raylab: {}", one_line_clap_error(&e.render().to_string()));
             return 2;
         }
     };
+    let sub = matches.subcommand().map(|(_, m)| m);
     let result = match &cli.command {
-        Command::Render(args) => run_render(args),
+        Command::Render(args) => sub
+            .map_or(Ok(()), |m| check_backend_flags(m, args.backend))
+            .and_then(|()| run_render(args)),
         Command::Stats(args) => run_stats(args),
-        Command::Validate(args) => run_validate(args),
+        Command::Validate(args) => sub
+            .map_or(Ok(()), |m| check_backend_flags(m, args.backend))
+            .and_then(|()| run_validate(args)),
         Command::Stress(args) => run_stress(args),
         Command::Bench(args) => run_bench(args),
         Command::Scenes => {
@@ -1206,4 +1234,68 @@ pub fn main() -> i32 {
             1
         }
     }
+}
+
+/// clap's message in one line: its first line, then its tips and possible
+/// values in brackets ("did you mean ..."), without the usage block.
+fn one_line_clap_error(text: &str) -> String {
+    let mut lines = text
+        .lines()
+        .take_while(|l| !l.starts_with("Usage:") && !l.starts_with("For more information"))
+        .map(str::trim)
+        .filter(|l| !l.is_empty());
+    let first = lines
+        .next()
+        .unwrap_or("invalid arguments")
+        .trim_start_matches("error: ")
+        .to_string();
+    let rest: Vec<&str> = lines.collect();
+    if rest.is_empty() {
+        first
+    } else {
+        format!("{first} ({})", rest.join("; "))
+    }
+}
+
+/// Refuses backend flags given on the command line that the chosen backend
+/// would ignore (they used to be ignored silently).
+fn check_backend_flags(m: &clap::ArgMatches, backend: BackendKind) -> Result<()> {
+    use clap::parser::ValueSource;
+    // (argument id, flag, the backends it applies to)
+    const FLAGS: &[(&str, &str, &[BackendKind])] = &[
+        ("builder", "--builder", &[BackendKind::Bvh]),
+        ("leaf_size", "--leaf-size", &[BackendKind::Bvh]),
+        ("bvh_width", "--bvh-width", &[BackendKind::Bvh]),
+        (
+            "build_threads",
+            "--build-threads",
+            &[BackendKind::Bvh, BackendKind::Embree],
+        ),
+        (
+            "intersector",
+            "--intersector",
+            &[BackendKind::Naive, BackendKind::Bvh],
+        ),
+        ("embree_quality", "--embree-quality", &[BackendKind::Embree]),
+        ("embree_robust", "--embree-robust", &[BackendKind::Embree]),
+    ];
+    let name = |k: &BackendKind| format!("{k:?}").to_lowercase();
+    for (id, flag, applies) in FLAGS {
+        let given = m.value_source(id) == Some(ValueSource::CommandLine);
+        if given && !applies.contains(&backend) {
+            let to: Vec<String> = applies
+                .iter()
+                .map(|k| format!("--backend {}", name(k)))
+                .collect();
+            return Err(Error::usage(
+                flag,
+                format!(
+                    "applies only to {}, not to --backend {}",
+                    to.join(" or "),
+                    name(&backend)
+                ),
+            ));
+        }
+    }
+    Ok(())
 }

@@ -1,6 +1,7 @@
-//! The one operating-system call raylab makes itself (FFI to the C library
+//! The two operating-system calls raylab makes itself (FFI to the C library
 //! that `std` already links): asking Linux to back large arrays with
-//! transparent huge pages.
+//! transparent huge pages, and letting a closed output pipe end the process
+//! quietly ([`quiet_on_closed_pipe`]).
 //!
 //! Why: a build writes hundreds of megabytes of fresh memory (primitive
 //! references, nodes, leaf blocks), and with 4 KiB pages every page is a
@@ -51,6 +52,28 @@ fn advise_huge_pages(addr: usize, len: usize) {
 
 #[cfg(not(target_os = "linux"))]
 fn advise_huge_pages(_addr: usize, _len: usize) {}
+
+/// Restores the default action of SIGPIPE (Rust's runtime ignores it), so that
+/// `raylab validate ... | head -1` ends quietly when `head` closes the pipe, as
+/// git, ripgrep and every C tool do, instead of panicking in `println!` on the
+/// EPIPE error ("failed printing to stdout: Broken pipe").
+#[cfg(unix)]
+pub fn quiet_on_closed_pipe() {
+    extern "C" {
+        fn signal(signum: std::ffi::c_int, handler: usize) -> usize;
+    }
+    const SIGPIPE: std::ffi::c_int = 13;
+    const SIG_DFL: usize = 0;
+    // SAFETY: signal(2) with SIG_DFL installs no handler of ours (no code runs
+    // at signal time), and SIGPIPE is 13 on every Unix Rust targets (Linux, the
+    // BSDs, macOS). It is called once, at start-up, before any thread exists.
+    unsafe {
+        signal(SIGPIPE, SIG_DFL);
+    }
+}
+
+#[cfg(not(unix))]
+pub fn quiet_on_closed_pipe() {}
 
 #[cfg(test)]
 mod tests {

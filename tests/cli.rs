@@ -415,3 +415,131 @@ fn files_raylab_does_not_read_get_one_line_naming_the_format() {
     }
     std::fs::remove_dir_all(&d).ok();
 }
+
+#[test]
+fn flags_the_chosen_backend_would_ignore_are_refused() {
+    let d = temp_dir("ignored");
+    let o = d.join("x.png");
+    let o = o.to_str().unwrap();
+    for (args, needle) in [
+        (
+            &["--backend", "embree", "--intersector", "watertight"][..],
+            "--intersector",
+        ),
+        (
+            &["--backend", "bvh", "--embree-robust"][..],
+            "--embree-robust",
+        ),
+        (
+            &["--backend", "bvh", "--embree-quality", "high"][..],
+            "--embree-quality",
+        ),
+        (
+            &["--backend", "naive", "--builder", "median"][..],
+            "--builder",
+        ),
+        (
+            &["--backend", "naive", "--bvh-width", "4"][..],
+            "--bvh-width",
+        ),
+        (
+            &["--backend", "embree", "--leaf-size", "2"][..],
+            "--leaf-size",
+        ),
+    ] {
+        let mut a = vec!["render", "cornell-empty", "--size", "8x6", "-o", o];
+        a.extend(args);
+        assert_one_line_error(&a, needle);
+        a[0] = "validate";
+        a.retain(|x| *x != "-o" && *x != o);
+        assert_one_line_error(&a, needle);
+    }
+    // Flags that do apply are taken.
+    let ok = raylab(&[
+        "render",
+        "cornell-empty",
+        "--size",
+        "8x6",
+        "--backend",
+        "naive",
+        "--intersector",
+        "watertight",
+        "-q",
+        "-o",
+        o,
+    ]);
+    assert!(
+        ok.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn an_output_path_that_is_a_directory_is_refused_before_any_work() {
+    let d = temp_dir("outdir");
+    let dir = d.join("render.png");
+    std::fs::create_dir_all(&dir).unwrap();
+    // The naive scan of a million triangles would take minutes: the refusal
+    // must come first.
+    let start = std::time::Instant::now();
+    assert_one_line_error(
+        &[
+            "render",
+            "mesh:1000000",
+            "--backend",
+            "naive",
+            "-o",
+            dir.to_str().unwrap(),
+        ],
+        "is a directory",
+    );
+    assert!(start.elapsed().as_secs() < 60);
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn clap_errors_keep_their_suggestion_and_possible_values_on_one_line() {
+    assert_one_line_error(&["rendr"], "similar subcommand exists: 'render'");
+    assert_one_line_error(
+        &["render", "--backend", "magic"],
+        "possible values: naive, bvh, embree",
+    );
+    assert_one_line_error(&["bench", "--ao", "cosine:0", "--quick"], "--ao");
+}
+
+#[test]
+fn a_closed_stdout_ends_the_process_quietly() {
+    use std::process::{Command, Stdio};
+    let mut child = Command::new(env!("CARGO_BIN_EXE_raylab"))
+        .args([
+            "validate",
+            "cornell-empty",
+            "--count",
+            "200",
+            "--size",
+            "16x12",
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Close the reading end before raylab writes its table.
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !err.contains("internal error")
+            && !err.contains("panicked")
+            && !err.contains("Broken pipe"),
+        "{err}"
+    );
+    use std::os::unix::process::ExitStatusExt;
+    // Ended by SIGPIPE (as git and C tools are), or a clean exit.
+    assert!(
+        out.status.signal() == Some(13) || out.status.success(),
+        "{:?}: {err}",
+        out.status
+    );
+}

@@ -46,6 +46,15 @@ pub fn image_hash(rgb8: &[u8]) -> String {
 /// Fails early, before any rendering, if `path` cannot be written: it must end in
 /// `.png`, its folder must exist, and a file must be creatable there.
 pub fn check_writable(path: &Path) -> Result<()> {
+    if path.is_dir() {
+        return Err(Error::usage(
+            "-o",
+            format!(
+                "{} is a directory: give a file name ending in .png",
+                path.display()
+            ),
+        ));
+    }
     let is_png = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("png"));
