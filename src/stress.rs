@@ -24,7 +24,7 @@ use serde::Serialize;
 use crate::accel::bvh::{BuildParams, BvhBackend};
 use crate::accel::naive::Naive;
 use crate::accel::Backend;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::geometry::{Aabb, Intersector, OffsetStrategy, Ray};
 use crate::render::rng::Rng;
 use crate::validate::{classify, Agreement};
@@ -214,18 +214,70 @@ pub fn double_fan(n: u32) -> TestMesh {
     }
 }
 
-/// A mesh from an OBJ file (its inside unknown: outside rays only).
-pub fn obj_mesh(path: &Path) -> Result<TestMesh> {
+/// A closed mesh from a scene file (its inside unknown: outside rays only).
+/// Vertices at the same position are welded first (loaders split them where
+/// normals differ); then every edge must belong to exactly two triangles, since
+/// a ray through a hole is no leak and the suite's count would be meaningless.
+pub fn file_mesh(path: &Path) -> Result<TestMesh> {
     fn unknown(_: Vec3) -> Option<Vec3> {
         None
     }
     let scene = crate::scene::load::load_file(path)?;
+    let (positions, triangles) = weld(&scene.positions, &scene.triangles);
+    if let Some((edges, at)) = open_edges(&positions, &triangles) {
+        return Err(Error::usage(
+            "--mesh",
+            format!(
+                "{}: not a closed mesh ({edges} edges do not belong to exactly two triangles, one at ({}, {}, {})): the leak suite needs a closed surface",
+                path.display(),
+                at.x,
+                at.y,
+                at.z
+            ),
+        ));
+    }
     Ok(TestMesh {
         name: path.display().to_string(),
-        positions: scene.positions,
-        triangles: scene.triangles,
+        positions,
+        triangles,
         inside: unknown,
     })
+}
+
+/// Merges vertices with bit-identical positions.
+fn weld(positions: &[Vec3], triangles: &[[u32; 3]]) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let mut index_of: std::collections::HashMap<[u32; 3], u32> = std::collections::HashMap::new();
+    let mut welded = Vec::new();
+    let remap: Vec<u32> = positions
+        .iter()
+        .map(|p| {
+            let key = p.to_array().map(|x| (x + 0.0).to_bits());
+            *index_of.entry(key).or_insert_with(|| {
+                welded.push(*p);
+                (welded.len() - 1) as u32
+            })
+        })
+        .collect();
+    let tris = triangles
+        .iter()
+        .map(|t| t.map(|i| remap[i as usize]))
+        .collect();
+    (welded, tris)
+}
+
+/// The number of edges not shared by exactly two triangles, and a point on one
+/// of them; None for a closed mesh.
+fn open_edges(positions: &[Vec3], triangles: &[[u32; 3]]) -> Option<(usize, Vec3)> {
+    let mut uses: std::collections::HashMap<(u32, u32), u32> = std::collections::HashMap::new();
+    for t in triangles {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            *uses.entry((a.min(b), a.max(b))).or_default() += 1;
+        }
+    }
+    let mut bad = uses.iter().filter(|(_, &n)| n != 2);
+    let &(a, _) = bad.next()?.0;
+    Some((1 + bad.count(), positions[a as usize]))
 }
 
 /// A point on the unit sphere from two uniforms.
@@ -309,9 +361,68 @@ pub struct LeakRow {
 }
 
 /// The backends the leak and degenerate suites compare, built over raw arrays.
+/// The backends a stress suite runs (`raylab stress --backends`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StressBackend {
+    /// The naive scan, MT and watertight (slow on large meshes).
+    Naive,
+    /// The median-split BVH, MT and watertight.
+    BvhMedian,
+    /// The SAH BVH, MT and watertight.
+    BvhSah,
+    /// Embree, default and robust.
+    Embree,
+}
+
+impl StressBackend {
+    pub const ALL: [StressBackend; 4] = [
+        StressBackend::Naive,
+        StressBackend::BvhMedian,
+        StressBackend::BvhSah,
+        StressBackend::Embree,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            StressBackend::Naive => "naive",
+            StressBackend::BvhMedian => "bvh-median",
+            StressBackend::BvhSah => "bvh-sah",
+            StressBackend::Embree => "embree",
+        }
+    }
+}
+
+/// Parses `--backends`: names separated by commas, or `all`.
+pub fn parse_stress_backends(s: &str) -> Result<Vec<StressBackend>> {
+    let mut out = Vec::new();
+    for p in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        if p == "all" {
+            out.extend(StressBackend::ALL);
+            continue;
+        }
+        let b = StressBackend::ALL
+            .into_iter()
+            .find(|b| b.name() == p)
+            .ok_or_else(|| {
+                let names: Vec<&str> = StressBackend::ALL.iter().map(|b| b.name()).collect();
+                Error::usage(
+                    "--backends",
+                    format!("unknown backend '{p}' (known: all, {})", names.join(", ")),
+                )
+            })?;
+        out.push(b);
+    }
+    out.dedup();
+    if out.is_empty() {
+        return Err(Error::usage("--backends", "no backend given"));
+    }
+    Ok(out)
+}
+
 fn stress_backends(
     positions: &[Vec3],
     triangles: &[[u32; 3]],
+    kinds: &[StressBackend],
 ) -> Result<Vec<(Box<dyn Backend>, String)>> {
     let tris: Vec<[Vec3; 3]> = triangles
         .iter()
@@ -319,30 +430,48 @@ fn stress_backends(
         .collect();
     let mut out: Vec<(Box<dyn Backend>, String)> = Vec::new();
     for intersector in [Intersector::Mt, Intersector::Watertight] {
-        out.push((
-            Box::new(Naive::from_triangles(tris.clone()).with_intersector(intersector)),
-            intersector.name().into(),
-        ));
-        for params in [BuildParams::median(), BuildParams::sah()] {
-            let bvh = BvhBackend::from_triangles(&tris, &params)?.with_intersector(intersector);
-            out.push((Box::new(bvh), intersector.name().into()));
+        if kinds.contains(&StressBackend::Naive) {
+            out.push((
+                Box::new(Naive::from_triangles(tris.clone()).with_intersector(intersector)),
+                intersector.name().into(),
+            ));
+        }
+        for (kind, params) in [
+            (StressBackend::BvhMedian, BuildParams::median()),
+            (StressBackend::BvhSah, BuildParams::sah()),
+        ] {
+            if kinds.contains(&kind) {
+                let bvh = BvhBackend::from_triangles(&tris, &params)?.with_intersector(intersector);
+                out.push((Box::new(bvh), intersector.name().into()));
+            }
         }
     }
     #[cfg(feature = "embree")]
-    for robust in [false, true] {
-        use crate::accel::embree::{EmbreeBackend, Quality};
-        let e = EmbreeBackend::from_mesh(positions, triangles, Quality::Medium, robust, 1)?;
-        out.push((Box::new(e), "embree".into()));
+    if kinds.contains(&StressBackend::Embree) {
+        for robust in [false, true] {
+            use crate::accel::embree::{EmbreeBackend, Quality};
+            let e = EmbreeBackend::from_mesh(positions, triangles, Quality::Medium, robust, 1)?;
+            out.push((Box::new(e), "embree".into()));
+        }
     }
     Ok(out)
 }
 
-/// The leak suite over `meshes`.
+/// The leak suite over `meshes` with every backend.
 pub fn leak_suite(meshes: &[TestMesh], outside: usize) -> Result<Vec<LeakRow>> {
+    leak_suite_with(meshes, outside, &StressBackend::ALL)
+}
+
+/// The leak suite over `meshes` with the backends `kinds`.
+pub fn leak_suite_with(
+    meshes: &[TestMesh],
+    outside: usize,
+    kinds: &[StressBackend],
+) -> Result<Vec<LeakRow>> {
     let mut rows = Vec::new();
     for (k, mesh) in meshes.iter().enumerate() {
         let rays = leak_rays(mesh, outside, 17 + k as u64);
-        for (backend, intersector) in stress_backends(&mesh.positions, &mesh.triangles)? {
+        for (backend, intersector) in stress_backends(&mesh.positions, &mesh.triangles, kinds)? {
             let start = Instant::now();
             let leaks = rays
                 .iter()
@@ -606,7 +735,8 @@ pub fn degenerate_suite(rays_per_case: usize) -> Result<Vec<DegenerateRow>> {
         let naive_mt = Naive::from_triangles(tris.clone());
         let naive_wt =
             Naive::from_triangles(tris.clone()).with_intersector(Intersector::Watertight);
-        for (backend, intersector) in stress_backends(&positions, &triangles)? {
+        for (backend, intersector) in stress_backends(&positions, &triangles, &StressBackend::ALL)?
+        {
             let reference: &dyn Backend = if intersector == "watertight" {
                 &naive_wt
             } else {

@@ -88,3 +88,32 @@ fn report_has_every_table() {
     let json: serde_json::Value = serde_json::to_value(&report).unwrap();
     assert!(json["leaks"].as_array().unwrap().len() >= 6);
 }
+
+#[test]
+fn user_meshes_must_be_closed_and_backends_can_be_chosen() {
+    let dir = std::env::temp_dir().join(format!("raylab-stress-mesh-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // A tetrahedron with one face missing, and the whole one; the closed one
+    // with split vertices (one normal per face), which welding must join.
+    let open = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\n";
+    let closed = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nvn 0 0 -1\nvn 0 -1 0\nvn -1 0 0\nvn 1 1 1\n\
+                  f 1//1 3//1 2//1\nf 1//2 2//2 4//2\nf 1//3 4//3 3//3\nf 2//4 3//4 4//4\n";
+    std::fs::write(dir.join("open.obj"), open).unwrap();
+    std::fs::write(dir.join("closed.obj"), closed).unwrap();
+    let Err(e) = file_mesh(&dir.join("open.obj")) else {
+        panic!("an open mesh was taken")
+    };
+    let e = e.to_string();
+    assert!(e.contains("not a closed mesh (3 edges"), "{e}");
+    let mesh = file_mesh(&dir.join("closed.obj")).unwrap();
+    assert_eq!(mesh.positions.len(), 4, "split vertices are welded");
+    let kinds = parse_stress_backends("bvh-sah").unwrap();
+    let rows = leak_suite_with(&[mesh], 2, &kinds).unwrap();
+    assert_eq!(rows.len(), 2, "bvh-sah with MT and watertight only");
+    assert!(rows.iter().all(|r| r.backend.starts_with("bvh-sah")));
+    assert!(parse_stress_backends("warp")
+        .unwrap_err()
+        .to_string()
+        .contains("--backends"));
+    std::fs::remove_dir_all(&dir).ok();
+}
