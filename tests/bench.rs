@@ -231,6 +231,16 @@ fn quick_bench_draws_charts_and_images() {
     ] {
         assert!(html.contains(needle), "index.html lacks {needle}");
     }
+    // Every chart the run drew is on the page (the trace charts were left out).
+    for entry in std::fs::read_dir(dir.join("charts")).unwrap() {
+        let name = entry.unwrap().file_name().to_string_lossy().to_string();
+        if name.ends_with(".png") {
+            assert!(
+                html.contains(&format!("charts/{name}")),
+                "index.html lacks charts/{name}"
+            );
+        }
+    }
     // Every image the page references exists, by relative path.
     for src in html.split("src=\"").skip(1) {
         let src = src.split('"').next().unwrap();

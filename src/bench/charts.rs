@@ -71,6 +71,38 @@ where
     Ok(())
 }
 
+/// Width of the strip [`side_legend`] draws in.
+const SIDE_LEGEND: u32 = 190;
+
+/// How a legend entry's swatch is drawn.
+#[derive(Clone, Copy)]
+enum Swatch {
+    Bar,
+    Dot,
+}
+
+/// A legend in a strip of its own beside the plot (many series: inside the plot
+/// it covered bars and points).
+fn side_legend<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    entries: &[(String, RGBAColor)],
+    swatch: Swatch,
+) -> DrawResult
+where
+    DB::ErrorType: 'static,
+{
+    let style = TextStyle::from((FONT, 13).into_font()).pos(Pos::new(HPos::Left, VPos::Center));
+    for (i, (name, c)) in entries.iter().enumerate() {
+        let y = 50 + 19 * i as i32;
+        match swatch {
+            Swatch::Bar => area.draw(&Rectangle::new([(8, y - 5), (20, y + 5)], c.filled()))?,
+            Swatch::Dot => area.draw(&Circle::new((14, y), 5, c.filled()))?,
+        }
+        area.draw(&Text::new(name.clone(), (28, y), style.clone()))?;
+    }
+    Ok(())
+}
+
 /// A labelled line through `points` with a dot on each.
 fn line_with_points<'a, DB, CT>(
     chart: &mut ChartContext<'a, DB, CT>,
@@ -190,7 +222,7 @@ pub struct SpeedupData<'a> {
 
 pub fn speedup_chart(dir: &Path, data: &SpeedupData) -> Result<String> {
     let name = format!("speedup-ao-{}", data.ao.replace(':', "-"));
-    save_chart!(dir, &name, (1200, 560), draw_speedup, data)
+    save_chart!(dir, &name, (1390, 560), draw_speedup, data)
 }
 
 fn draw_speedup<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, d: &SpeedupData) -> DrawResult
@@ -249,7 +281,6 @@ where
             series,
             y: (y.start.min(0.5))..y.end,
             y_label: &speedup_label,
-            legend: SeriesLabelPosition::UpperLeft,
         },
     )
 }
@@ -279,7 +310,6 @@ struct Bars<'a> {
     series: Vec<(String, Vec<Option<f64>>)>,
     y: std::ops::Range<f64>,
     y_label: &'a dyn Fn(&f64) -> String,
-    legend: SeriesLabelPosition,
 }
 
 fn draw_bars<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, b: &Bars) -> DrawResult
@@ -288,7 +318,9 @@ where
 {
     root.fill(&WHITE)?;
     let y = b.y.clone();
-    let mut chart = ChartBuilder::on(&root)
+    let (width, _) = root.dim_in_pixel();
+    let (plot, side) = root.split_horizontally(width.saturating_sub(SIDE_LEGEND));
+    let mut chart = ChartBuilder::on(&plot)
         .caption(&b.caption, (FONT, 22))
         .margin(12)
         .x_label_area_size(50)
@@ -303,7 +335,7 @@ where
         .y_label_formatter(b.y_label)
         .draw()?;
     let width = 0.8 / b.series.len().max(1) as f64;
-    for (si, (name, values)) in b.series.iter().enumerate() {
+    for (si, (_, values)) in b.series.iter().enumerate() {
         let c = color(si);
         let bars: Vec<Rectangle<(f64, f64)>> = values
             .iter()
@@ -316,17 +348,20 @@ where
                 ))
             })
             .collect();
-        chart
-            .draw_series(bars)?
-            .label(name.as_str())
-            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 12, y + 5)], c.filled()));
+        chart.draw_series(bars)?;
     }
-    legend(&mut chart, b.legend.clone())?;
+    let entries: Vec<(String, RGBAColor)> = b
+        .series
+        .iter()
+        .enumerate()
+        .map(|(i, (name, _))| (name.clone(), color(i)))
+        .collect();
+    side_legend(&side, &entries, Swatch::Bar)?;
     for (gi, (first, second)) in b.groups.iter().enumerate() {
         let (px, py) = chart.backend_coord(&(gi as f64 + 0.5, y.start));
         let style = TextStyle::from((FONT, 13).into_font()).pos(Pos::new(HPos::Center, VPos::Top));
-        root.draw(&Text::new(first.clone(), (px, py + 6), style.clone()))?;
-        root.draw(&Text::new(second.clone(), (px, py + 23), style))?;
+        plot.draw(&Text::new(first.clone(), (px, py + 6), style.clone()))?;
+        plot.draw(&Text::new(second.clone(), (px, py + 23), style))?;
     }
     root.present()?;
     Ok(())
@@ -341,7 +376,7 @@ pub struct TraceData<'a> {
 
 pub fn trace_chart(dir: &Path, data: &TraceData) -> Result<String> {
     let name = format!("trace-{}t", data.threads);
-    save_chart!(dir, &name, (1200, 560), draw_trace, data)
+    save_chart!(dir, &name, (1390, 560), draw_trace, data)
 }
 
 fn draw_trace<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, d: &TraceData) -> DrawResult
@@ -389,7 +424,6 @@ where
             series,
             y: log_range(here.iter().map(|p| p.mrays.median)),
             y_label: &log_label,
-            legend: SeriesLabelPosition::UpperRight,
         },
     )
 }
@@ -581,7 +615,7 @@ where
 }
 
 pub fn builders_chart(dir: &Path, points: &[BuilderPoint]) -> Result<String> {
-    save_chart!(dir, "builders", (1200, 520), draw_builders, points)
+    save_chart!(dir, "builders", (1390, 520), draw_builders, points)
 }
 
 fn draw_builders<DB: DrawingBackend>(
@@ -592,7 +626,9 @@ where
     DB::ErrorType: 'static,
 {
     root.fill(&WHITE)?;
-    let (left, right) = root.split_horizontally(600);
+    let (width, _) = root.dim_in_pixel();
+    let (panels, side) = root.split_horizontally(width.saturating_sub(SIDE_LEGEND));
+    let (left, right) = panels.split_horizontally((width.saturating_sub(SIDE_LEGEND)) / 2);
     let mut builders: Vec<&str> = Vec::new();
     let mut scenes: Vec<&str> = Vec::new();
     for p in pts {
@@ -639,21 +675,23 @@ where
             .draw()?;
         for (i, b) in builders.iter().enumerate() {
             let c = color(i);
-            chart
-                .draw_series(pts.iter().filter(|p| p.builder == *b).map(|p| {
-                    let si = scenes.iter().position(|s| *s == p.scene).unwrap_or(0);
-                    let marker: DynElement<DB, (f64, f64)> = if si % 2 == 0 {
-                        Circle::new((fx(p), fy(p)), 5, c.filled()).into_dyn()
-                    } else {
-                        TriangleMarker::new((fx(p), fy(p)), 6, c.filled()).into_dyn()
-                    };
-                    marker
-                }))?
-                .label(*b)
-                .legend(move |(x, y)| Circle::new((x + 6, y), 5, c.filled()));
+            chart.draw_series(pts.iter().filter(|p| p.builder == *b).map(|p| {
+                let si = scenes.iter().position(|s| *s == p.scene).unwrap_or(0);
+                let marker: DynElement<DB, (f64, f64)> = if si % 2 == 0 {
+                    Circle::new((fx(p), fy(p)), 5, c.filled()).into_dyn()
+                } else {
+                    TriangleMarker::new((fx(p), fy(p)), 6, c.filled()).into_dyn()
+                };
+                marker
+            }))?;
         }
-        legend(&mut chart, SeriesLabelPosition::UpperRight)?;
     }
+    let entries: Vec<(String, RGBAColor)> = builders
+        .iter()
+        .enumerate()
+        .map(|(i, b)| (b.to_string(), color(i)))
+        .collect();
+    side_legend(&side, &entries, Swatch::Dot)?;
     let note = format!(
         "circles: {}   triangles: {}",
         scenes.first().copied().unwrap_or(""),

@@ -678,6 +678,7 @@ fn report_html(r: &BenchReport, md: &str) -> String {
         });
     }
     let extras = [
+        ("trace", "Query throughput", "trace-", "Rays traced per second per backend, scene and ray kind, on one thread count per chart (log scale; the same recorded rays for every backend, no shading)."),
         ("scaling", "Thread scaling", "thread-scaling", "Render speedup over one thread per schedule; the grey line is ideal scaling."),
         ("growth", "Cost growth", "cost-growth", "Build time and time per ray against triangle count (log-log): naive grows as O(N) per ray, the hierarchies as O(log N)."),
         ("ao-error", "AO error against time", "ao-error", "Error of the study's 14 fixed AO directions and of N random cosine samples against a cosine reference, against render time."),
