@@ -7,7 +7,7 @@ DEB_PACKAGES := build-essential pkg-config libclang-dev libembree-dev fonts-deja
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 RAYLAB := target/release/raylab
 
-.PHONY: deps browser build run test bench bench-quick criterion lint clean
+.PHONY: deps browser real-scenes build run test bench bench-quick criterion lint clean
 
 deps:
 	@missing=""; \
@@ -25,6 +25,15 @@ browser:
 	  echo "installing Debian package: chromium"; \
 	  $(SUDO) apt-get update -qq && \
 	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium; }
+
+# Real exported scenes to try raylab on (OBJ from Blender and others, PLY, glTF
+# 2.0: assimp's test models, in /usr/share/assimp/models); CI renders and
+# validates some of them.
+real-scenes:
+	@dpkg -s assimp-testmodels >/dev/null 2>&1 || { \
+	  echo "installing Debian package: assimp-testmodels"; \
+	  $(SUDO) apt-get update -qq && \
+	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq assimp-testmodels; }
 
 build: deps
 	$(CARGO) build --release
