@@ -77,21 +77,15 @@ pub fn load_gltf_bytes(bytes: &[u8], path: &Path) -> Result<Scene> {
         ));
     }
     let any_normals = out.normals.iter().any(|n| *n != Vec3::ZERO);
-    let mut scene = Scene::new(
-        path.display().to_string(),
+    Scene::from_file(
+        path,
         out.positions,
         any_normals.then_some(out.normals),
         out.triangles,
         out.material_ids,
         out.materials,
+        warnings,
     )
-    .map_err(|e| match e {
-        Error::Scene { msg, .. } => err(msg),
-        other => other,
-    })?;
-    warnings.append(&mut scene.warnings);
-    scene.warnings = warnings;
-    Ok(scene)
 }
 
 /// Whether `bytes` declare glTF 1.0 (`"version": "1.0"` in the asset, or a

@@ -196,6 +196,38 @@ impl Scene {
         Ok(scene)
     }
 
+    /// [`Scene::new`] for a loader: the scene is named by `path`, an error names
+    /// the file, and the loader's own `warnings` come before the scene's.
+    pub(crate) fn from_file(
+        path: &std::path::Path,
+        positions: Vec<Vec3>,
+        normals: Option<Vec<Vec3>>,
+        triangles: Vec<[u32; 3]>,
+        material_ids: Vec<u32>,
+        materials: Vec<Material>,
+        mut warnings: Vec<String>,
+    ) -> Result<Scene> {
+        let mut scene = Scene::new(
+            path.display().to_string(),
+            positions,
+            normals,
+            triangles,
+            material_ids,
+            materials,
+        )
+        .map_err(|e| match e {
+            Error::Scene { msg, .. } => Error::Parse {
+                path: path.to_path_buf(),
+                line: 0,
+                msg,
+            },
+            other => other,
+        })?;
+        warnings.append(&mut scene.warnings);
+        scene.warnings = warnings;
+        Ok(scene)
+    }
+
     fn find_lights(&self) -> Lights {
         let mut triangles = Vec::new();
         let mut cumulative = Vec::new();

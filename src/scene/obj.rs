@@ -351,25 +351,15 @@ impl ObjReader<'_> {
         }
         let mut materials = std::mem::take(&mut self.materials);
         materials.push(Material::default_grey());
-        let mut scene = Scene::new(
-            path.display().to_string(),
+        Scene::from_file(
+            path,
             positions,
             any_normals.then_some(normals),
             triangles,
             material_ids,
             materials,
+            self.warnings,
         )
-        .map_err(|e| match e {
-            Error::Scene { msg, .. } => Error::Parse {
-                path: path.to_path_buf(),
-                line: 0,
-                msg,
-            },
-            other => other,
-        })?;
-        self.warnings.append(&mut scene.warnings);
-        scene.warnings = self.warnings;
-        Ok(scene)
     }
 }
 

@@ -215,38 +215,29 @@ pub fn load_ply_bytes(bytes: &[u8], path: &Path) -> Result<Scene> {
         polygon::triangulate(&corners, &mut local);
         triangles.extend(local.iter().map(|t| t.map(|c| f.indices[c] as u32)));
     }
+    let mut warnings = Vec::new();
+    if stray_lines > 0 {
+        warnings.push(format!(
+            "{}: {stray_lines} header lines without a keyword read as comments (old Blender exports write them)",
+            path.display()
+        ));
+    }
+    if short_faces > 0 {
+        warnings.push(format!(
+            "{}: skipped {short_faces} faces of fewer than 3 vertices",
+            path.display()
+        ));
+    }
     let count = triangles.len();
-    let mut scene = Scene::new(
-        path.display().to_string(),
+    Scene::from_file(
+        path,
         positions,
         normals,
         triangles,
         vec![0; count],
         vec![Material::default_grey()],
+        warnings,
     )
-    .map_err(|e| match e {
-        Error::Scene { msg, .. } => err(msg),
-        other => other,
-    })?;
-    if stray_lines > 0 {
-        scene.warnings.insert(
-            0,
-            format!(
-                "{}: {stray_lines} header lines without a keyword read as comments (old Blender exports write them)",
-                path.display()
-            ),
-        );
-    }
-    if short_faces > 0 {
-        scene.warnings.insert(
-            0,
-            format!(
-                "{}: skipped {short_faces} faces of fewer than 3 vertices",
-                path.display()
-            ),
-        );
-    }
-    Ok(scene)
 }
 
 /// Header keywords of the PLY format.

@@ -107,10 +107,9 @@ mod tests {
         assert_eq!(out, vec![[0, 1, 2], [0, 2, 3]]);
     }
 
-    #[test]
-    fn a_u_shape_is_cut_along_its_notch() {
-        // A U of outer size 3x3 with a 1x2 notch from the top: area 9 - 2 = 7.
-        let u = xy(&[
+    /// A U of outer size 3x3 with a 1x2 notch from the top (area 7), in z = 0.
+    fn u_shape() -> Vec<Vec3> {
+        xy(&[
             (0.0, 0.0),
             (3.0, 0.0),
             (3.0, 3.0),
@@ -119,7 +118,13 @@ mod tests {
             (1.0, 1.0),
             (1.0, 3.0),
             (0.0, 3.0),
-        ]);
+        ])
+    }
+
+    #[test]
+    fn a_u_shape_is_cut_along_its_notch() {
+        // A U of outer size 3x3 with a 1x2 notch from the top: area 9 - 2 = 7.
+        let u = u_shape();
         let mut out = Vec::new();
         triangulate(&u, &mut out);
         assert_eq!(out.len(), 6);
@@ -165,19 +170,10 @@ mod tests {
     fn tilted_concave_polygons_use_their_own_plane() {
         // The U above, rotated out of every axis plane.
         let rot = glam::Quat::from_euler(glam::EulerRot::XYZ, 0.7, -0.4, 1.1);
-        let u: Vec<Vec3> = xy(&[
-            (0.0, 0.0),
-            (3.0, 0.0),
-            (3.0, 3.0),
-            (2.0, 3.0),
-            (2.0, 1.0),
-            (1.0, 1.0),
-            (1.0, 3.0),
-            (0.0, 3.0),
-        ])
-        .into_iter()
-        .map(|p| rot * p + Vec3::new(5.0, -2.0, 1.0))
-        .collect();
+        let u: Vec<Vec3> = u_shape()
+            .into_iter()
+            .map(|p| rot * p + Vec3::new(5.0, -2.0, 1.0))
+            .collect();
         let mut out = Vec::new();
         triangulate(&u, &mut out);
         assert!((area(&u, &out) - 7.0).abs() < 1e-4, "{}", area(&u, &out));
