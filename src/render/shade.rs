@@ -196,15 +196,14 @@ fn direct_light<T: Tracer + ?Sized>(
             (false, _) => true,
             (true, false) => false,
         };
-        // The sampled point, its emitted radiance towards the surface and the
-        // geometry factor's light side (cos at the light / pdf in area measure
-        // or, for a point light, 1).
-        let (q, le, light_normal, point_light) = if use_extra {
+        // The sampled point, its radiance (a point light's intensity) and the
+        // light's unit normal there (None for a point light, which has no area).
+        let (q, le, light_normal) = if use_extra {
             match lights.extra.expect("an extra light") {
                 Emitter::Point {
                     position,
                     intensity,
-                } => (position, intensity, Vec3::ZERO, true),
+                } => (position, intensity, None),
                 Emitter::Quad {
                     corner,
                     edge_u,
@@ -213,8 +212,7 @@ fn direct_light<T: Tracer + ?Sized>(
                 } => (
                     corner + edge_u * r1 + edge_v * r2,
                     radiance,
-                    edge_u.cross(edge_v),
-                    false,
+                    Some(edge_u.cross(edge_v).normalize_or_zero()),
                 ),
             }
         } else {
@@ -226,8 +224,7 @@ fn direct_light<T: Tracer + ?Sized>(
             (
                 q,
                 scene.material_of(light).ke,
-                triangle_unit_normal(&tri),
-                false,
+                Some(triangle_unit_normal(&tri)),
             )
         };
         let to_light = q - origin;
@@ -241,17 +238,12 @@ fn direct_light<T: Tracer + ?Sized>(
         if s.ng.dot(wi) <= 0.0 || cos_s <= 0.0 {
             continue; // light below the surface: no ray needed
         }
-        let cos_l = if point_light {
-            1.0
-        } else {
-            // Emitters shine on the side their winding's normal points to
-            // (towards the surface: against wi), unless --two-sided-lights.
-            let c = -light_normal.normalize_or_zero().dot(wi);
-            if settings.two_sided_lights {
-                c.abs()
-            } else {
-                c
-            }
+        // Area emitters shine on the side their normal points to (towards the
+        // surface: against wi), unless two-sided.
+        let cos_l = match light_normal {
+            None => 1.0,
+            Some(n) if settings.two_sided_lights => n.dot(wi).abs(),
+            Some(n) => -n.dot(wi),
         };
         if cos_l <= 0.0 {
             continue;
