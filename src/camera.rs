@@ -84,19 +84,47 @@ impl Camera {
 /// mostly from the front, a little from the right and from above.
 pub const FRAMING_DIRECTION: [f32; 3] = [0.5, 0.4, 1.0];
 
-/// The default view of a scene with bounds `bounds` (the README's rule): look at
-/// the box's centre from [`FRAMING_DIRECTION`] (right, up, front) at the distance
-/// where the bounding sphere (radius half the box's diagonal) just fits the
-/// narrower of the vertical and horizontal fields of view. Returns (eye, look).
-pub fn framing(bounds: &Aabb, up: Vec3, fov_deg: f32, width: u32, height: u32) -> (Vec3, Vec3) {
+/// Part of the image's half-width and half-height left free around the
+/// framed bounding box.
+pub const FRAMING_MARGIN: f32 = 0.05;
+
+/// The default view of a scene (the README's rule): look at the centre of the
+/// bounding box of `points` from [`FRAMING_DIRECTION`] (right, up, front), at
+/// the smallest distance where every point lies inside the image with a margin
+/// of [`FRAMING_MARGIN`] of its half-size (and the eye outside the bounding
+/// sphere). Returns (eye, look); `points` must not be empty.
+pub fn framing(
+    points: impl Iterator<Item = Vec3> + Clone,
+    up: Vec3,
+    fov_deg: f32,
+    width: u32,
+    height: u32,
+) -> (Vec3, Vec3) {
+    let bounds = points.clone().fold(Aabb::EMPTY, Aabb::grown);
     let (up, front, right) = crate::scene::light::frame_axes(up);
     let [r, u, f] = FRAMING_DIRECTION;
     let dir = (right * r + up * u + front * f).normalize();
     let look = bounds.center();
-    let radius = (0.5 * (bounds.max - bounds.min).length()).max(f32::MIN_POSITIVE);
+    // The camera's own basis, as Camera::new makes it.
+    let forward = -dir;
+    let cam_right = forward.cross(up).normalize();
+    let cam_up = cam_right.cross(forward);
     let half_v = (fov_deg.to_radians() * 0.5).clamp(1e-4, 1.55);
-    let half_h = (half_v.tan() * width as f32 / height.max(1) as f32).atan();
-    let dist = radius / half_v.min(half_h).sin();
+    let tan_v = half_v.tan() * (1.0 - FRAMING_MARGIN);
+    let tan_h = half_v.tan() * width as f32 / height.max(1) as f32 * (1.0 - FRAMING_MARGIN);
+    // A point at offset c from the centre lies at depth dist - c.dir in front of
+    // the eye and c.right to its side: inside when |c.right| <= tan_h * depth.
+    let mut dist = f32::MIN_POSITIVE;
+    for p in points {
+        let c = p - look;
+        let along = c.dot(dir);
+        dist = dist
+            .max(along + c.dot(cam_right).abs() / tan_h)
+            .max(along + c.dot(cam_up).abs() / tan_v);
+    }
+    // Never inside the scene, even for a flat one seen edge-on.
+    let extent = (bounds.max - bounds.min).max(Vec3::ZERO);
+    dist = dist.max(0.5 * extent.length() * 1.01);
     (look + dir * dist, look)
 }
 
@@ -149,37 +177,44 @@ mod tests {
     }
 
     #[test]
-    fn framing_puts_the_whole_bounding_sphere_in_view() {
+    fn framing_fits_every_point_into_the_image() {
         let b = Aabb::EMPTY
             .grown(Vec3::new(10.0, -3.0, 100.0))
-            .grown(Vec3::new(14.0, 5.0, 104.0));
+            .grown(Vec3::new(14.0, 5.0, 101.0));
+        let corners: Vec<Vec3> = (0..8)
+            .map(|k| {
+                Vec3::new(
+                    if k & 1 == 0 { b.min.x } else { b.max.x },
+                    if k & 2 == 0 { b.min.y } else { b.max.y },
+                    if k & 4 == 0 { b.min.z } else { b.max.z },
+                )
+            })
+            .collect();
         for (w, h) in [(64, 48), (48, 64), (100, 100)] {
-            let (eye, look) = framing(&b, Vec3::Y, 60.0, w, h);
+            let (eye, look) = framing(corners.iter().copied(), Vec3::Y, 60.0, w, h);
             assert_eq!(look, b.center());
             assert!(eye.z > look.z && eye.y > look.y && eye.x > look.x, "{eye}");
-            let cam = Camera::new(eye, look, Vec3::Y, 60.0, w, h).unwrap();
-            // The corner pixels' rays miss the bounding sphere; the centre's hits it.
-            let radius = 0.5 * (b.max - b.min).length();
-            let dist_to_ray = |x: u32, y: u32| {
-                let r = cam.ray(x, y);
-                let v = look - r.origin;
-                (v - r.dir * v.dot(r.dir)).length()
-            };
-            assert!(dist_to_ray(w / 2, h / 2) < 0.05 * radius);
-            // Every edge's middle pixel sees past the sphere; along the narrower
-            // field of view, only just.
-            let narrow: [(u32, u32); 2] = if w >= h {
-                [(w / 2, 0), (w / 2, h - 1)]
-            } else {
-                [(0, h / 2), (w - 1, h / 2)]
-            };
-            for (x, y) in [(0, h / 2), (w - 1, h / 2), (w / 2, 0), (w / 2, h - 1)] {
-                let d = dist_to_ray(x, y);
-                assert!(d > 0.95 * radius, "{w}x{h} ({x},{y}): {d} vs {radius}");
-                if narrow.contains(&(x, y)) {
-                    assert!(d < 1.1 * radius, "{w}x{h} ({x},{y}): {d} vs {radius}");
-                }
+            // Project the corners with the camera's own rays' basis: the centre
+            // pixel's direction and the corner pixels' spread.
+            let forward = (look - eye).normalize();
+            let right = forward.cross(Vec3::Y).normalize();
+            let up = right.cross(forward);
+            let tan_v = 30f32.to_radians().tan();
+            let tan_h = tan_v * w as f32 / h as f32;
+            let mut widest: f32 = 0.0;
+            for (k, corner) in corners.iter().enumerate() {
+                let c = *corner - eye;
+                let depth = c.dot(forward);
+                assert!(depth > 0.0);
+                let (x, y) = (c.dot(right) / depth / tan_h, c.dot(up) / depth / tan_v);
+                assert!(
+                    x.abs() <= 0.951 && y.abs() <= 0.951,
+                    "{w}x{h}: corner {k} at ({x}, {y})"
+                );
+                widest = widest.max(x.abs()).max(y.abs());
             }
+            // And as close as that allows: one corner on the margin.
+            assert!(widest > 0.94, "{w}x{h}: widest corner at {widest}");
         }
     }
 

@@ -381,7 +381,12 @@ pub fn default_view(
     let (framed_eye, framed_look) = if scene.study_frame {
         (Vec3::new(0.0, 1.0, 3.0), Vec3::new(0.0, 1.0, 0.0))
     } else {
-        crate::camera::framing(&scene.bounds(), up, fov, width, height)
+        let points = scene
+            .triangles
+            .iter()
+            .flatten()
+            .map(|&i| scene.positions[i as usize]);
+        crate::camera::framing(points, up, fov, width, height)
     };
     match (eye, look) {
         (Some(e), Some(l)) => (e, l),
