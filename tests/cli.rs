@@ -543,3 +543,28 @@ fn a_closed_stdout_ends_the_process_quietly() {
         out.status
     );
 }
+
+#[test]
+fn blender_style_ka_zero_keeps_ambient_occlusion_visible() {
+    // Blender's MTL writes Ka 0 0 0; the ambient term used to vanish with it, so
+    // AO changed nothing in the image (the same hash at 5x the time).
+    let d = temp_dir("blender-ka");
+    std::fs::write(
+        d.join("m.mtl"),
+        "newmtl Material\nNs 225\nKa 0.000000 0.000000 0.000000\nKd 0.8 0.8 0.8\nKs 0.5 0.5 0.5\nKe 0 0 0\nillum 2\n",
+    )
+    .unwrap();
+    let obj = d.join("cube.obj");
+    std::fs::write(
+        &obj,
+        "mtllib m.mtl\no Cube\nv 1 1 -1\nv 1 -1 -1\nv 1 1 1\nv 1 -1 1\nv -1 1 -1\nv -1 -1 -1\nv -1 1 1\nv -1 -1 1\n\
+         v -3 -1 -3\nv 3 -1 -3\nv 3 -1 3\nv -3 -1 3\nusemtl Material\ns off\n\
+         f 1 5 7 3\nf 4 3 7 8\nf 8 7 5 6\nf 6 2 4 8\nf 2 1 3 4\nf 6 5 1 2\nf 9 12 11 10\n",
+    )
+    .unwrap();
+    let hash = |ao: &str| {
+        render_json(&obj, &d.join(format!("{ao}.png")), &["--ao", ao])["image_hash"].clone()
+    };
+    assert_ne!(hash("off"), hash("paper"), "AO must change the image");
+    std::fs::remove_dir_all(&d).ok();
+}
