@@ -991,6 +991,16 @@ pub fn load_scene(spec: &str) -> Result<Scene> {
     }
 }
 
+/// A rate with three significant digits (the naive scan's 0.0041 Mrays/s read
+/// "0.00" with two decimals).
+fn significant(x: f64) -> String {
+    if !(x.is_finite() && x > 0.0) {
+        return format!("{x}");
+    }
+    let decimals = (2 - x.log10().floor() as i32).clamp(0, 9) as usize;
+    format!("{x:.decimals$}")
+}
+
 fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
@@ -1120,7 +1130,7 @@ fn run_render(args: &RenderArgs) -> Result<()> {
     let mrays = stats.total_rays() as f64 / render_time.as_secs_f64().max(1e-9) / 1e6;
     let per_thread = |rays: u64, t: Duration| rays as f64 / t.as_secs_f64().max(1e-9) / 1e6;
     say(format!(
-        "render {}x{} {} ({} thread{}), ao {}: {:.1} ms, {:.2} M rays, {:.2} Mrays/s",
+        "render {}x{} {} ({} thread{}), ao {}: {:.1} ms, {:.2} M rays, {} Mrays/s",
         settings.width,
         settings.height,
         args.schedule.name(),
@@ -1129,16 +1139,16 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         settings.ao,
         ms(render_time),
         stats.total_rays() as f64 / 1e6,
-        mrays
+        significant(mrays)
     ));
     say(format!(
-        "  per thread: primary {} rays {:.2} Mrays/s | shadow {} rays {:.2} Mrays/s | ao {} rays {:.2} Mrays/s",
+        "  per thread: primary {} rays {} Mrays/s | shadow {} rays {} Mrays/s | ao {} rays {} Mrays/s",
         stats.primary_rays,
-        per_thread(stats.primary_rays, stats.primary_time),
+        significant(per_thread(stats.primary_rays, stats.primary_time)),
         stats.shadow_rays,
-        per_thread(stats.shadow_rays, stats.shadow_time),
+        significant(per_thread(stats.shadow_rays, stats.shadow_time)),
         stats.ao_rays,
-        per_thread(stats.ao_rays, stats.ao_time),
+        significant(per_thread(stats.ao_rays, stats.ao_time)),
     ));
     say(format!(
         "wrote {} (image hash {hash})",
@@ -1314,4 +1324,26 @@ fn check_backend_flags(m: &clap::ArgMatches, backend: BackendKind) -> Result<()>
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rates_keep_three_significant_digits() {
+        assert_eq!(significant(44.4612), "44.5");
+        assert_eq!(significant(0.004123), "0.00412");
+        assert_eq!(significant(1234.5), "1234");
+        assert_eq!(significant(0.0), "0");
+    }
+
+    #[test]
+    fn clap_messages_become_one_line_with_their_tips() {
+        let text = "error: unrecognized subcommand 'rendr'\n\n  tip: a similar subcommand exists: 'render'\n\nUsage: raylab <COMMAND>\n\nFor more information, try '--help'.\n";
+        assert_eq!(
+            one_line_clap_error(text),
+            "unrecognized subcommand 'rendr' (tip: a similar subcommand exists: 'render')"
+        );
+    }
 }
