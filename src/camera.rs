@@ -122,9 +122,10 @@ pub fn framing(
             .max(along + c.dot(cam_right).abs() / tan_h)
             .max(along + c.dot(cam_up).abs() / tan_v);
     }
-    // Never inside the scene, even for a flat one seen edge-on.
+    // Never inside the scene, even for a flat one seen edge-on (the diagonal
+    // in f64: its square overflows f32 from about 1e19).
     let extent = (bounds.max - bounds.min).max(Vec3::ZERO);
-    dist = dist.max(0.5 * extent.length() * 1.01);
+    dist = dist.max((0.5 * extent.as_dvec3().length() * 1.01) as f32);
     (look + dir * dist, look)
 }
 

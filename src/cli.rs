@@ -351,6 +351,12 @@ impl ViewArgs {
         scene.set_extra_light(light, self.up);
         let (width, height) = self.size;
         let (eye, look) = default_view(scene, self.eye, self.look, self.up, self.fov, self.size);
+        if !(eye.is_finite() && look.is_finite()) {
+            return Err(Error::Scene {
+                name: scene.name.clone(),
+                msg: "too large to frame with f32 rays (the default view's eye is beyond f32): give --eye and --look".into(),
+            });
+        }
         let camera = Camera::new(eye, look, self.up, self.fov, width, height)?;
         let settings = RenderSettings {
             width,

@@ -568,3 +568,43 @@ fn blender_style_ka_zero_keeps_ambient_occlusion_visible() {
     assert_ne!(hash("off"), hash("paper"), "AO must change the image");
     std::fs::remove_dir_all(&d).ok();
 }
+
+#[test]
+fn huge_and_far_triangles_render_lit_not_black() {
+    // A model of size 1e10: its f32 normals overflowed to zero and it rendered
+    // black; its default light's area overflowed too.
+    let d = temp_dir("huge");
+    let obj = d.join("big.obj");
+    let s = 1e10f32;
+    std::fs::write(
+        &obj,
+        format!("v 0 0 0\nv {s} 0 0\nv 0 {s} 0\nv 0 0 {s}\nf 1 2 3\nf 1 3 4\nf 1 4 2\n"),
+    )
+    .unwrap();
+    let png = d.join("big.png");
+    let v = render_json(&obj, &png, &["--ao", "off"]);
+    assert_eq!(v["triangles"], 3, "{v}");
+    assert!(v["rays"]["shadow"].as_u64().unwrap() > 0, "{v}");
+    let img = image::open(&png).unwrap().to_rgb8();
+    let lit = img
+        .pixels()
+        .filter(|p| p.0.iter().any(|&c| c > 120))
+        .count();
+    assert!(lit > 100, "only {lit} lit pixels");
+    // Coordinates near 3e38 are no longer called degenerate; such a scene is
+    // beyond what f32 rays can frame, and says so in one line.
+    let vast = d.join("vast.obj");
+    std::fs::write(
+        &vast,
+        "v -3e38 -3e38 0\nv 3e38 -3e38 0\nv -3e38 3e38 0\nf 1 2 3\n",
+    )
+    .unwrap();
+    let scene = raylab::scene::load::load_file(&vast).unwrap();
+    assert_eq!((scene.triangle_count(), scene.dropped_degenerate), (1, 0));
+    let o = d.join("vast.png");
+    assert_one_line_error(
+        &["render", vast.to_str().unwrap(), "-o", o.to_str().unwrap()],
+        "too large to frame",
+    );
+    std::fs::remove_dir_all(&d).ok();
+}

@@ -199,7 +199,8 @@ fn direct_light<T: Tracer + ?Sized>(
         // The sampled point, its radiance (a point light's intensity) and the
         // light's unit normal there (None for a point light, which has no area).
         let (q, le, light_normal) = if use_extra {
-            match lights.extra.expect("an extra light") {
+            let extra = lights.extra.expect("an extra light");
+            match extra {
                 Emitter::Point {
                     position,
                     intensity,
@@ -209,11 +210,7 @@ fn direct_light<T: Tracer + ?Sized>(
                     edge_u,
                     edge_v,
                     radiance,
-                } => (
-                    corner + edge_u * r1 + edge_v * r2,
-                    radiance,
-                    Some(edge_u.cross(edge_v).normalize_or_zero()),
-                ),
+                } => (corner + edge_u * r1 + edge_v * r2, radiance, extra.normal()),
             }
         } else {
             let light = lights.triangles[lights.pick(u)];
@@ -265,9 +262,10 @@ fn direct_light<T: Tracer + ?Sized>(
     }
     // Monte Carlo estimate: the triangles' pdf is 1 / total light area; the extra
     // quad's 1 / its area, a point light's a delta.
+    // (Clamped: a quad of area beyond f32 would make 0 * inf = NaN.)
     let extra_area = match lights.extra {
-        Some(Emitter::Quad { edge_u, edge_v, .. }) => edge_u.cross(edge_v).length(),
-        _ => 1.0,
+        Some(e) => e.area().unwrap_or(1.0).min(f32::MAX),
+        None => 1.0,
     };
     // (area * sources) / samples, in that order: with one source this is the
     // same float as before extra lights existed, so old images stay bit-identical.

@@ -31,6 +31,32 @@ pub enum Emitter {
 pub const TARGET_IRRADIANCE: f32 = 2.75;
 
 impl Emitter {
+    /// A quad's area, None for a point light. In f64: the f32 cross product of
+    /// edges above about 1e19 overflows (a scene of size 1e10 has such a light).
+    pub fn area(&self) -> Option<f32> {
+        match *self {
+            Emitter::Point { .. } => None,
+            Emitter::Quad { edge_u, edge_v, .. } => {
+                Some(edge_u.as_dvec3().cross(edge_v.as_dvec3()).length() as f32)
+            }
+        }
+    }
+
+    /// A quad's unit normal (`edge_u x edge_v`, the side it emits to), None for
+    /// a point light; in f64 as [`Emitter::area`].
+    pub fn normal(&self) -> Option<Vec3> {
+        match *self {
+            Emitter::Point { .. } => None,
+            Emitter::Quad { edge_u, edge_v, .. } => Some(
+                edge_u
+                    .as_dvec3()
+                    .cross(edge_v.as_dvec3())
+                    .normalize_or_zero()
+                    .as_vec3(),
+            ),
+        }
+    }
+
     /// The default light of a scene without emissive triangles (the rule the README
     /// documents): a square of side a quarter of the bounding box's diagonal `d`,
     /// facing down the `up` axis towards the box's centre `c`, centred at
@@ -59,8 +85,12 @@ impl Emitter {
         }
         // edge_u x edge_v = n: emits towards `facing`.
         let v = n.cross(u);
-        let r2 = facing.length_squared().max(side * side);
-        let radiance = TARGET_IRRADIANCE * r2 / (side * side);
+        // The ratio in f64: both squares overflow f32 in a scene of size 1e19.
+        let r2 = facing
+            .as_dvec3()
+            .length_squared()
+            .max((side as f64).powi(2));
+        let radiance = (TARGET_IRRADIANCE as f64 * r2 / (side as f64).powi(2)) as f32;
         Emitter::Quad {
             corner: centre - (u + v) * (0.5 * side),
             edge_u: u * side,
