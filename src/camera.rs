@@ -129,6 +129,35 @@ pub fn framing(
     (look + dir * dist, look)
 }
 
+/// The eye and look-at point: the given ones, else the study's view for a
+/// built-in box, else the framing of the scene's bounds (a given `look` moves
+/// the framed eye with it).
+pub fn default_view(
+    scene: &crate::scene::Scene,
+    eye: Option<Vec3>,
+    look: Option<Vec3>,
+    up: Vec3,
+    fov: f32,
+    (width, height): (u32, u32),
+) -> (Vec3, Vec3) {
+    let (framed_eye, framed_look) = if scene.study_frame {
+        (Vec3::new(0.0, 1.0, 3.0), Vec3::new(0.0, 1.0, 0.0))
+    } else {
+        let points = scene
+            .triangles
+            .iter()
+            .flatten()
+            .map(|&i| scene.positions[i as usize]);
+        framing(points, up, fov, width, height)
+    };
+    match (eye, look) {
+        (Some(e), Some(l)) => (e, l),
+        (Some(e), None) => (e, framed_look),
+        (None, Some(l)) => (l + (framed_eye - framed_look), l),
+        (None, None) => (framed_eye, framed_look),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -2,7 +2,8 @@
 //!
 //! Data flows one way: [`scene`] -> [`accel`] (a [`accel::Backend`]) -> [`render`]
 //! (the shared shading/AO loop and its schedules) -> image and report. The binary
-//! is a thin wrapper over [`cli`].
+//! is a thin wrapper over [`cli`], which dispatches to one module per command in
+//! [`command`].
 
 // `!(x > 0.0)` is how this crate rejects NaN together with the out-of-range values;
 // clippy's suggested `partial_cmp` form hides that intent.
@@ -12,6 +13,7 @@ pub mod accel;
 pub mod bench;
 pub mod camera;
 pub mod cli;
+pub mod command;
 pub mod error;
 pub mod geometry;
 pub mod os;

@@ -121,9 +121,9 @@ impl ViewPlan {
 
     /// The concrete views of `scene` at image size `size`.
     pub fn views_for(&self, scene: &Scene, size: (u32, u32)) -> Vec<View> {
-        let ao_dist = crate::cli::default_ao_dist(scene);
+        let ao_dist = crate::render::default_ao_dist(scene);
         let view = |eye: Option<Vec3>, look: Option<Vec3>| {
-            let (e, l) = crate::cli::default_view(scene, eye, look, self.up, self.fov, size);
+            let (e, l) = crate::camera::default_view(scene, eye, look, self.up, self.fov, size);
             View {
                 eye: e,
                 look: l,

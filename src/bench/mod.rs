@@ -140,10 +140,10 @@ impl Machine {
         Machine {
             cpu: field("model name").unwrap_or_else(|| std::env::consts::ARCH.to_string()),
             physical_cores: field("cpu cores").and_then(|v| v.parse().ok()),
-            hardware_threads: crate::cli::default_threads(),
+            hardware_threads: crate::render::schedule::default_threads(),
             bench_threads,
             os,
-            embree_version: crate::cli::embree_version(),
+            embree_version: crate::accel::embree::version_or_none(),
             raylab_version: env!("CARGO_PKG_VERSION").to_string(),
         }
     }

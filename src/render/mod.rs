@@ -188,6 +188,17 @@ impl AddAssign for RenderStats {
     }
 }
 
+/// 0.2 (the study's) in the built-in boxes, else 1/16 of the bounding box's
+/// diagonal (0.22 for the box, so files of any scale get the same look).
+pub fn default_ao_dist(scene: &crate::scene::Scene) -> f32 {
+    if scene.study_frame {
+        0.2
+    } else {
+        let b = scene.bounds();
+        ((b.max - b.min).as_dvec3().length() / 16.0).max(f32::MIN_POSITIVE as f64) as f32
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -191,6 +191,11 @@ pub fn render<T: Tracer + ?Sized>(
     Ok((frame, total))
 }
 
+/// All hardware threads, the default for `--threads`.
+pub fn default_threads() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -64,6 +64,22 @@ pub fn load_file(path: &Path) -> Result<Scene> {
     }
 }
 
+/// Loads `spec`: a scene file (an existing file, a path, or a name with a scene
+/// extension), or else a built-in scene name.
+pub fn load_scene(spec: &str) -> Result<Scene> {
+    let path = Path::new(spec);
+    let has_scene_extension = path.extension().is_some_and(|e| {
+        let e = e.to_string_lossy().to_ascii_lowercase();
+        EXTENSIONS.contains(&e.as_str())
+    });
+    let looks_like_file = has_scene_extension || spec.contains(std::path::MAIN_SEPARATOR);
+    if looks_like_file || path.is_file() {
+        load_file(path)
+    } else {
+        super::builtin::builtin(spec)
+    }
+}
+
 /// The reader for `bytes` read from `path`, or an error naming what it is.
 pub fn detect(path: &Path, bytes: &[u8]) -> Result<Format> {
     let fail = |msg: String| Error::Parse {

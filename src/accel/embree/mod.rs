@@ -46,3 +46,11 @@ pub fn unavailable() -> crate::Error {
         "this raylab was built without Embree (cargo feature `embree`); install libembree-dev and rebuild".into(),
     )
 }
+
+/// The linked Embree's version ("none" in a build without Embree).
+pub fn version_or_none() -> String {
+    #[cfg(feature = "embree")]
+    return version();
+    #[cfg(not(feature = "embree"))]
+    "none".to_string()
+}

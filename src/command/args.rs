@@ -1,0 +1,268 @@
+//! Flags shared by several commands (camera and lighting, BVH and Embree
+//! options) and the value parsers clap calls.
+
+use clap::Args;
+use glam::Vec3;
+
+use crate::accel::bvh::{BuildParams, BuilderKind};
+use crate::accel::embree::Quality;
+use crate::accel::{BackendKind, BackendSpec};
+use crate::camera::default_view;
+use crate::camera::Camera;
+use crate::error::{Error, Result};
+use crate::geometry::Intersector;
+use crate::render::default_ao_dist;
+use crate::render::{AoMode, RenderSettings};
+use crate::scene::light::LightArg;
+use crate::scene::Scene;
+
+/// Camera, lighting and shading flags shared by commands that render.
+#[derive(Args, Debug, Clone)]
+pub struct ViewArgs {
+    /// Eye position [default: (0,1,3) for the built-in boxes; for other scenes
+    /// the framing rule (see the README)].
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_vec3)]
+    pub eye: Option<Vec3>,
+    /// Point looked at [default: (0,1,0) for the built-in boxes; the centre of
+    /// the scene's bounding box for other scenes].
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_vec3)]
+    pub look: Option<Vec3>,
+    /// Up vector (also the axis the default light and view are placed along).
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, default_value = "0,1,0", value_parser = parse_vec3)]
+    pub up: Vec3,
+    /// Vertical field of view in degrees, in (0, 180).
+    #[arg(long, value_name = "DEG", default_value_t = 60.0, value_parser = parse_fov)]
+    pub fov: f32,
+    /// Image size.
+    #[arg(long, value_name = "WxH", default_value = "1024x768", value_parser = parse_size)]
+    pub size: (u32, u32),
+    /// Ambient occlusion: off, paper (the study's 14 fixed directions) or cosine:N.
+    #[arg(long, value_name = "MODE", default_value = "paper")]
+    pub ao: AoMode,
+    /// Length of AO rays in scene units [default: 0.2 for the built-in boxes,
+    /// 1/16 of the bounding box's diagonal for other scenes].
+    #[arg(long, value_name = "D", allow_negative_numbers = true)]
+    pub ao_dist: Option<f32>,
+    /// Shadow rays per pixel towards the lights.
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub light_samples: u32,
+    /// A light that is not geometry: point:X,Y,Z[:INTENSITY] or
+    /// quad:X,Y,Z:SIZE[:RADIANCE] (a square facing down -Y); without a power it
+    /// gives the default light's irradiance at the scene's centre. It is added to
+    /// the scene's emitters, and replaces the default light of a scene without.
+    #[arg(long, value_name = "SPEC", allow_hyphen_values = true)]
+    pub light: Option<LightArg>,
+    /// Emitters shine from both faces, not only from the side their winding's
+    /// normal points to.
+    #[arg(long)]
+    pub two_sided_lights: bool,
+    /// Seed of the per-pixel random streams.
+    #[arg(long, value_name = "S", default_value_t = 1)]
+    pub seed: u64,
+}
+
+impl ViewArgs {
+    /// Lights `scene` as the flags say (a `--light`, or the default light of a
+    /// scene without emissive triangles, with a warning) and makes the render
+    /// settings: the camera from the flags or, where they are not given, the
+    /// scene's default view.
+    pub fn prepare(&self, scene: &mut Scene) -> Result<RenderSettings> {
+        let light = self.light.map(|l| l.emitter(&scene.bounds()));
+        scene.set_extra_light(light, self.up);
+        let (width, height) = self.size;
+        let (eye, look) = default_view(scene, self.eye, self.look, self.up, self.fov, self.size);
+        if !(eye.is_finite() && look.is_finite()) {
+            return Err(Error::Scene {
+                name: scene.name.clone(),
+                msg: "too large to frame with f32 rays (the default view's eye is beyond f32): give --eye and --look".into(),
+            });
+        }
+        let camera = Camera::new(eye, look, self.up, self.fov, width, height)?;
+        let settings = RenderSettings {
+            width,
+            height,
+            camera,
+            ao: self.ao,
+            ao_dist: self.ao_dist.unwrap_or_else(|| default_ao_dist(scene)),
+            light_samples: self.light_samples,
+            seed: self.seed,
+            two_sided_lights: self.two_sided_lights,
+        };
+        settings.validate()?;
+        Ok(settings)
+    }
+}
+
+/// How a BVH is built (used with `--backend bvh`).
+#[derive(Args, Debug, Clone)]
+pub struct BvhArgs {
+    /// BVH builder: median (the study's) or sah (binned SAH).
+    #[arg(long, value_enum, default_value_t = BuilderKind::Sah)]
+    pub builder: BuilderKind,
+    /// Most triangles per BVH leaf [default: 1 for median, 4 for sah].
+    #[arg(long, value_name = "N", value_parser = parse_leaf_size)]
+    pub leaf_size: Option<usize>,
+    /// Threads for the BVH build [default: --threads].
+    #[arg(long, value_name = "N", value_parser = parse_threads)]
+    pub build_threads: Option<usize>,
+    /// Ray/triangle test of the naive and bvh backends.
+    #[arg(long, value_enum, default_value_t = Intersector::Mt)]
+    pub intersector: Intersector,
+    /// Children per BVH node traversed: 8 (8-wide nodes built directly and tested
+    /// with AVX2 where the CPU has it; the fastest), 4 (the built tree collapsed
+    /// into 4-wide nodes tested with SSE), or 2 (the binary tree as built).
+    #[arg(long, value_name = "N", default_value_t = 8, value_parser = parse_bvh_width)]
+    pub bvh_width: usize,
+}
+
+fn parse_bvh_width(s: &str) -> std::result::Result<usize, String> {
+    match s {
+        "2" => Ok(2),
+        "4" => Ok(4),
+        "8" => Ok(8),
+        _ => Err(format!("'{s}' must be 2, 4 or 8")),
+    }
+}
+
+impl BvhArgs {
+    pub fn params(&self, builder: BuilderKind, threads: usize) -> BuildParams {
+        let p = BuildParams::for_builder(builder)
+            .with_threads(self.build_threads.unwrap_or(threads))
+            .with_width(self.bvh_width);
+        match self.leaf_size {
+            Some(n) => p.with_max_leaf_size(n),
+            None => p,
+        }
+    }
+}
+
+/// How the Embree backend builds its scene (used with `--backend embree`).
+#[derive(Args, Debug, Clone)]
+pub struct EmbreeArgs {
+    /// Embree's scene build quality.
+    #[arg(long, value_enum, default_value_t = Quality::Medium)]
+    pub embree_quality: Quality,
+    /// Set RTC_SCENE_FLAG_ROBUST (watertight-leaning traversal, slower).
+    #[arg(long)]
+    pub embree_robust: bool,
+}
+
+/// The backend a command's flags describe.
+pub fn backend_spec(
+    kind: BackendKind,
+    bvh: &BvhArgs,
+    embree: &EmbreeArgs,
+    threads: usize,
+) -> BackendSpec {
+    BackendSpec {
+        kind,
+        bvh: bvh.params(bvh.builder, threads),
+        intersector: bvh.intersector,
+        embree_quality: embree.embree_quality,
+        embree_robust: embree.embree_robust,
+    }
+}
+
+pub fn parse_leaf_size(s: &str) -> std::result::Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if (1..=255).contains(&n) => Ok(n),
+        _ => Err(format!("'{s}' must be a whole number in 1..=255")),
+    }
+}
+
+pub fn parse_vec3(s: &str) -> std::result::Result<Vec3, String> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    if parts.len() != 3 {
+        return Err(format!(
+            "expected three comma-separated numbers X,Y,Z, got {}",
+            parts.len()
+        ));
+    }
+    let mut v = [0.0f32; 3];
+    for (slot, p) in v.iter_mut().zip(&parts) {
+        *slot = p.parse().map_err(|_| format!("'{p}' is not a number"))?;
+        if !slot.is_finite() {
+            return Err(format!("'{p}' is not finite"));
+        }
+    }
+    Ok(Vec3::from_array(v))
+}
+
+pub fn parse_size(s: &str) -> std::result::Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| "expected WIDTHxHEIGHT, e.g. 1024x768".to_string())?;
+    let w: u32 = w
+        .trim()
+        .parse()
+        .map_err(|_| format!("width '{w}' is not a whole number"))?;
+    let h: u32 = h
+        .trim()
+        .parse()
+        .map_err(|_| format!("height '{h}' is not a whole number"))?;
+    if w == 0 || h == 0 {
+        return Err("width and height must be at least 1".into());
+    }
+    if w > 16384 || h > 16384 {
+        return Err("width and height must be at most 16384".into());
+    }
+    Ok((w, h))
+}
+
+pub fn parse_fov(s: &str) -> std::result::Result<f32, String> {
+    let f: f32 = s.parse().map_err(|_| format!("'{s}' is not a number"))?;
+    if !(f > 0.0 && f < 180.0) {
+        return Err(format!("{f} is outside (0, 180) degrees"));
+    }
+    Ok(f)
+}
+
+pub fn parse_threads(s: &str) -> std::result::Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if (1..=1024).contains(&n) => Ok(n),
+        _ => Err(format!("'{s}' must be a whole number in 1..=1024")),
+    }
+}
+
+/// Refuses backend flags given on the command line that the chosen backend
+/// would ignore (they used to be ignored silently).
+pub fn check_backend_flags(m: &clap::ArgMatches, backend: BackendKind) -> Result<()> {
+    use clap::parser::ValueSource;
+    // (argument id, flag, the backends it applies to)
+    const FLAGS: &[(&str, &str, &[BackendKind])] = &[
+        ("builder", "--builder", &[BackendKind::Bvh]),
+        ("leaf_size", "--leaf-size", &[BackendKind::Bvh]),
+        ("bvh_width", "--bvh-width", &[BackendKind::Bvh]),
+        (
+            "build_threads",
+            "--build-threads",
+            &[BackendKind::Bvh, BackendKind::Embree],
+        ),
+        (
+            "intersector",
+            "--intersector",
+            &[BackendKind::Naive, BackendKind::Bvh],
+        ),
+        ("embree_quality", "--embree-quality", &[BackendKind::Embree]),
+        ("embree_robust", "--embree-robust", &[BackendKind::Embree]),
+    ];
+    let name = |k: &BackendKind| format!("{k:?}").to_lowercase();
+    for (id, flag, applies) in FLAGS {
+        let given = m.value_source(id) == Some(ValueSource::CommandLine);
+        if given && !applies.contains(&backend) {
+            let to: Vec<String> = applies
+                .iter()
+                .map(|k| format!("--backend {}", name(k)))
+                .collect();
+            return Err(Error::usage(
+                flag,
+                format!(
+                    "applies only to {}, not to --backend {}",
+                    to.join(" or "),
+                    name(&backend)
+                ),
+            ));
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,258 @@
+//! `raylab bench`: its flags, and the run that loads the scenes, runs the parts
+//! and writes the report.
+
+use std::path::PathBuf;
+
+use clap::Args;
+use glam::Vec3;
+
+use super::args::{parse_fov, parse_size, parse_threads, parse_vec3};
+use crate::error::{Error, Result};
+use crate::render::schedule::default_threads;
+use crate::render::AoMode;
+use crate::scene::builtin::BUILTIN_SCENES;
+use crate::scene::load::load_scene;
+
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    /// .obj files or built-in names [default: the four built-in Cornell boxes].
+    scenes: Vec<String>,
+    /// Views: `default` (the study's (0,1,3) and (2,1,3) for the built-in boxes,
+    /// the framing rule for other scenes), `paper` (the study's two for every
+    /// scene), or eye positions separated by spaces or semicolons ("0,1,3;2,1,3"),
+    /// each looking at --look or the scene's default look-at point.
+    #[arg(
+        long,
+        value_name = "default|paper|X,Y,Z...",
+        default_value = "default",
+        allow_hyphen_values = true
+    )]
+    views: String,
+    /// One eye position for every scene (instead of --views).
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_vec3)]
+    eye: Option<Vec3>,
+    /// Point looked at [default: (0,1,0) in the built-in boxes, the bounding box's
+    /// centre in other scenes].
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_vec3)]
+    look: Option<Vec3>,
+    /// Up vector.
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, default_value = "0,1,0", value_parser = parse_vec3)]
+    up: Vec3,
+    /// Vertical field of view in degrees, in (0, 180).
+    #[arg(long, value_name = "DEG", default_value_t = 60.0, value_parser = parse_fov)]
+    fov: f32,
+    /// Variants: all, paper (the study's combinations), or names separated by commas.
+    #[arg(long, value_name = "LIST", default_value = "all")]
+    variants: String,
+    /// AO modes of the tables, separated by commas: off, paper, cosine:N, or
+    /// both (off and paper).
+    #[arg(long, value_name = "LIST", default_value = "both")]
+    ao: String,
+    /// Measured runs per variant and cell, after one warm-up [default: 10; 1 and
+    /// no warm-up with --quick].
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=1000))]
+    reps: Option<u32>,
+    /// Image size [default: 1024x768; 96x72 with --quick].
+    #[arg(long, value_name = "WxH", value_parser = parse_size)]
+    size: Option<(u32, u32)>,
+    /// Worker threads of the parallel variants [default: all hardware threads].
+    #[arg(long, value_name = "N", value_parser = parse_threads)]
+    threads: Option<usize>,
+    /// Small images, one rep and small experiments: under a minute (what CI runs).
+    #[arg(long)]
+    quick: bool,
+    /// Stop repeating a variant in a cell once its runs would pass this many
+    /// seconds (it keeps at least one run): caps the naive loop on big scenes.
+    #[arg(long, value_name = "S", default_value_t = 60.0)]
+    max_variant_s: f64,
+    /// Parts to run, separated by commas: all, or tables, trace, scaling,
+    /// growth, ao-error, builders, leaks, validate.
+    #[arg(long, value_name = "LIST", default_value = "all")]
+    parts: String,
+    /// Folder for bench.md, bench.csv, bench.json, charts/, images/ and index.html.
+    #[arg(long, value_name = "DIR", default_value = "bench-report")]
+    out: PathBuf,
+    /// Print the report as one JSON object on stdout instead of the tables.
+    #[arg(long)]
+    json: bool,
+    /// No progress on stderr.
+    #[arg(long, short = 'q')]
+    quiet: bool,
+}
+
+/// Parses `--views` with `--eye`, `--look`, `--up` and `--fov`.
+fn parse_views(args: &BenchArgs) -> Result<crate::bench::measure::ViewPlan> {
+    use crate::bench::measure::ViewPlan;
+    let s = args.views.trim();
+    let explicit = s != "default";
+    if explicit && args.eye.is_some() {
+        return Err(Error::usage(
+            "--eye",
+            "give either --eye or --views, not both",
+        ));
+    }
+    let mut plan = match s {
+        "default" => ViewPlan::default(),
+        "paper" => ViewPlan::paper(),
+        _ => {
+            let eyes = s
+                .split([';', ' '])
+                .map(str::trim)
+                .filter(|p| !p.is_empty())
+                .map(|p| parse_vec3(p).map_err(|e| Error::usage("--views", format!("'{p}': {e}"))))
+                .collect::<Result<Vec<_>>>()?;
+            if eyes.is_empty() {
+                return Err(Error::usage("--views", "no view given"));
+            }
+            ViewPlan {
+                eyes: Some(eyes),
+                ..ViewPlan::default()
+            }
+        }
+    };
+    plan.eye = args.eye;
+    if args.look.is_some() {
+        plan.look = args.look;
+    }
+    plan.up = args.up;
+    plan.fov = args.fov;
+    if let (Some(eyes), Some(look)) = (&plan.eyes, plan.look) {
+        if let Some(e) = eyes.iter().find(|&&e| e == look) {
+            return Err(Error::usage(
+                "--views",
+                format!("{},{},{} is the point looked at", e.x, e.y, e.z),
+            ));
+        }
+    }
+    Ok(plan)
+}
+
+/// Parses bench's `--ao`: modes separated by commas, `both` for off and paper;
+/// each mode once, in the order given.
+fn parse_ao_list(s: &str) -> Result<Vec<AoMode>> {
+    let mut out = Vec::new();
+    for p in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let modes = if p == "both" {
+            vec![AoMode::Off, AoMode::Paper]
+        } else {
+            vec![p
+                .parse::<AoMode>()
+                .map_err(|e| Error::usage("--ao", format!("{e} (or both)")))?]
+        };
+        for m in modes {
+            if !out.contains(&m) {
+                out.push(m);
+            }
+        }
+    }
+    if out.is_empty() {
+        return Err(Error::usage("--ao", "no AO mode given"));
+    }
+    Ok(out)
+}
+
+fn parse_parts(s: &str) -> Result<Vec<&'static str>> {
+    use crate::bench::PARTS;
+    let mut out = Vec::new();
+    for p in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        if p == "all" {
+            out.extend(PARTS);
+            continue;
+        }
+        let known = PARTS.iter().find(|k| **k == p).ok_or_else(|| {
+            Error::usage(
+                "--parts",
+                format!("unknown part '{p}' (known: all, {})", PARTS.join(", ")),
+            )
+        })?;
+        out.push(*known);
+    }
+    if out.is_empty() {
+        return Err(Error::usage("--parts", "no part given"));
+    }
+    Ok(out)
+}
+
+pub fn run(args: &BenchArgs) -> Result<()> {
+    use crate::bench::{self, BenchConfig};
+    if !(args.max_variant_s.is_finite() && args.max_variant_s > 0.0) {
+        return Err(Error::usage(
+            "--max-variant-s",
+            "must be a positive number of seconds",
+        ));
+    }
+    let views = parse_views(args)?;
+    let variants = bench::variants::parse_variants(&args.variants)?;
+    let ao_modes = parse_ao_list(&args.ao)?;
+    let cfg = BenchConfig {
+        scenes: args.scenes.clone(),
+        views,
+        variants,
+        ao_modes,
+        reps: args.reps.unwrap_or(if args.quick { 1 } else { 10 }) as usize,
+        size: args
+            .size
+            .unwrap_or(if args.quick { (96, 72) } else { (1024, 768) }),
+        threads: args.threads.unwrap_or_else(default_threads),
+        quick: args.quick,
+        max_variant_s: args.max_variant_s,
+        parts: parse_parts(&args.parts)?,
+        out: args.out.clone(),
+        quiet: args.quiet,
+    };
+    let names: Vec<String> = if cfg.scenes.is_empty() {
+        BUILTIN_SCENES.iter().map(|(n, _)| n.to_string()).collect()
+    } else {
+        cfg.scenes.clone()
+    };
+    let mut scenes = names
+        .iter()
+        .map(|n| load_scene(n))
+        .collect::<Result<Vec<_>>>()?;
+    for scene in &mut scenes {
+        // A view whose eye is the point it looks at: refused before any work.
+        for view in cfg.views.views_for(scene, cfg.size) {
+            if view.eye == view.look {
+                let flag = if args.eye.is_some() {
+                    "--eye"
+                } else {
+                    "--views"
+                };
+                return Err(Error::usage(
+                    flag,
+                    format!("{} is the point looked at in {}", view.label(), scene.name),
+                ));
+            }
+        }
+        scene.set_extra_light(None, args.up);
+        if !args.quiet {
+            for w in &scene.warnings {
+                eprintln!("warning: {}: {w}", scene.name);
+            }
+        }
+    }
+    let report = bench::run(&cfg, &scenes)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print!("{}", bench::markdown(&report));
+        println!(
+            "Report: {} (also bench.md, bench.csv, bench.json, charts/); {:.0} s.",
+            cfg.out.join("index.html").display(),
+            report.elapsed_s
+        );
+    }
+    if let Some(m) = report.measurements.iter().find(|m| !m.deterministic) {
+        return Err(Error::Other(format!(
+            "bench: {} gave different images in repeated runs on {} {}",
+            m.variant, m.scene, m.view
+        )));
+    }
+    if let Some(v) = report.validation.iter().find(|v| v.genuine > 0) {
+        return Err(Error::Other(format!(
+            "bench: {} disagrees with {} on {} rays of {}",
+            v.tested, v.reference, v.genuine, v.scene
+        )));
+    }
+    Ok(())
+}

@@ -1,0 +1,272 @@
+//! `raylab render`: its flags, the render, the summary on stderr and the JSON
+//! report on stdout.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use clap::Args;
+use serde::Serialize;
+
+use super::args::{backend_spec, parse_threads, BvhArgs, EmbreeArgs, ViewArgs};
+use crate::accel::embree::version_or_none as embree_version;
+use crate::accel::{build_backend, BackendKind};
+use crate::error::Result;
+use crate::progress::Progress;
+use crate::render::schedule::default_threads;
+use crate::render::{self, output, Schedule};
+use crate::scene::load::load_scene;
+
+#[derive(Args, Debug)]
+pub struct RenderArgs {
+    /// An .obj file or a built-in scene name (see `raylab scenes`).
+    #[arg(default_value = "cornell-original")]
+    scene: String,
+    /// Acceleration structure [default: bvh, raylab's fastest; naive is the
+    /// study's O(N) baseline, hours on a large model].
+    #[arg(long, value_enum, default_value_t = BackendKind::Bvh)]
+    pub backend: BackendKind,
+    #[command(flatten)]
+    bvh: BvhArgs,
+    #[command(flatten)]
+    embree: EmbreeArgs,
+    /// How the image is divided between threads.
+    #[arg(long, value_enum, default_value_t = Schedule::Tiles)]
+    schedule: Schedule,
+    /// Worker threads for the tiles and rayon schedules [default: all hardware threads].
+    #[arg(long, value_name = "N", value_parser = parse_threads)]
+    threads: Option<usize>,
+    #[command(flatten)]
+    view: ViewArgs,
+    /// Output PNG.
+    #[arg(
+        short = 'o',
+        long = "output",
+        value_name = "PNG",
+        default_value = "out.png"
+    )]
+    output: PathBuf,
+    /// Print one JSON object with the results on stdout.
+    #[arg(long)]
+    json: bool,
+    /// No progress bar and no summary on stderr.
+    #[arg(long, short = 'q')]
+    quiet: bool,
+}
+
+/// A rate with three significant digits (the naive scan's 0.0041 Mrays/s read
+/// "0.00" with two decimals).
+fn significant(x: f64) -> String {
+    if !(x.is_finite() && x > 0.0) {
+        return format!("{x}");
+    }
+    let decimals = (2 - x.log10().floor() as i32).clamp(0, 9) as usize;
+    format!("{x:.decimals$}")
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+#[derive(Serialize)]
+struct RayCounts {
+    primary: u64,
+    /// Primary rays that hit the scene.
+    primary_hits: u64,
+    shadow: u64,
+    ao: u64,
+}
+
+#[derive(Serialize)]
+struct KindTimes {
+    primary: f64,
+    shadow: f64,
+    ao: f64,
+}
+
+#[derive(Serialize)]
+struct RenderReport {
+    scene: String,
+    triangles: usize,
+    emissive_triangles: usize,
+    dropped_degenerate: usize,
+    backend: String,
+    schedule: Schedule,
+    threads: usize,
+    width: u32,
+    height: u32,
+    ao: String,
+    light_samples: u32,
+    seed: u64,
+    load_ms: f64,
+    build_ms: f64,
+    /// Bytes of the acceleration structure (BVH nodes and leaf triangles;
+    /// for Embree, what its memory monitor reports the build left allocated).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    memory_bytes: Option<usize>,
+    render_ms: f64,
+    rays: RayCounts,
+    /// Time spent in each pass, summed over threads (includes that pass's shading).
+    thread_ms: KindTimes,
+    /// All rays over render wall time.
+    mrays_per_s: f64,
+    output: String,
+    image_hash: String,
+    warnings: Vec<String>,
+    /// The linked Embree's version, for the embree backend.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    embree_version: Option<String>,
+}
+
+pub fn run(args: &RenderArgs) -> Result<()> {
+    output::check_writable(&args.output)?;
+    let threads = args.threads.unwrap_or_else(default_threads);
+    let say = |line: String| {
+        if !args.quiet {
+            eprintln!("{line}");
+        }
+    };
+
+    let start = Instant::now();
+    let mut scene = load_scene(&args.scene)?;
+    let load_time = start.elapsed();
+    let settings = args.view.prepare(&mut scene)?;
+    for w in &scene.warnings {
+        say(format!("warning: {w}"));
+    }
+    say(format!(
+        "scene {}: {} triangles ({} emissive), loaded in {:.1} ms",
+        scene.name,
+        scene.triangle_count(),
+        scene.lights.triangles.len(),
+        ms(load_time)
+    ));
+
+    let backend = build_backend(
+        &backend_spec(args.backend, &args.bvh, &args.embree, threads),
+        &scene,
+    )?;
+    say(format!(
+        "backend {}: built in {:.1} ms",
+        backend.name(),
+        ms(backend.build_time())
+    ));
+
+    let progress = Progress::new();
+    let total_pixels = settings.width as u64 * settings.height as u64;
+    // The clock stops inside the watched work, so the progress monitor's
+    // shutdown is never part of the render time.
+    let (rendered, render_time) = progress.watch(
+        "render",
+        total_pixels,
+        args.quiet,
+        Duration::from_secs(1),
+        || {
+            let start = Instant::now();
+            let rendered = render::render(
+                &scene,
+                backend.as_ref(),
+                &settings,
+                args.schedule,
+                threads,
+                &progress,
+            );
+            (rendered, start.elapsed())
+        },
+    );
+    let (frame, stats) = rendered?;
+
+    let mut warnings = scene.warnings.clone();
+    if stats.primary_hits * 100 < stats.primary_rays {
+        let w = format!(
+            "only {} of {} primary rays hit the scene (under 1%): check --eye, --look and --up",
+            stats.primary_hits, stats.primary_rays
+        );
+        say(format!("warning: {w}"));
+        warnings.push(w);
+    }
+    let rgb8 = output::to_srgb8(&frame);
+    let hash = output::image_hash(&rgb8);
+    output::write_png(&args.output, frame.width, frame.height, &rgb8)?;
+
+    let threads_used = args.schedule.threads_used(threads, settings.height);
+    let mrays = stats.total_rays() as f64 / render_time.as_secs_f64().max(1e-9) / 1e6;
+    let per_thread = |rays: u64, t: Duration| rays as f64 / t.as_secs_f64().max(1e-9) / 1e6;
+    say(format!(
+        "render {}x{} {} ({} thread{}), ao {}: {:.1} ms, {:.2} M rays, {} Mrays/s",
+        settings.width,
+        settings.height,
+        args.schedule.name(),
+        threads_used,
+        if threads_used == 1 { "" } else { "s" },
+        settings.ao,
+        ms(render_time),
+        stats.total_rays() as f64 / 1e6,
+        significant(mrays)
+    ));
+    say(format!(
+        "  per thread: primary {} rays {} Mrays/s | shadow {} rays {} Mrays/s | ao {} rays {} Mrays/s",
+        stats.primary_rays,
+        significant(per_thread(stats.primary_rays, stats.primary_time)),
+        stats.shadow_rays,
+        significant(per_thread(stats.shadow_rays, stats.shadow_time)),
+        stats.ao_rays,
+        significant(per_thread(stats.ao_rays, stats.ao_time)),
+    ));
+    say(format!(
+        "wrote {} (image hash {hash})",
+        args.output.display()
+    ));
+
+    if args.json {
+        let report = RenderReport {
+            scene: scene.name.clone(),
+            triangles: scene.triangle_count(),
+            emissive_triangles: scene.lights.triangles.len(),
+            dropped_degenerate: scene.dropped_degenerate,
+            backend: backend.name(),
+            schedule: args.schedule,
+            threads: threads_used,
+            width: settings.width,
+            height: settings.height,
+            ao: settings.ao.to_string(),
+            light_samples: settings.light_samples,
+            seed: settings.seed,
+            load_ms: ms(load_time),
+            build_ms: ms(backend.build_time()),
+            memory_bytes: backend.memory_bytes(),
+            render_ms: ms(render_time),
+            rays: RayCounts {
+                primary: stats.primary_rays,
+                primary_hits: stats.primary_hits,
+                shadow: stats.shadow_rays,
+                ao: stats.ao_rays,
+            },
+            thread_ms: KindTimes {
+                primary: ms(stats.primary_time),
+                shadow: ms(stats.shadow_time),
+                ao: ms(stats.ao_time),
+            },
+            mrays_per_s: mrays,
+            output: args.output.display().to_string(),
+            image_hash: hash,
+            warnings,
+            embree_version: (args.backend == BackendKind::Embree).then(embree_version),
+        };
+        let text = serde_json::to_string(&report)?;
+        println!("{text}");
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rates_keep_three_significant_digits() {
+        assert_eq!(significant(44.4612), "44.5");
+        assert_eq!(significant(0.004123), "0.00412");
+        assert_eq!(significant(1234.5), "1234");
+        assert_eq!(significant(0.0), "0");
+    }
+}

@@ -1,0 +1,83 @@
+//! `raylab stats`: its flags and the builder reports per scene.
+
+use clap::Args;
+
+use super::args::{parse_leaf_size, parse_threads, ViewArgs};
+use crate::accel::bvh::{BuildParams, BuilderKind};
+use crate::error::Result;
+use crate::render::schedule::default_threads;
+use crate::scene::builtin::BUILTIN_SCENES;
+use crate::scene::load::load_scene;
+
+#[derive(Args, Debug)]
+pub struct StatsArgs {
+    /// .obj files or built-in names [default: the four built-in Cornell boxes].
+    scenes: Vec<String>,
+    /// Which builders to measure: median, sah, embree-low, embree-medium,
+    /// embree-high, or all (the Embree ones only when Embree is built in).
+    #[arg(long, value_name = "NAME", default_value = "all", value_parser = ["median", "sah", "embree-low", "embree-medium", "embree-high", "all"])]
+    builder: String,
+    /// Most triangles per leaf for every builder [default: each builder's own].
+    #[arg(long, value_name = "N", value_parser = parse_leaf_size)]
+    leaf_size: Option<usize>,
+    /// Threads for the parallel build and the counting render [default: all hardware threads].
+    #[arg(long, value_name = "N", value_parser = parse_threads)]
+    threads: Option<usize>,
+    /// Timed builds per measurement (the median is reported).
+    #[arg(long, value_name = "N", default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=100))]
+    reps: u32,
+    #[command(flatten)]
+    view: ViewArgs,
+    /// Print the reports as one JSON array on stdout instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn run(args: &StatsArgs) -> Result<()> {
+    let threads = args.threads.unwrap_or_else(default_threads);
+    let builders: Vec<BuilderKind> = if args.builder == "all" {
+        BuilderKind::ALL
+            .into_iter()
+            .filter(|b| b.embree_quality().is_none() || crate::accel::embree::AVAILABLE)
+            .collect()
+    } else {
+        BuilderKind::ALL
+            .into_iter()
+            .filter(|b| b.name() == args.builder)
+            .collect()
+    };
+    let names: Vec<String> = if args.scenes.is_empty() {
+        BUILTIN_SCENES.iter().map(|(n, _)| n.to_string()).collect()
+    } else {
+        args.scenes.clone()
+    };
+    let mut reports = Vec::new();
+    for name in &names {
+        let mut scene = load_scene(name)?;
+        let settings = args.view.prepare(&mut scene)?;
+        for &builder in &builders {
+            let mut params = BuildParams::for_builder(builder);
+            if let Some(n) = args.leaf_size {
+                params = params.with_max_leaf_size(n);
+            }
+            eprintln!("stats: {} with {} ...", scene.name, builder.name());
+            reports.push(crate::stats::builder_report(
+                &scene,
+                &params,
+                &settings,
+                threads,
+                args.reps as usize,
+            )?);
+        }
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&reports)?);
+    } else {
+        print!("{}", crate::stats::markdown_table(&reports));
+        println!(
+            "Render for work per ray: {}x{}, ao {}, {} light sample(s); builds on 1 and {} threads, median of {}.",
+            args.view.size.0, args.view.size.1, args.view.ao, args.view.light_samples, threads, args.reps
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,225 @@
+//! `raylab validate`: its flags, the comparison per scene, its table and verdict.
+
+use std::path::{Path, PathBuf};
+
+use clap::Args;
+use serde::Serialize;
+
+use super::args::{backend_spec, parse_threads, BvhArgs, EmbreeArgs, ViewArgs};
+use crate::accel::bvh::BuildParams;
+use crate::accel::{build_backend, BackendKind, BackendSpec};
+use crate::error::{Error, Result};
+use crate::render::output;
+use crate::render::schedule::default_threads;
+use crate::scene::builtin::BUILTIN_SCENES;
+use crate::scene::load::load_scene;
+
+#[derive(Args, Debug)]
+pub struct ValidateArgs {
+    /// .obj files or built-in names [default: the four built-in Cornell boxes].
+    scenes: Vec<String>,
+    /// The backend under test.
+    #[arg(long, value_enum, default_value_t = BackendKind::Bvh)]
+    pub backend: BackendKind,
+    #[command(flatten)]
+    bvh: BvhArgs,
+    #[command(flatten)]
+    embree: EmbreeArgs,
+    /// The reference backend (built with its defaults).
+    #[arg(long, value_enum, default_value_t = if crate::accel::embree::AVAILABLE { BackendKind::Embree } else { BackendKind::Naive })]
+    against: BackendKind,
+    /// Ray sets to compare.
+    #[arg(long, value_name = "SET", default_value = "all", value_parser = ["primary", "shadow", "ao", "random", "all"])]
+    rays: String,
+    /// At most this many rays per set (evenly subsampled).
+    #[arg(long, value_name = "N", default_value_t = 100_000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
+    count: u64,
+    /// Write a picture of primary-ray agreement (red: genuine, yellow: tie);
+    /// with several scenes the scene name is added to the file name.
+    #[arg(long, value_name = "PNG")]
+    diff_image: Option<PathBuf>,
+    /// Exit with status 1 when a scene has more genuine disagreements than this.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    max_genuine: usize,
+    /// Worker threads [default: all hardware threads].
+    #[arg(long, value_name = "N", value_parser = parse_threads)]
+    threads: Option<usize>,
+    #[command(flatten)]
+    view: ViewArgs,
+    /// Print one JSON array with a report per scene on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Serialize)]
+struct ValidateReport {
+    scene: String,
+    backend: String,
+    against: String,
+    genuine: usize,
+    ties: usize,
+    max_genuine: usize,
+    pass: bool,
+    sets: Vec<crate::validate::SetReport>,
+    diff_image: Option<String>,
+}
+
+fn diff_image_path(base: &Path, scene: &str, several: bool) -> PathBuf {
+    if !several {
+        return base.to_path_buf();
+    }
+    let stem = base
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_default();
+    let tag: String = Path::new(scene)
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_default()
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    base.with_file_name(format!("{stem}-{tag}.png"))
+}
+
+pub fn run(args: &ValidateArgs) -> Result<()> {
+    use crate::validate::{compare, mismatch_image, ray_sets, RaySet};
+    let threads = args.threads.unwrap_or_else(default_threads);
+    let names: Vec<String> = if args.scenes.is_empty() {
+        BUILTIN_SCENES.iter().map(|(n, _)| n.to_string()).collect()
+    } else {
+        args.scenes.clone()
+    };
+    if let Some(path) = &args.diff_image {
+        output::check_writable(&diff_image_path(path, &names[0], names.len() > 1))?;
+    }
+    let sets: Vec<RaySet> = match args.rays.as_str() {
+        "primary" => vec![RaySet::Primary],
+        "shadow" => vec![RaySet::Shadow],
+        "ao" => vec![RaySet::Ao],
+        "random" => vec![RaySet::Random],
+        _ => RaySet::ALL.to_vec(),
+    };
+    let count = args.count as usize;
+    let spec = backend_spec(args.backend, &args.bvh, &args.embree, threads);
+    // The reference with its defaults (Embree MEDIUM, SAH BVH, MT) on `threads`.
+    let reference_spec =
+        BackendSpec::bvh(BuildParams::sah().with_threads(threads)).with_kind(args.against);
+    let mut reports = Vec::new();
+    for name in &names {
+        let mut scene = load_scene(name)?;
+        let settings = args.view.prepare(&mut scene)?;
+        let tested = build_backend(&spec, &scene)?;
+        let reference = build_backend(&reference_spec, &scene)?;
+        let triangles = scene.triangle_vertices();
+        // Record the render's rays with the faster of the two (naive is slow).
+        let recorder: &dyn crate::accel::Backend = if args.against == BackendKind::Naive {
+            tested.as_ref()
+        } else {
+            reference.as_ref()
+        };
+        let set_rays = ray_sets(
+            &scene,
+            recorder,
+            &settings,
+            &sets,
+            count,
+            args.diff_image.is_some(),
+        )?;
+        let mut set_reports = Vec::new();
+        let mut diff_written = None;
+        for (set, rays) in &set_rays {
+            let (label, rays) = (set.name(), rays);
+            let is_primary = *set == RaySet::Primary;
+            let (report, agreements) =
+                compare(label, rays, tested.as_ref(), reference.as_ref(), &triangles);
+            if is_primary {
+                if let Some(base) = &args.diff_image {
+                    let path = diff_image_path(base, name, names.len() > 1);
+                    let hits: Vec<bool> = rays
+                        .iter()
+                        .map(|r| reference.intersect(r).is_some())
+                        .collect();
+                    output::write_png(
+                        &path,
+                        settings.width,
+                        settings.height,
+                        &mismatch_image(&agreements, &hits),
+                    )?;
+                    diff_written = Some(path.display().to_string());
+                }
+            }
+            set_reports.push(report);
+        }
+        let genuine: usize = set_reports.iter().map(|r| r.genuine).sum();
+        let ties: usize = set_reports.iter().map(|r| r.ties).sum();
+        if !args.json {
+            println!(
+                "{} ({} triangles): {} against {}",
+                scene.name,
+                scene.triangle_count(),
+                tested.name(),
+                reference.name()
+            );
+            println!("| set | rays | hit/miss agree | same triangle | ties | genuine | occlusion mismatches | max rel dt | mean rel dt |");
+            println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+            for r in &set_reports {
+                println!(
+                    "| {} | {} | {} | {} | {} | {} | {} | {:.2e} | {:.2e} |",
+                    r.set,
+                    r.rays,
+                    r.hit_miss_agree,
+                    r.same_triangle,
+                    r.ties,
+                    r.genuine,
+                    r.occlusion_mismatches,
+                    r.max_rel_dt,
+                    r.mean_rel_dt
+                );
+            }
+            let verdict = if genuine <= args.max_genuine {
+                "ok"
+            } else {
+                "FAIL"
+            };
+            println!(
+                "{verdict}: {genuine} genuine disagreements (max {}), {ties} ties\n",
+                args.max_genuine
+            );
+        }
+        reports.push(ValidateReport {
+            scene: scene.name.clone(),
+            backend: tested.name(),
+            against: reference.name(),
+            genuine,
+            ties,
+            max_genuine: args.max_genuine,
+            pass: genuine <= args.max_genuine,
+            sets: set_reports,
+            diff_image: diff_written,
+        });
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&reports)?);
+    }
+    let failed: Vec<&str> = reports
+        .iter()
+        .filter(|r| !r.pass)
+        .map(|r| r.scene.as_str())
+        .collect();
+    if failed.is_empty() {
+        Ok(())
+    } else {
+        Err(Error::Other(format!(
+            "validate: genuine disagreements above --max-genuine {} in {}",
+            args.max_genuine,
+            failed.join(", ")
+        )))
+    }
+}
