@@ -28,10 +28,87 @@ use extras::{AoErrorPoint, BuilderPoint, GrowthPoint, ScalingPoint, ValidationRo
 use measure::{Matrix, Measurement, View, ViewPlan};
 use variants::Variant;
 
-/// The parts of a bench run, in the order they run.
-pub const PARTS: [&str; 8] = [
-    "tables", "trace", "scaling", "growth", "ao-error", "builders", "leaks", "validate",
-];
+/// The parts of a bench run (`--parts`), in the order they run. Each part's
+/// name, report title, chart and caption are here, in one place.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Part {
+    /// The study's matrix: every variant on every scene, view and AO mode.
+    Tables,
+    /// Query throughput per backend and ray kind on recorded rays, and builds.
+    Trace,
+    /// Render speedup over one thread, per schedule.
+    Scaling,
+    /// Build time and time per ray against triangle count.
+    Growth,
+    /// AO error against render time.
+    AoError,
+    /// Tree quality against build and render time, per builder.
+    Builders,
+    /// Rays that leak through closed meshes, per intersection method.
+    Leaks,
+    /// Every BVH's hits against Embree's (or naive's).
+    Validate,
+}
+
+impl Part {
+    pub const ALL: [Part; 8] = [
+        Part::Tables,
+        Part::Trace,
+        Part::Scaling,
+        Part::Growth,
+        Part::AoError,
+        Part::Builders,
+        Part::Leaks,
+        Part::Validate,
+    ];
+
+    /// The name `--parts` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            Part::Tables => "tables",
+            Part::Trace => "trace",
+            Part::Scaling => "scaling",
+            Part::Growth => "growth",
+            Part::AoError => "ao-error",
+            Part::Builders => "builders",
+            Part::Leaks => "leaks",
+            Part::Validate => "validate",
+        }
+    }
+
+    /// The HTML report's section title, the stem of the part's chart files and
+    /// the chart's caption, for the parts with a section of their own (the
+    /// tables part has the speedup section, validate has no chart).
+    fn section(self) -> Option<(&'static str, &'static str, &'static str)> {
+        Some(match self {
+            Part::Trace => ("Query throughput", "trace-", "Rays traced per second per backend, scene and ray kind, on one thread count per chart (log scale; the same recorded rays for every backend, no shading)."),
+            Part::Scaling => ("Thread scaling", "thread-scaling", "Render speedup over one thread per schedule; the grey line is ideal scaling."),
+            Part::Growth => ("Cost growth", "cost-growth", "Build time and time per ray against triangle count (log-log): naive grows as O(N) per ray, the hierarchies as O(log N)."),
+            Part::AoError => ("AO error against time", "ao-error", "Error of the study's 14 fixed AO directions and of N random cosine samples against a cosine reference, against render time."),
+            Part::Builders => ("Builder quality", "builders", "Tree quality (SAH cost, nodes visited per ray) against build and render time."),
+            Part::Leaks => ("Leaks against speed", "leaks", "Rays that pass through closed meshes at vertices and edges, against query time, per intersection method."),
+            Part::Tables | Part::Validate => return None,
+        })
+    }
+
+    /// Whether the part draws a chart (and so needs the chart font).
+    fn draws(self) -> bool {
+        self != Part::Validate
+    }
+}
+
+impl std::str::FromStr for Part {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Part, String> {
+        Part::ALL
+            .into_iter()
+            .find(|p| p.name() == s)
+            .ok_or_else(|| {
+                let names: Vec<&str> = Part::ALL.iter().map(|p| p.name()).collect();
+                format!("unknown part '{s}' (known: all, {})", names.join(", "))
+            })
+    }
+}
 
 /// Everything a bench run needs; built by the CLI from its flags.
 #[derive(Clone, Debug)]
@@ -45,13 +122,13 @@ pub struct BenchConfig {
     pub threads: usize,
     pub quick: bool,
     pub max_variant_s: f64,
-    pub parts: Vec<&'static str>,
+    pub parts: Vec<Part>,
     pub out: PathBuf,
     pub quiet: bool,
 }
 
 impl BenchConfig {
-    fn wants(&self, part: &str) -> bool {
+    fn wants(&self, part: Part) -> bool {
         self.parts.contains(&part)
     }
 
@@ -195,7 +272,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
         std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
     }
     output::check_writable(&cfg.out.join("images").join("probe.png"))?;
-    if cfg.parts.iter().any(|p| *p != "validate") {
+    if cfg.parts.iter().any(|p| p.draws()) {
         // Every part but validate draws a chart: fail before measuring for an
         // hour, not after.
         charts::init_font()?;
@@ -227,34 +304,34 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
     let step: u64 = if cfg.quick { 100 } else { 3000 };
     let mut steps = 0;
     let trace_specs = trace::trace_specs(&cfg.variants, cfg.threads);
-    if cfg.wants("trace") {
+    if cfg.wants(Part::Trace) {
         steps += 3 * scenes.len() as u64;
     }
-    if cfg.wants("scaling") {
+    if cfg.wants(Part::Scaling) {
         steps += extras::scaling_variants().len() as u64;
     }
-    if cfg.wants("growth") {
+    if cfg.wants(Part::Growth) {
         steps += (cfg.growth_sizes().len() * extras::growth_variants().len()) as u64;
     }
-    if cfg.wants("ao-error") {
+    if cfg.wants(Part::AoError) {
         steps += (last_two.len() * (ao_n.len() + 2)) as u64;
     }
-    if cfg.wants("builders") {
+    if cfg.wants(Part::Builders) {
         steps += (last_two.len() * extras::quality_builders().len()) as u64;
     }
-    if cfg.wants("leaks") {
+    if cfg.wants(Part::Leaks) {
         steps += 1;
     }
-    if cfg.wants("validate") {
+    if cfg.wants(Part::Validate) {
         steps += 2 * scenes.len() as u64;
     }
     let mut units = steps * step;
-    if cfg.wants("tables") {
+    if cfg.wants(Part::Tables) {
         units += matrix.planned_units();
     }
     let bar = StepBar::new(units, cfg.quiet).with_step(step);
 
-    let (measurements, kept) = if cfg.wants("tables") {
+    let (measurements, kept) = if cfg.wants(Part::Tables) {
         matrix.run(&bar)?
     } else {
         (Vec::new(), Vec::new())
@@ -264,7 +341,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
     // The parts that render one view use each scene's first view.
     let first_view = |scene: &Scene, size| cfg.views.first_for(scene, size);
     let mut trace_points = Vec::new();
-    if cfg.wants("trace") && !trace_specs.is_empty() {
+    if cfg.wants(Part::Trace) && !trace_specs.is_empty() {
         let trace_reps = if cfg.quick { 1 } else { cfg.reps.clamp(1, 5) };
         for scene in scenes {
             let settings = first_view(scene, cfg.size).settings(cfg.size, AoMode::Paper, 1)?;
@@ -278,14 +355,14 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
             )?);
         }
     }
-    let scaling = if cfg.wants("scaling") {
+    let scaling = if cfg.wants(Part::Scaling) {
         let size = cfg.smaller(2);
         let settings = first_view(last, size).settings(size, AoMode::Paper, 1)?;
         extras::thread_scaling(last, &settings, &cfg.thread_counts(), reps, &bar)?
     } else {
         Vec::new()
     };
-    let growth = if cfg.wants("growth") {
+    let growth = if cfg.wants(Part::Growth) {
         let settings = View::PAPER[0].settings(
             if cfg.quick { (32, 24) } else { (96, 72) },
             AoMode::Paper,
@@ -304,7 +381,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
         Vec::new()
     };
     let mut ao_error = Vec::new();
-    if cfg.wants("ao-error") {
+    if cfg.wants(Part::AoError) {
         let (samples, reference) = cfg.ao_samples();
         let size = if cfg.quick { (48, 36) } else { (256, 192) };
         for scene in &last_two {
@@ -318,7 +395,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
         }
     }
     let mut builders = Vec::new();
-    if cfg.wants("builders") {
+    if cfg.wants(Part::Builders) {
         let size = cfg.smaller(2);
         for scene in &last_two {
             let settings = first_view(scene, size).settings(size, AoMode::Paper, 1)?;
@@ -331,7 +408,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
             )?);
         }
     }
-    let leaks = if cfg.wants("leaks") {
+    let leaks = if cfg.wants(Part::Leaks) {
         bar.set_message("leaks: rays at vertices and edges of closed meshes".into());
         let rows = crate::stress::leak_suite(
             &crate::stress::leak_meshes(cfg.quick),
@@ -343,7 +420,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
         Vec::new()
     };
     let mut validation = Vec::new();
-    if cfg.wants("validate") {
+    if cfg.wants(Part::Validate) {
         let count = if cfg.quick { 2_000 } else { 20_000 };
         for scene in scenes {
             let size = cfg.smaller(4);
@@ -677,19 +754,14 @@ fn report_html(r: &BenchReport, md: &str) -> String {
             ),
         });
     }
-    let extras = [
-        ("trace", "Query throughput", "trace-", "Rays traced per second per backend, scene and ray kind, on one thread count per chart (log scale; the same recorded rays for every backend, no shading)."),
-        ("scaling", "Thread scaling", "thread-scaling", "Render speedup over one thread per schedule; the grey line is ideal scaling."),
-        ("growth", "Cost growth", "cost-growth", "Build time and time per ray against triangle count (log-log): naive grows as O(N) per ray, the hierarchies as O(log N)."),
-        ("ao-error", "AO error against time", "ao-error", "Error of the study's 14 fixed AO directions and of N random cosine samples against a cosine reference, against render time."),
-        ("builders", "Builder quality", "builders", "Tree quality (SAH cost, nodes visited per ray) against build and render time."),
-        ("leaks", "Leaks against speed", "leaks", "Rays that pass through closed meshes at vertices and edges, against query time, per intersection method."),
-    ];
-    for (id, title, stem, caption) in extras {
+    for part in Part::ALL {
+        let Some((title, stem, caption)) = part.section() else {
+            continue;
+        };
         let body = chart(stem, caption);
         if !body.is_empty() {
             sections.push(Section {
-                id: id.into(),
+                id: part.name().into(),
                 title: title.into(),
                 body,
             });

@@ -7,6 +7,7 @@ use clap::Args;
 use glam::Vec3;
 
 use super::args::{parse_fov, parse_size, parse_threads, parse_vec3};
+use crate::bench::Part;
 use crate::error::{Error, Result};
 use crate::render::schedule::default_threads;
 use crate::render::AoMode;
@@ -151,21 +152,14 @@ fn parse_ao_list(s: &str) -> Result<Vec<AoMode>> {
     Ok(out)
 }
 
-fn parse_parts(s: &str) -> Result<Vec<&'static str>> {
-    use crate::bench::PARTS;
+fn parse_parts(s: &str) -> Result<Vec<Part>> {
     let mut out = Vec::new();
     for p in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
         if p == "all" {
-            out.extend(PARTS);
-            continue;
+            out.extend(Part::ALL);
+        } else {
+            out.push(p.parse().map_err(|e: String| Error::usage("--parts", e))?);
         }
-        let known = PARTS.iter().find(|k| **k == p).ok_or_else(|| {
-            Error::usage(
-                "--parts",
-                format!("unknown part '{p}' (known: all, {})", PARTS.join(", ")),
-            )
-        })?;
-        out.push(*known);
     }
     if out.is_empty() {
         return Err(Error::usage("--parts", "no part given"));
