@@ -1,7 +1,9 @@
-//! The two operating-system calls raylab makes itself (FFI to the C library
-//! that `std` already links): asking Linux to back large arrays with
-//! transparent huge pages, and letting a closed output pipe end the process
-//! quietly ([`quiet_on_closed_pipe`]).
+//! The operating-system and CPU state raylab sets itself, the only `unsafe`
+//! outside the Embree FFI and the SIMD kernels: asking Linux to back large
+//! arrays with transparent huge pages (FFI to the C library that `std` already
+//! links), letting a closed output pipe end the process quietly
+//! ([`quiet_on_closed_pipe`]), and flushing denormals on render threads
+//! ([`FlushDenormals`]).
 //!
 //! Why: a build writes hundreds of megabytes of fresh memory (primitive
 //! references, nodes, leaf blocks), and with 4 KiB pages every page is a
@@ -74,6 +76,58 @@ pub fn quiet_on_closed_pipe() {
 
 #[cfg(not(unix))]
 pub fn quiet_on_closed_pipe() {}
+
+// Flush-to-zero and denormals-are-zero for threads that call Embree, as its
+// documentation advises (denormal floats make its kernels much slower). The
+// guard restores the thread's previous MXCSR, so code that runs later on the
+// same thread (another backend's render) is unaffected.
+
+/// While alive, the current thread flushes denormals (x86-64; no-op elsewhere).
+pub struct FlushDenormals {
+    #[cfg(target_arch = "x86_64")]
+    saved: u32,
+    /// MXCSR is per thread: the guard must be dropped where it was made.
+    _not_send: std::marker::PhantomData<*const ()>,
+}
+
+#[cfg(target_arch = "x86_64")]
+const FTZ_DAZ: u32 = 0x8040;
+
+impl FlushDenormals {
+    pub fn enable() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let mut saved: u32 = 0;
+            // SAFETY: stmxcsr/ldmxcsr read and write this thread's SSE control
+            // register only; setting FTZ and DAZ changes rounding of denormals, not
+            // memory safety.
+            unsafe {
+                std::arch::asm!("stmxcsr [{}]", in(reg) &mut saved, options(nostack));
+                let new = saved | FTZ_DAZ;
+                std::arch::asm!("ldmxcsr [{}]", in(reg) &new, options(nostack));
+            }
+            FlushDenormals {
+                saved,
+                _not_send: std::marker::PhantomData,
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        FlushDenormals {
+            _not_send: std::marker::PhantomData,
+        }
+    }
+}
+
+impl Drop for FlushDenormals {
+    fn drop(&mut self) {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: restores the value read in `enable` on the same thread (the
+        // guard is not Send).
+        unsafe {
+            std::arch::asm!("ldmxcsr [{}]", in(reg) &self.saved, options(nostack));
+        }
+    }
+}
 
 #[cfg(test)]
 mod tests {

@@ -2,17 +2,19 @@
 //! tree's shape and SAH cost, and the traversal work measured over an actual
 //! render through the shared shading loop.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
-use crate::accel::bvh::quality::{CountingTracer, KindWork, TreeStats};
-use crate::accel::bvh::traverse::Traversal;
+use crate::accel::bvh::quality::TreeStats;
+use crate::accel::bvh::traverse::{Counts, Traversal};
 use crate::accel::bvh::wide::WideBvh;
 use crate::accel::bvh::{build, build::sah, BuildParams, Bvh};
 use crate::error::Result;
+use crate::geometry::{Hit, Ray};
 use crate::progress::Progress;
-use crate::render::{render, RenderSettings, Schedule};
+use crate::render::{render, RenderSettings, Schedule, Tracer};
 use crate::scene::Scene;
 
 /// One builder on one scene.
@@ -247,4 +249,85 @@ pub fn markdown_table(reports: &[BuilderReport]) -> String {
         SAH_CONSTANTS.traversal, SAH_CONSTANTS.intersect, SAH_CONSTANTS.normalised_by
     ));
     out
+}
+
+/// Traversal work by ray kind, summed over a render.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct KindWork {
+    pub rays: u64,
+    pub nodes_per_ray: f64,
+    pub triangles_per_ray: f64,
+}
+
+#[derive(Default)]
+struct AtomicWork {
+    rays: AtomicU64,
+    nodes: AtomicU64,
+    triangles: AtomicU64,
+}
+
+impl AtomicWork {
+    fn add(&self, c: Counts) {
+        self.rays.fetch_add(1, Ordering::Relaxed);
+        self.nodes.fetch_add(c.nodes, Ordering::Relaxed);
+        self.triangles.fetch_add(c.triangles, Ordering::Relaxed);
+    }
+
+    fn get(&self) -> KindWork {
+        let rays = self.rays.load(Ordering::Relaxed);
+        let per = |x: &AtomicU64| x.load(Ordering::Relaxed) as f64 / rays.max(1) as f64;
+        KindWork {
+            rays,
+            nodes_per_ray: per(&self.nodes),
+            triangles_per_ray: per(&self.triangles),
+        }
+    }
+}
+
+/// A tracer that counts nodes visited and triangles tested per ray kind while
+/// rendering through the same shading loop, over a binary or a 4-wide tree.
+pub struct CountingTracer<'a, B: Traversal = Bvh> {
+    bvh: &'a B,
+    primary: AtomicWork,
+    shadow: AtomicWork,
+    ao: AtomicWork,
+}
+
+impl<'a, B: Traversal> CountingTracer<'a, B> {
+    pub fn new(bvh: &'a B) -> Self {
+        CountingTracer {
+            bvh,
+            primary: AtomicWork::default(),
+            shadow: AtomicWork::default(),
+            ao: AtomicWork::default(),
+        }
+    }
+
+    /// (primary, shadow, ao) work so far.
+    pub fn work(&self) -> (KindWork, KindWork, KindWork) {
+        (self.primary.get(), self.shadow.get(), self.ao.get())
+    }
+}
+
+impl<B: Traversal + Sync> Tracer for CountingTracer<'_, B> {
+    fn primary(&self, ray: &Ray) -> Option<Hit> {
+        let mut c = Counts::default();
+        let hit = self.bvh.intersect_counted(ray, &mut c);
+        self.primary.add(c);
+        hit
+    }
+
+    fn shadow(&self, ray: &Ray) -> bool {
+        let mut c = Counts::default();
+        let hit = self.bvh.occluded_counted(ray, &mut c);
+        self.shadow.add(c);
+        hit
+    }
+
+    fn ao(&self, ray: &Ray) -> bool {
+        let mut c = Counts::default();
+        let hit = self.bvh.occluded_counted(ray, &mut c);
+        self.ao.add(c);
+        hit
+    }
 }

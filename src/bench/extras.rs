@@ -347,7 +347,7 @@ pub fn builder_quality(
         bar.step();
         let work = [report.primary, report.shadow, report.ao];
         let rays: u64 = work.iter().map(|w| w.rays).sum();
-        let per_ray = |f: fn(&crate::accel::bvh::quality::KindWork) -> f64| {
+        let per_ray = |f: fn(&crate::stats::KindWork) -> f64| {
             work.iter().map(|w| f(w) * w.rays as f64).sum::<f64>() / rays.max(1) as f64
         };
         out.push(BuilderPoint {

@@ -15,10 +15,10 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::measure::Stat;
-use crate::accel::embree::ftz::FlushDenormals;
 use crate::accel::{build_backend, Backend, BackendKind, BackendSpec};
 use crate::error::{Error, Result};
 use crate::geometry::Ray;
+use crate::os::FlushDenormals;
 use crate::progress::StepBar;
 use crate::render::RenderSettings;
 use crate::scene::Scene;

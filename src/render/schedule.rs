@@ -98,7 +98,7 @@ pub fn render<T: Tracer + ?Sized>(
     let work = |rect: Rect| {
         let _ftz = tracer
             .flushes_denormals()
-            .then(crate::accel::embree::ftz::FlushDenormals::enable);
+            .then(crate::os::FlushDenormals::enable);
         let mut pixels = vec![Vec3::ZERO; rect.pixel_count()];
         let stats = render_rect(scene, tracer, settings, rect, &mut pixels);
         progress.advance(rect.pixel_count() as u64);

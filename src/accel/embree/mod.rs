@@ -2,9 +2,7 @@
 //! builder producing trees in raylab's own layout (`builder`).
 //!
 //! `unsafe` lives only in this module tree: `ffi` (generated bindings), `api`
-//! (the Embree 3/4 difference), this safe wrapper, `builder` and `ftz`.
-
-pub mod ftz;
+//! (the Embree 3/4 difference), this safe wrapper and `builder`.
 
 #[cfg(feature = "embree")]
 pub mod api;
