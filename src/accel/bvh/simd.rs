@@ -4,17 +4,16 @@
 //! time. [`slab_test_scalar`] is the reference both are tested against, lane
 //! by lane and bit for bit.
 //!
-//! `unsafe` outside the Embree module lives here alone: the AVX2 intrinsics
+//! `unsafe` outside the Embree module lives here (and in the two AVX2 entry
+//! points of the wide traversal, `wide::traverse`): the AVX2 intrinsics
 //! load through pointers, and AVX2 code may only run on a CPU that has it. An
 //! [`Avx2`] value can only be made by [`Avx2::detect`], which checks the CPU,
 //! so holding one is the proof every `unsafe` block below relies on.
 
 use glam::Vec4;
 
-use super::leaf::BlockTest;
-use super::traverse::Counter;
-use super::wide::{WideBvh, WideNode};
-use crate::geometry::{Hit, Ray, GAMMA3};
+use super::wide::WideNode;
+use crate::geometry::{Ray, GAMMA3};
 
 /// The slab test's conservative growth of exit distances (see [`crate::geometry::Aabb::intersect`]).
 const GROW: f32 = 1.0 + 2.0 * GAMMA3;
@@ -264,66 +263,6 @@ impl NodeKernel<8> for Avx2 {
             (mask, out)
         }
     }
-}
-
-/// The wide trees' queries compiled with AVX2 enabled: the generic traversal
-/// is `#[inline(always)]`, so it is compiled into these functions and every
-/// operation in it (node tests, triangle tests, bit scans) uses AVX2 and VEX
-/// encoding.
-impl Avx2 {
-    #[inline(always)]
-    pub fn closest<T: BlockTest, C: Counter, const S: usize>(
-        self,
-        bvh: &WideBvh<8>,
-        ray: &Ray,
-        counter: &mut C,
-    ) -> Option<Hit> {
-        #[cfg(target_arch = "x86_64")]
-        {
-            // SAFETY: `self` proves the CPU has AVX2, BMI1 and POPCNT.
-            unsafe { closest_avx2::<T, C, S>(self, bvh, ray, counter) }
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        bvh.closest_with::<Portable, T, C, S>(Portable, ray, counter)
-    }
-
-    #[inline(always)]
-    pub fn any<T: BlockTest, C: Counter, const S: usize>(
-        self,
-        bvh: &WideBvh<8>,
-        ray: &Ray,
-        counter: &mut C,
-    ) -> bool {
-        #[cfg(target_arch = "x86_64")]
-        {
-            // SAFETY: as in `closest`.
-            unsafe { any_avx2::<T, C, S>(self, bvh, ray, counter) }
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        bvh.any_with::<Portable, T, C, S>(Portable, ray, counter)
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,bmi1,popcnt")]
-fn closest_avx2<T: BlockTest, C: Counter, const S: usize>(
-    kernel: Avx2,
-    bvh: &WideBvh<8>,
-    ray: &Ray,
-    counter: &mut C,
-) -> Option<Hit> {
-    bvh.closest_with::<Avx2, T, C, S>(kernel, ray, counter)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,bmi1,popcnt")]
-fn any_avx2<T: BlockTest, C: Counter, const S: usize>(
-    kernel: Avx2,
-    bvh: &WideBvh<8>,
-    ray: &Ray,
-    counter: &mut C,
-) -> bool {
-    bvh.any_with::<Avx2, T, C, S>(kernel, ray, counter)
 }
 
 #[cfg(test)]

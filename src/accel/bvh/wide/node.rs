@@ -1,0 +1,235 @@
+//! The wide tree's layout: nodes of `N` lanes whose boxes are rows by axis
+//! and bound, leaf references packing a run of triangle slots into a lane's
+//! `child`, and the tree itself (nodes in depth-first order, leaf blocks).
+//! A lane's `child` is a node index, or (bit 31 set) a leaf: a run of
+//! [`Tri4`] blocks. Unused lanes hold an inverted box, which the slab test
+//! rejects, so no lane mask is read.
+
+use arrayvec::ArrayVec;
+use glam::Vec3;
+
+use super::super::leaf::{Tri4, LANES};
+use super::super::simd::Kernel;
+use crate::error::{Error, Result};
+use crate::geometry::Aabb;
+
+/// `child` of an unused lane.
+pub const EMPTY: u32 = u32::MAX;
+/// Set in `child` for a leaf lane.
+pub(crate) const LEAF: u32 = 1 << 31;
+/// A leaf reference holds the leaf's first triangle slot (block * 4 + lane)
+/// in its low bits and its triangle count minus one above them.
+pub(super) const SLOT_BITS: u32 = 27;
+/// Most triangles in one leaf of a wide tree.
+pub const MAX_LEAF: usize = 16;
+
+/// A wide node's interior child of at most this many triangles whose two
+/// halves are both leaves is made one leaf of all of them (two blocks at
+/// most), not a node of two leaf lanes. Such nodes were 37% of mesh:1e6's
+/// 8-wide nodes, for a box test that saves at most one block test; as
+/// leaves, the tree took 59.3 bytes per triangle instead of 68.6, and its
+/// rays ran at the same speed or faster on one thread (cornell-sphere,
+/// cornell-water, mesh:1e5, mesh:1e6, two trace runs each). The SAH with
+/// pair-costed leaves would merge few of them: it prices the node's test at
+/// one triangle pair, below what it costs.
+pub const MERGE_MAX: usize = 8;
+/// Triangle slots addressable by a leaf reference (2^27, about 134 million).
+pub const MAX_SLOTS: usize = 1 << SLOT_BITS;
+
+/// Stack entries of the traversals of ordinary trees; a tree whose deepest
+/// path could need more (see [`WideBvh::stack_need`]) is traversed with
+/// [`DEEP_STACK`] entries.
+pub(super) const STACK: usize = 64;
+/// Enough for any tree of binary depth 64, the bound every builder keeps.
+pub(super) const DEEP_STACK: usize = 64 * 7 + 1;
+
+/// Packs the leaves of one node, of `counts` triangles, into new blocks
+/// numbered from `first_block`: first fit, largest first, so that leaves of
+/// one to three triangles share blocks; a leaf of up to four triangles never
+/// straddles two blocks. Returns each leaf's first slot (block * 4 + lane), in
+/// the order of `counts`, and the number of blocks taken.
+pub(crate) fn pack_leaves<const N: usize>(
+    counts: &[usize],
+    first_block: usize,
+) -> Result<(ArrayVec<usize, N>, usize)> {
+    let mut order: ArrayVec<usize, N> = (0..counts.len()).collect();
+    order.sort_by_key(|&i| std::cmp::Reverse(counts[i]));
+    let mut slots: ArrayVec<usize, N> = counts.iter().map(|_| 0).collect();
+    let mut open: ArrayVec<(usize, usize), N> = ArrayVec::new(); // (block, lanes used)
+    let mut blocks = 0;
+    for i in order {
+        let count = counts[i];
+        if count > MAX_LEAF {
+            return Err(Error::usage(
+                "--leaf-size",
+                format!("wide trees take leaves of at most {MAX_LEAF} triangles, not {count}"),
+            ));
+        }
+        slots[i] = match open.iter_mut().find(|(_, used)| count <= LANES - *used) {
+            Some((block, used)) => {
+                *used += count;
+                *block * LANES + *used - count
+            }
+            None => {
+                let first = first_block + blocks;
+                let taken = count.div_ceil(LANES);
+                blocks += taken;
+                if !count.is_multiple_of(LANES) {
+                    open.push((first + taken - 1, count % LANES));
+                }
+                first * LANES
+            }
+        };
+    }
+    Ok((slots, blocks))
+}
+
+/// A leaf lane's reference to `count` triangles from slot `slot` on.
+#[inline]
+pub(crate) fn leaf_ref(slot: usize, count: usize) -> u32 {
+    debug_assert!((1..=MAX_LEAF).contains(&count) && slot < MAX_SLOTS);
+    LEAF | ((count as u32 - 1) << SLOT_BITS) | slot as u32
+}
+
+/// The slots `first..end` of a leaf reference.
+#[inline(always)]
+pub(super) fn leaf_slots(child: u32) -> (usize, usize) {
+    let first = (child & (MAX_SLOTS as u32 - 1)) as usize;
+    let count = ((child & !LEAF) >> SLOT_BITS) as usize + 1;
+    (first, first + count)
+}
+
+/// The part of a leaf in one block: `(block, lanes)`, `lanes` the mask of the
+/// block's lanes that belong to the leaf. Calls `f` for each block in order
+/// and stops early when it returns `true`; returns whether it did.
+#[inline(always)]
+pub(super) fn for_leaf_blocks(child: u32, mut f: impl FnMut(usize, u32) -> bool) -> bool {
+    let (mut slot, end) = leaf_slots(child);
+    while slot < end {
+        let base = slot & !(LANES - 1);
+        let lo = slot - base;
+        let hi = (end - base).min(LANES);
+        let lanes = (0xF >> (LANES - hi)) & (0xF << lo);
+        if f(base / LANES, lanes) {
+            return true;
+        }
+        slot = base + LANES;
+    }
+    false
+}
+
+/// `N` children: their boxes as rows by axis and bound, and what each holds.
+/// 128 bytes for `N = 4`, 224 for `N = 8`: aligned to 32 bytes, so every row
+/// is one aligned AVX load; a 224-byte node spans four cache lines wherever it
+/// starts, as a 256-byte one would, with 12.5% less memory.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(32))]
+pub struct WideNode<const N: usize> {
+    /// Rows `min_x, max_x, min_y, max_y, min_z, max_z`, one lane per child.
+    pub bounds: [[f32; N]; 6],
+    /// A node index, a leaf reference (bit 31 set), or [`EMPTY`].
+    pub child: [u32; N],
+}
+
+impl<const N: usize> WideNode<N> {
+    /// A node with every lane unused (inverted boxes).
+    pub fn empty() -> Self {
+        let mut bounds = [[f32::INFINITY; N]; 6];
+        for row in [1, 3, 5] {
+            bounds[row] = [f32::NEG_INFINITY; N];
+        }
+        WideNode {
+            bounds,
+            child: [EMPTY; N],
+        }
+    }
+
+    pub fn set_lane(&mut self, lane: usize, b: &Aabb, child: u32) {
+        for axis in 0..3 {
+            self.bounds[2 * axis][lane] = b.min[axis];
+            self.bounds[2 * axis + 1][lane] = b.max[axis];
+        }
+        self.child[lane] = child;
+    }
+
+    /// The box of lane `lane`.
+    pub fn lane_bounds(&self, lane: usize) -> Aabb {
+        let b = |row: usize| {
+            Vec3::new(
+                self.bounds[row][lane],
+                self.bounds[row + 2][lane],
+                self.bounds[row + 4][lane],
+            )
+        };
+        Aabb {
+            min: b(0),
+            max: b(1),
+        }
+    }
+
+    /// Whether lane `lane` holds a leaf.
+    #[inline]
+    pub fn is_leaf(&self, lane: usize) -> bool {
+        self.child[lane] != EMPTY && self.child[lane] & LEAF != 0
+    }
+
+    /// Lanes in use.
+    pub fn used(&self) -> usize {
+        self.child.iter().filter(|&&c| c != EMPTY).count()
+    }
+
+    /// The triangle slots (block * 4 + lane) of lane `lane`'s leaf (empty for
+    /// other lanes).
+    pub fn leaf_slots(&self, lane: usize) -> std::ops::Range<usize> {
+        if self.is_leaf(lane) {
+            let (first, end) = leaf_slots(self.child[lane]);
+            first..end
+        } else {
+            0..0
+        }
+    }
+}
+
+/// A wide BVH over triangles in blocks of four.
+#[derive(Clone, Debug)]
+pub struct WideBvh<const N: usize> {
+    /// `nodes[0]` is the root; empty for an empty tree.
+    pub nodes: Vec<WideNode<N>>,
+    /// Leaf triangles, four to a block. A leaf's triangles are consecutive
+    /// lanes; small leaves of one node share blocks.
+    pub blocks: Vec<Tri4>,
+    /// The most stack entries a traversal can need (pending siblings along the
+    /// deepest path, plus one).
+    pub stack_need: usize,
+    /// The node kernel its queries use.
+    pub kernel: Kernel,
+}
+
+/// The 4-wide tree (portable SIMD: one SSE register per row on x86-64).
+pub type Bvh4 = WideBvh<4>;
+/// The 8-wide tree (AVX2 where the CPU has it).
+pub type Bvh8 = WideBvh<8>;
+
+impl<const N: usize> WideBvh<N> {
+    /// A tree with no nodes, whose queries will use `kernel` (AVX2 serves
+    /// only `N = 8`; other widths get the portable kernel).
+    pub(crate) fn empty(kernel: Kernel) -> Self {
+        WideBvh {
+            nodes: Vec::new(),
+            blocks: Vec::new(),
+            stack_need: 1,
+            kernel: if N == 8 { kernel } else { Kernel::Portable },
+        }
+    }
+
+    /// Bytes of nodes and leaf blocks (scene indices included).
+    pub fn memory_bytes(&self) -> usize {
+        self.nodes.len() * std::mem::size_of::<WideNode<N>>()
+            + self.blocks.len() * std::mem::size_of::<Tri4>()
+    }
+
+    /// Triangles in the leaves.
+    pub fn triangle_count(&self) -> usize {
+        self.blocks.iter().map(Tri4::len).sum()
+    }
+}
