@@ -22,6 +22,7 @@ pub mod render;
 pub mod scene;
 pub mod stats;
 pub mod stress;
+pub mod table;
 pub mod validate;
 
 pub use error::{Error, Result};

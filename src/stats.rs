@@ -16,6 +16,11 @@ use crate::geometry::{Hit, Ray};
 use crate::progress::Progress;
 use crate::render::{render, RenderSettings, Schedule, Tracer};
 use crate::scene::Scene;
+use crate::table::ms;
+use crate::table::{
+    Align::{Left, Right},
+    Table,
+};
 
 /// One builder on one scene.
 #[derive(Clone, Debug, Serialize)]
@@ -115,8 +120,8 @@ pub fn builder_report(
         triangles: scene.triangle_count(),
         builder: params.builder.name().to_string(),
         max_leaf_size_param: params.max_leaf_size,
-        build_ms_serial: serial_time.as_secs_f64() * 1e3,
-        build_ms_parallel: parallel_time.as_secs_f64() * 1e3,
+        build_ms_serial: ms(serial_time),
+        build_ms_parallel: ms(parallel_time),
         build_threads: threads,
         deterministic,
         tree: TreeStats::with_block(&parallel, scene.triangle_count(), params.sah_block),
@@ -184,7 +189,7 @@ where
     let lanes = wide.blocks.len() * crate::accel::bvh::leaf::LANES;
     Ok(WideReport {
         width: N,
-        build_ms: times[times.len() / 2].as_secs_f64() * 1e3,
+        build_ms: ms(times[times.len() / 2]),
         sah_cost: tree.sah_cost,
         mean_leaf_size: tree.mean_leaf_size,
         nodes: wide.nodes.len(),
@@ -200,50 +205,72 @@ where
 
 /// The reports as a Markdown table, one row per (scene, builder).
 pub fn markdown_table(reports: &[BuilderReport]) -> String {
-    let mut out = String::new();
-    out.push_str(
-        "| scene | tris | builder | build ms 1 thr | build ms N thr | nodes | leaves | depth max/mean | leaf mean/max | bytes/tri | SAH cost | nodes/ray P/S/AO | tris/ray P/S/AO | 4-wide nodes | 4-wide bytes/tri | 4-wide nodes/ray P/S/AO | 8-wide nodes | 8-wide bytes/tri | 8-wide nodes/ray P/S/AO | block fill |\n",
-    );
-    out.push_str(
-        "|---|---:|---|---:|---:|---:|---:|---|---|---:|---:|---|---|---:|---:|---|---:|---:|---|---:|\n",
-    );
+    let columns = [
+        ("scene", Left),
+        ("tris", Right),
+        ("builder", Left),
+        ("build ms 1 thr", Right),
+        ("build ms N thr", Right),
+        ("nodes", Right),
+        ("leaves", Right),
+        ("depth max/mean", Left),
+        ("leaf mean/max", Left),
+        ("bytes/tri", Right),
+        ("SAH cost", Right),
+        ("nodes/ray P/S/AO", Left),
+        ("tris/ray P/S/AO", Left),
+        ("4-wide nodes", Right),
+        ("4-wide bytes/tri", Right),
+        ("4-wide nodes/ray P/S/AO", Left),
+        ("8-wide nodes", Right),
+        ("8-wide bytes/tri", Right),
+        ("8-wide nodes/ray P/S/AO", Left),
+        ("block fill", Right),
+    ];
+    let mut table = Table::new(columns);
+    let per_kind = |p: f64, s: f64, a: f64| format!("{p:.1}/{s:.1}/{a:.1}");
     for r in reports {
         let t = &r.tree;
-        out.push_str(&format!(
-            "| {} | {} | {} | {:.2} | {:.2} ({}) | {} | {} | {}/{:.1} | {:.2}/{} | {:.1} | {:.2} | {:.1}/{:.1}/{:.1} | {:.1}/{:.1}/{:.1} | {} | {:.1} | {:.1}/{:.1}/{:.1} | {} | {:.1} | {:.1}/{:.1}/{:.1} | {:.0}% |\n",
-            r.scene,
-            r.triangles,
-            r.builder,
-            r.build_ms_serial,
-            r.build_ms_parallel,
-            r.build_threads,
-            t.nodes,
-            t.leaves,
-            t.max_depth,
-            t.mean_leaf_depth,
-            t.mean_leaf_size,
-            t.max_leaf_size,
-            t.bytes_per_triangle,
-            t.sah_cost,
-            r.primary.nodes_per_ray,
-            r.shadow.nodes_per_ray,
-            r.ao.nodes_per_ray,
-            r.primary.triangles_per_ray,
-            r.shadow.triangles_per_ray,
-            r.ao.triangles_per_ray,
-            r.wide4.nodes,
-            r.wide4.bytes_per_triangle,
-            r.wide4.primary.nodes_per_ray,
-            r.wide4.shadow.nodes_per_ray,
-            r.wide4.ao.nodes_per_ray,
-            r.wide8.nodes,
-            r.wide8.bytes_per_triangle,
-            r.wide8.primary.nodes_per_ray,
-            r.wide8.shadow.nodes_per_ray,
-            r.wide8.ao.nodes_per_ray,
-            r.wide8.block_fill * 100.0,
-        ));
+        table.row([
+            r.scene.clone(),
+            r.triangles.to_string(),
+            r.builder.clone(),
+            format!("{:.2}", r.build_ms_serial),
+            format!("{:.2} ({})", r.build_ms_parallel, r.build_threads),
+            t.nodes.to_string(),
+            t.leaves.to_string(),
+            format!("{}/{:.1}", t.max_depth, t.mean_leaf_depth),
+            format!("{:.2}/{}", t.mean_leaf_size, t.max_leaf_size),
+            format!("{:.1}", t.bytes_per_triangle),
+            format!("{:.2}", t.sah_cost),
+            per_kind(
+                r.primary.nodes_per_ray,
+                r.shadow.nodes_per_ray,
+                r.ao.nodes_per_ray,
+            ),
+            per_kind(
+                r.primary.triangles_per_ray,
+                r.shadow.triangles_per_ray,
+                r.ao.triangles_per_ray,
+            ),
+            r.wide4.nodes.to_string(),
+            format!("{:.1}", r.wide4.bytes_per_triangle),
+            per_kind(
+                r.wide4.primary.nodes_per_ray,
+                r.wide4.shadow.nodes_per_ray,
+                r.wide4.ao.nodes_per_ray,
+            ),
+            r.wide8.nodes.to_string(),
+            format!("{:.1}", r.wide8.bytes_per_triangle),
+            per_kind(
+                r.wide8.primary.nodes_per_ray,
+                r.wide8.shadow.nodes_per_ray,
+                r.wide8.ao.nodes_per_ray,
+            ),
+            format!("{:.0}%", r.wide8.block_fill * 100.0),
+        ]);
     }
+    let mut out = table.markdown();
     out.push_str(&format!(
         "\nSAH cost: C_traversal = {}, C_intersect = {}, normalised by the {}. Work per ray measured over the render's primary (P), shadow (S) and AO rays.\n",
         SAH_CONSTANTS.traversal, SAH_CONSTANTS.intersect, SAH_CONSTANTS.normalised_by

@@ -27,6 +27,10 @@ use crate::accel::Backend;
 use crate::error::{Error, Result};
 use crate::geometry::{Aabb, Intersector, OffsetStrategy, Ray};
 use crate::render::rng::Rng;
+use crate::table::{
+    Align::{Left, Right},
+    Table,
+};
 use crate::validate::{classify, Agreement};
 
 /// A triangle mesh as index triples over shared vertices, with a point inside
@@ -921,16 +925,29 @@ pub struct StressReport {
     pub hostile: Option<HostileReport>,
 }
 
-/// The leak rows as a Markdown table.
-pub fn leak_table(rows: &[LeakRow]) -> String {
-    let mut out = String::from("| mesh | triangles | backend | rays | leaks | leak rate | ns/ray |\n|---|---:|---|---:|---:|---:|---:|\n");
+/// The leak rows as a table.
+pub fn leak_table(rows: &[LeakRow]) -> Table {
+    let mut t = Table::new([
+        ("mesh", Left),
+        ("triangles", Right),
+        ("backend", Left),
+        ("rays", Right),
+        ("leaks", Right),
+        ("leak rate", Right),
+        ("ns/ray", Right),
+    ]);
     for r in rows {
-        out.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {:.2e} | {:.0} |\n",
-            r.mesh, r.triangles, r.backend, r.rays, r.leaks, r.leak_rate, r.ns_per_ray
-        ));
+        t.row([
+            r.mesh.clone(),
+            r.triangles.to_string(),
+            r.backend.clone(),
+            r.rays.to_string(),
+            r.leaks.to_string(),
+            format!("{:.2e}", r.leak_rate),
+            format!("{:.0}", r.ns_per_ray),
+        ]);
     }
-    out
+    t
 }
 
 impl StressReport {
@@ -941,38 +958,59 @@ impl StressReport {
             out.push_str(
                 "## Leaks: rays aimed at vertices and edges of closed meshes that miss them\n\n",
             );
-            out.push_str(&leak_table(&self.leaks));
+            out.push_str(&leak_table(&self.leaks).markdown());
             out.push('\n');
         }
         if !self.offset.is_empty() {
             out.push_str("## Offset: rays leaving a floor translated by T (rates)\n\n");
-            out.push_str("| T | strategy | test | rays | false self-hits | missed occluder at 1e-3 | at 5e-5 | at 1e-5 |\n|---:|---|---|---:|---:|---:|---:|---:|\n");
+            let mut t = Table::new([
+                ("T", Right),
+                ("strategy", Left),
+                ("test", Left),
+                ("rays", Right),
+                ("false self-hits", Right),
+                ("missed occluder at 1e-3", Right),
+                ("at 5e-5", Right),
+                ("at 1e-5", Right),
+            ]);
             for r in &self.offset {
-                out.push_str(&format!(
-                    "| {:.0e} | {} | {} | {} | {:.4} | {:.4} | {:.4} | {:.4} |\n",
-                    r.translation,
-                    r.strategy.name(),
-                    r.intersector.name(),
-                    r.rays,
-                    r.self_hit_rate,
-                    r.missed_at_1e3,
-                    r.missed_at_5e5,
-                    r.missed_at_1e5
-                ));
+                t.row([
+                    format!("{:.0e}", r.translation),
+                    r.strategy.name().to_string(),
+                    r.intersector.name().to_string(),
+                    r.rays.to_string(),
+                    format!("{:.4}", r.self_hit_rate),
+                    format!("{:.4}", r.missed_at_1e3),
+                    format!("{:.4}", r.missed_at_5e5),
+                    format!("{:.4}", r.missed_at_1e5),
+                ]);
             }
+            out.push_str(&t.markdown());
             out.push('\n');
         }
         if !self.degenerate.is_empty() {
             out.push_str(
                 "## Degenerate input: NaN results and genuine disagreements with naive\n\n",
             );
-            out.push_str("| case | triangles | backend | rays | NaN results | genuine vs naive |\n|---|---:|---|---:|---:|---:|\n");
+            let mut t = Table::new([
+                ("case", Left),
+                ("triangles", Right),
+                ("backend", Left),
+                ("rays", Right),
+                ("NaN results", Right),
+                ("genuine vs naive", Right),
+            ]);
             for r in &self.degenerate {
-                out.push_str(&format!(
-                    "| {} | {} | {} | {} | {} | {} |\n",
-                    r.case, r.triangles, r.backend, r.rays, r.nan_results, r.genuine_vs_naive
-                ));
+                t.row([
+                    r.case.to_string(),
+                    r.triangles.to_string(),
+                    r.backend.clone(),
+                    r.rays.to_string(),
+                    r.nan_results.to_string(),
+                    r.genuine_vs_naive.to_string(),
+                ]);
             }
+            out.push_str(&t.markdown());
             out.push('\n');
         }
         if let Some(h) = &self.hostile {

@@ -16,10 +16,7 @@ use crate::error::Result;
 use crate::progress::{Progress, StepBar};
 use crate::render::{render, AoMode, Frame, RenderSettings, Schedule};
 use crate::scene::Scene;
-
-fn ms_since(start: Instant) -> f64 {
-    start.elapsed().as_secs_f64() * 1e3
-}
+use crate::table::ms;
 
 /// Renders `reps` times and returns the render times and the last frame.
 fn timed_renders(
@@ -42,7 +39,7 @@ fn timed_renders(
             threads,
             &Progress::new(),
         )?;
-        times.push(ms_since(start));
+        times.push(ms(start.elapsed()));
         frame = Some(f);
     }
     Ok((Stat::of(&times), frame.expect("at least one render")))
@@ -105,7 +102,7 @@ pub fn thread_scaling(
                     t,
                     &Progress::new(),
                 )?;
-                slot.push(ms_since(start));
+                slot.push(ms(start.elapsed()));
             }
         }
         bar.step();

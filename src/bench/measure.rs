@@ -21,6 +21,7 @@ use crate::error::Result;
 use crate::progress::{Progress, StepBar};
 use crate::render::{output, render, AoMode, Frame, RenderSettings, RenderStats};
 use crate::scene::Scene;
+use crate::table::ms;
 
 /// A run at least this long is measured even when it is the warm-up.
 pub const WARMUP_COUNTS_S: f64 = 2.0;
@@ -520,7 +521,7 @@ pub fn run_once(
 ) -> Result<(f64, f64, Frame, RenderStats)> {
     let start = Instant::now();
     let backend = build_backend(&variant.spec(threads), scene)?;
-    let build_ms = start.elapsed().as_secs_f64() * 1e3;
+    let build_ms = ms(start.elapsed());
     let start = Instant::now();
     let (frame, stats) = render(
         scene,
@@ -530,7 +531,7 @@ pub fn run_once(
         threads,
         &Progress::new(),
     )?;
-    let render_ms = start.elapsed().as_secs_f64() * 1e3;
+    let render_ms = ms(start.elapsed());
     Ok((build_ms, render_ms, frame, stats))
 }
 

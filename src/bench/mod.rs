@@ -24,6 +24,10 @@ use crate::error::{Error, Result};
 use crate::progress::StepBar;
 use crate::render::{output, AoMode};
 use crate::scene::Scene;
+use crate::table::{
+    Align::{Left, Right},
+    Table,
+};
 use extras::{AoErrorPoint, BuilderPoint, GrowthPoint, ScalingPoint, ValidationRow};
 use measure::{Matrix, Measurement, View, ViewPlan};
 use variants::Variant;
@@ -618,68 +622,127 @@ pub fn markdown(r: &BenchReport) -> String {
         out.push_str(&trace::markdown(&r.trace));
     }
     if !r.scaling.is_empty() {
-        out.push_str("### Thread scaling (render only, median ms and speedup over 1 thread)\n\n| variant | threads | render ms | speedup |\n|---|---:|---:|---:|\n");
+        out.push_str("### Thread scaling (render only, median ms and speedup over 1 thread)\n\n");
+        let mut t = Table::new([
+            ("variant", Left),
+            ("threads", Right),
+            ("render ms", Right),
+            ("speedup", Right),
+        ]);
         for p in &r.scaling {
-            out.push_str(&format!(
-                "| {} | {} | {:.1} | {:.2}x |\n",
-                p.variant, p.threads, p.render_ms.median, p.speedup
-            ));
+            t.row([
+                p.variant.clone(),
+                p.threads.to_string(),
+                format!("{:.1}", p.render_ms.median),
+                format!("{:.2}x", p.speedup),
+            ]);
         }
+        out.push_str(&t.markdown());
         out.push('\n');
     }
     if !r.growth.is_empty() {
-        out.push_str("### Cost growth on mesh:N (build ms, ns per ray on one thread)\n\n| backend | triangles | build ms | render ms | ns/ray |\n|---|---:|---:|---:|---:|\n");
+        out.push_str("### Cost growth on mesh:N (build ms, ns per ray on one thread)\n\n");
+        let mut t = Table::new([
+            ("backend", Left),
+            ("triangles", Right),
+            ("build ms", Right),
+            ("render ms", Right),
+            ("ns/ray", Right),
+        ]);
         for p in &r.growth {
-            out.push_str(&format!(
-                "| {} | {} | {:.2} | {:.1} | {:.1} |\n",
-                p.backend, p.triangles, p.build_ms, p.render_ms, p.ns_per_ray
-            ));
+            t.row([
+                p.backend.clone(),
+                p.triangles.to_string(),
+                format!("{:.2}", p.build_ms),
+                format!("{:.1}", p.render_ms),
+                format!("{:.1}", p.ns_per_ray),
+            ]);
         }
+        out.push_str(&t.markdown());
         out.push('\n');
     }
     if !r.ao_error.is_empty() {
-        out.push_str("### AO error against a cosine reference (display values)\n\n| scene | ao | AO rays/pixel | render ms | RMSE | PSNR dB |\n|---|---|---:|---:|---:|---:|\n");
+        out.push_str("### AO error against a cosine reference (display values)\n\n");
+        let mut t = Table::new([
+            ("scene", Left),
+            ("ao", Left),
+            ("AO rays/pixel", Right),
+            ("render ms", Right),
+            ("RMSE", Right),
+            ("PSNR dB", Right),
+        ]);
         for p in &r.ao_error {
-            out.push_str(&format!(
-                "| {} | {} | {} | {:.1} | {:.5} | {:.2} |\n",
-                p.scene, p.ao, p.samples, p.render_ms.median, p.rmse, p.psnr_db
-            ));
+            t.row([
+                p.scene.clone(),
+                p.ao.to_string(),
+                p.samples.to_string(),
+                format!("{:.1}", p.render_ms.median),
+                format!("{:.5}", p.rmse),
+                format!("{:.2}", p.psnr_db),
+            ]);
         }
+        out.push_str(&t.markdown());
         out.push('\n');
     }
     if !r.builders.is_empty() {
-        out.push_str("### Builder quality\n\nBinary trees, and each builder's 8-wide tree (leaf tests counted in pairs).\n\n| scene | builder | build ms | SAH cost | nodes/ray | tris/ray | bytes/tri | render ms | 8-wide build ms | 8-wide SAH cost | 8-wide bytes/tri |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+        out.push_str("### Builder quality\n\nBinary trees, and each builder's 8-wide tree (leaf tests counted in pairs).\n\n");
+        let mut t = Table::new([
+            ("scene", Left),
+            ("builder", Left),
+            ("build ms", Right),
+            ("SAH cost", Right),
+            ("nodes/ray", Right),
+            ("tris/ray", Right),
+            ("bytes/tri", Right),
+            ("render ms", Right),
+            ("8-wide build ms", Right),
+            ("8-wide SAH cost", Right),
+            ("8-wide bytes/tri", Right),
+        ]);
         for p in &r.builders {
-            out.push_str(&format!(
-                "| {} | {} | {:.2} | {:.2} | {:.1} | {:.1} | {:.1} | {:.1} | {:.2} | {:.2} | {:.1} |\n",
-                p.scene,
-                p.builder,
-                p.build_ms,
-                p.sah_cost,
-                p.nodes_per_ray,
-                p.triangles_per_ray,
-                p.bytes_per_triangle,
-                p.render_ms.median,
-                p.wide8_build_ms,
-                p.wide8_sah_cost,
-                p.wide8_bytes_per_triangle
-            ));
+            t.row([
+                p.scene.clone(),
+                p.builder.clone(),
+                format!("{:.2}", p.build_ms),
+                format!("{:.2}", p.sah_cost),
+                format!("{:.1}", p.nodes_per_ray),
+                format!("{:.1}", p.triangles_per_ray),
+                format!("{:.1}", p.bytes_per_triangle),
+                format!("{:.1}", p.render_ms.median),
+                format!("{:.2}", p.wide8_build_ms),
+                format!("{:.2}", p.wide8_sah_cost),
+                format!("{:.1}", p.wide8_bytes_per_triangle),
+            ]);
         }
+        out.push_str(&t.markdown());
         out.push('\n');
     }
     if !r.leaks.is_empty() {
         out.push_str("### Leaks against speed (rays through closed meshes)\n\n");
-        out.push_str(&crate::stress::leak_table(&r.leaks));
+        out.push_str(&crate::stress::leak_table(&r.leaks).markdown());
         out.push('\n');
     }
     if !r.validation.is_empty() {
-        out.push_str("### Validation (primary, shadow, AO and random rays)\n\n| scene | tested | reference | rays | ties | genuine |\n|---|---|---|---:|---:|---:|\n");
+        out.push_str("### Validation (primary, shadow, AO and random rays)\n\n");
+        let mut t = Table::new([
+            ("scene", Left),
+            ("tested", Left),
+            ("reference", Left),
+            ("rays", Right),
+            ("ties", Right),
+            ("genuine", Right),
+        ]);
         for v in &r.validation {
-            out.push_str(&format!(
-                "| {} | {} | {} | {} | {} | {} |\n",
-                v.scene, v.tested, v.reference, v.rays, v.ties, v.genuine
-            ));
+            t.row([
+                v.scene.clone(),
+                v.tested.clone(),
+                v.reference.clone(),
+                v.rays.to_string(),
+                v.ties.to_string(),
+                v.genuine.to_string(),
+            ]);
         }
+        out.push_str(&t.markdown());
         out.push('\n');
     }
     out

@@ -4,6 +4,11 @@
 
 use super::measure::Measurement;
 use super::variants::BASELINE;
+use crate::table::{
+    fmt_ms,
+    Align::{Left, Right},
+    Table,
+};
 
 /// Distinct values of `key` in first-seen order.
 fn distinct<'a>(ms: &'a [Measurement], key: impl Fn(&'a Measurement) -> &'a str) -> Vec<&'a str> {
@@ -40,18 +45,6 @@ pub fn speedup(ms: &[Measurement], m: &Measurement) -> Option<f64> {
         .then(|| base.total_ms.median / m.total_ms.median)
 }
 
-pub(crate) fn fmt_ms(x: f64) -> String {
-    if x >= 100.0 {
-        format!("{x:.0}")
-    } else if x >= 10.0 {
-        format!("{x:.1}")
-    } else if x >= 0.1 {
-        format!("{x:.2}")
-    } else {
-        format!("{x:.3}")
-    }
-}
-
 /// Column headers: scene names with their triangle counts.
 fn scene_headers(ms: &[Measurement]) -> Vec<(String, String)> {
     distinct(ms, |m| &m.scene)
@@ -73,43 +66,40 @@ pub fn markdown(ms: &[Measurement]) -> String {
     for ao in distinct(ms, |m| &m.ao) {
         let here: Vec<&Measurement> = ms.iter().filter(|m| m.ao == ao).collect();
         out.push_str(&format!(
-            "### AO {ao}: speedup over {base} (median total time, build included)\n\n| variant | view |"
+            "### AO {ao}: speedup over {base} (median total time, build included)\n\n"
         ));
+        let mut table = Table::new([("variant", Left), ("view", Left)]);
         for (_, h) in &scenes {
-            out.push_str(&format!(" {h} |"));
+            table.column(h.clone(), Right);
         }
-        out.push_str("\n|---|---|");
-        out.push_str(&"---:|".repeat(scenes.len()));
-        out.push('\n');
         for variant in distinct(ms, |m| &m.variant) {
             for view in &views {
-                out.push_str(&format!("| {variant} | {view} |"));
+                let mut row = vec![variant.to_string(), view.to_string()];
                 for (scene, _) in &scenes {
                     let cell = here
                         .iter()
                         .find(|m| m.variant == variant && m.view == *view && m.scene == *scene);
-                    let text = cell
-                        .and_then(|m| speedup(ms, m))
-                        .map_or("-".to_string(), |s| format!("{s:.2}x"));
-                    out.push_str(&format!(" {text} |"));
+                    row.push(
+                        cell.and_then(|m| speedup(ms, m))
+                            .map_or("-".to_string(), |s| format!("{s:.2}x")),
+                    );
                 }
-                out.push('\n');
+                table.row(row);
             }
         }
+        out.push_str(&table.markdown());
         out.push('\n');
         for variant in distinct(ms, |m| &m.variant) {
             let first = here.iter().find(|m| m.variant == variant);
             let Some(first) = first else { continue };
             out.push_str(&format!(
-                "#### {variant}, AO {ao} ({} build thread(s), {} render thread(s))\n\n| view | |",
+                "#### {variant}, AO {ao} ({} build thread(s), {} render thread(s))\n\n",
                 first.build_threads, first.render_threads
             ));
+            let mut table = Table::new([("view", Left), ("", Left)]);
             for (_, h) in &scenes {
-                out.push_str(&format!(" {h} |"));
+                table.column(h.clone(), Right);
             }
-            out.push_str("\n|---|---|");
-            out.push_str(&"---:|".repeat(scenes.len()));
-            out.push('\n');
             for view in &views {
                 let cells: Vec<Option<&&Measurement>> = scenes
                     .iter()
@@ -118,15 +108,12 @@ pub fn markdown(ms: &[Measurement]) -> String {
                             .find(|m| m.variant == variant && m.view == *view && m.scene == *scene)
                     })
                     .collect();
-                let row = |label: &str, f: &dyn Fn(&Measurement) -> String| {
-                    let mut line = format!("| {view} | {label} |");
-                    for c in &cells {
-                        line.push_str(&format!(" {} |", c.map_or("-".to_string(), |m| f(m))));
-                    }
-                    line.push('\n');
-                    line
+                let mut row = |label: &str, f: &dyn Fn(&Measurement) -> String| {
+                    let mut line = vec![view.to_string(), label.to_string()];
+                    line.extend(cells.iter().map(|c| c.map_or("-".to_string(), |m| f(m))));
+                    table.row(line);
                 };
-                out.push_str(&row("total ms", &|m| {
+                row("total ms", &|m| {
                     format!(
                         "{} ({}..{}, n={})",
                         fmt_ms(m.total_ms.median),
@@ -134,12 +121,13 @@ pub fn markdown(ms: &[Measurement]) -> String {
                         fmt_ms(m.total_ms.max),
                         m.total_ms.n
                     )
-                }));
-                out.push_str(&row("build ms", &|m| fmt_ms(m.build_ms.median)));
-                out.push_str(&row("speedup", &|m| {
+                });
+                row("build ms", &|m| fmt_ms(m.build_ms.median));
+                row("speedup", &|m| {
                     speedup(ms, m).map_or("-".to_string(), |s| format!("{s:.2}x"))
-                }));
+                });
             }
+            out.push_str(&table.markdown());
             out.push('\n');
         }
     }
@@ -151,68 +139,66 @@ pub fn markdown(ms: &[Measurement]) -> String {
 /// with Embree is about.
 pub fn kind_rates_markdown(ms: &[Measurement], ao: &str, view: &str) -> String {
     let scenes = scene_headers(ms);
-    let mut out = format!(
-        "### Mrays/s per thread by ray kind (primary/shadow/AO, shading included), AO {ao}, view {view}\n\n| variant |"
-    );
+    let mut table = Table::new([("variant", Left)]);
     for (_, h) in &scenes {
-        out.push_str(&format!(" {h} |"));
+        table.column(h.clone(), Right);
     }
-    out.push_str("\n|---|");
-    out.push_str(&"---:|".repeat(scenes.len()));
-    out.push('\n');
     for variant in distinct(ms, |m| &m.variant) {
-        out.push_str(&format!("| {variant} |"));
+        let mut row = vec![variant.to_string()];
         for (scene, _) in &scenes {
-            let cell = ms
-                .iter()
-                .find(|m| m.variant == variant && m.scene == *scene && m.ao == ao && m.view == view)
-                .map_or("-".to_string(), |m| {
-                    let r = &m.thread_mrays_per_s;
-                    format!("{:.2}/{:.2}/{:.2}", r.primary, r.shadow, r.ao)
-                });
-            out.push_str(&format!(" {cell} |"));
+            row.push(
+                ms.iter()
+                    .find(|m| {
+                        m.variant == variant && m.scene == *scene && m.ao == ao && m.view == view
+                    })
+                    .map_or("-".to_string(), |m| {
+                        let r = &m.thread_mrays_per_s;
+                        format!("{:.2}/{:.2}/{:.2}", r.primary, r.shadow, r.ao)
+                    }),
+            );
         }
-        out.push('\n');
+        table.row(row);
     }
-    out.push('\n');
-    out
+    format!(
+        "### Mrays/s per thread by ray kind (primary/shadow/AO, shading included), AO {ao}, view {view}\n\n{}\n",
+        table.markdown()
+    )
 }
 
 /// One row per measurement, with its speedup; the header names every column.
 pub const CSV_HEADER: &str = "ao,variant,backend,schedule,scene,triangles,view,runs,build_threads,render_threads,build_ms_median,render_ms_median,total_ms_median,total_ms_min,total_ms_max,spread,speedup,mrays_per_s,primary_mrays_per_thread_s,shadow_mrays_per_thread_s,ao_mrays_per_thread_s,image_hash,deterministic";
 
 pub fn csv(ms: &[Measurement]) -> String {
-    let mut out = String::from(CSV_HEADER);
-    out.push('\n');
+    let mut table = Table::new(CSV_HEADER.split(',').map(|c| (c, Left)));
     for m in ms {
-        out.push_str(&format!(
-            "{},{},{},{},{},{},\"{}\",{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{:.4},{:.4},{:.4},{:.4},{},{}\n",
-            m.ao,
-            m.variant,
-            m.backend,
-            m.schedule,
-            m.scene,
-            m.triangles,
-            m.view,
-            m.total_ms.n,
-            m.build_threads,
-            m.render_threads,
-            m.build_ms.median,
-            m.render_ms.median,
-            m.total_ms.median,
-            m.total_ms.min,
-            m.total_ms.max,
-            m.total_ms.spread(),
-            speedup(ms, m).map_or(String::new(), |s| format!("{s:.4}")),
-            m.mrays_per_s,
-            m.thread_mrays_per_s.primary,
-            m.thread_mrays_per_s.shadow,
-            m.thread_mrays_per_s.ao,
-            m.image_hash,
-            m.deterministic
-        ));
+        let f4 = |x: f64| format!("{x:.4}");
+        table.row([
+            m.ao.clone(),
+            m.variant.clone(),
+            m.backend.clone(),
+            m.schedule.clone(),
+            m.scene.clone(),
+            m.triangles.to_string(),
+            m.view.clone(),
+            m.total_ms.n.to_string(),
+            m.build_threads.to_string(),
+            m.render_threads.to_string(),
+            f4(m.build_ms.median),
+            f4(m.render_ms.median),
+            f4(m.total_ms.median),
+            f4(m.total_ms.min),
+            f4(m.total_ms.max),
+            f4(m.total_ms.spread()),
+            speedup(ms, m).map_or(String::new(), f4),
+            f4(m.mrays_per_s),
+            f4(m.thread_mrays_per_s.primary),
+            f4(m.thread_mrays_per_s.shadow),
+            f4(m.thread_mrays_per_s.ao),
+            m.image_hash.clone(),
+            m.deterministic.to_string(),
+        ]);
     }
-    out
+    table.csv()
 }
 
 #[cfg(test)]

@@ -22,6 +22,11 @@ use crate::os::FlushDenormals;
 use crate::progress::StepBar;
 use crate::render::RenderSettings;
 use crate::scene::Scene;
+use crate::table::ms;
+use crate::table::{
+    Align::{Left, Right},
+    Table,
+};
 use crate::validate::{ray_sets, RaySet};
 
 /// Rays handed to a thread at a time: small enough to balance two threads,
@@ -163,7 +168,7 @@ pub fn trace_throughput(
                 spec.bvh.threads = threads;
                 let b = build_backend(&spec, scene)?;
                 if run > 0 {
-                    builds[si][ti].push(b.build_time().as_secs_f64() * 1e3);
+                    builds[si][ti].push(ms(b.build_time()));
                 }
                 if Some(ti) == largest {
                     kept[si] = Some(b);
@@ -300,25 +305,21 @@ fn build_markdown(points: &[TracePoint]) -> String {
     counts.sort_unstable();
     counts.dedup();
     let has_embree = points.iter().any(|p| p.backend.starts_with("embree"));
-    let mut out = String::from(
-        "\nBuild time (median ms of the timed builds, backends interleaved) and memory of each backend:\n\n| scene | backend |",
-    );
+    let mut table = Table::new([("scene", Left), ("backend", Left)]);
     for t in &counts {
-        out.push_str(&format!(" build ms, {t} thr |"));
+        table.column(format!("build ms, {t} thr"), Right);
         if has_embree {
-            out.push_str(&format!(" /Embree, {t} thr |"));
+            table.column(format!("/Embree, {t} thr"), Right);
         }
     }
-    out.push_str(" bytes/triangle |\n|---|---|");
-    out.push_str(&"---:|".repeat(counts.len() * if has_embree { 2 } else { 1 } + 1));
-    out.push('\n');
+    table.column("bytes/triangle", Right);
     let mut seen: Vec<(&str, &str)> = Vec::new();
     for p in points {
         if seen.contains(&(p.scene.as_str(), p.backend.as_str())) {
             continue;
         }
         seen.push((&p.scene, &p.backend));
-        out.push_str(&format!("| {} | {} |", p.scene, p.backend));
+        let mut row = vec![p.scene.clone(), p.backend.clone()];
         for &t in &counts {
             let build = |backend: &dyn Fn(&str) -> bool| {
                 points
@@ -327,28 +328,31 @@ fn build_markdown(points: &[TracePoint]) -> String {
                     .map(|q| q.build_ms)
             };
             let own = build(&|b| b == p.backend);
-            out.push_str(&match own {
-                Some(ms) if ms.is_finite() => format!(" {} |", super::tables::fmt_ms(ms)),
-                _ => " - |".to_string(),
+            row.push(match own {
+                Some(ms) if ms.is_finite() => crate::table::fmt_ms(ms),
+                _ => "-".to_string(),
             });
             if has_embree {
                 let embree = build(&|b| b.starts_with("embree"));
-                out.push_str(&match (own, embree) {
+                row.push(match (own, embree) {
                     (Some(o), Some(e))
                         if !p.backend.starts_with("embree") && o.is_finite() && e > 0.0 =>
                     {
-                        format!(" {:.2} |", o / e)
+                        format!("{:.2}", o / e)
                     }
-                    _ => " |".to_string(),
+                    _ => String::new(),
                 });
             }
         }
-        let bytes = p.memory_bytes.map_or("-".to_string(), |b| {
+        row.push(p.memory_bytes.map_or("-".to_string(), |b| {
             format!("{:.1}", b as f64 / p.triangles.max(1) as f64)
-        });
-        out.push_str(&format!(" {bytes} |\n"));
+        }));
+        table.row(row);
     }
-    out
+    format!(
+        "\nBuild time (median ms of the timed builds, backends interleaved) and memory of each backend:\n\n{}",
+        table.markdown()
+    )
 }
 
 /// The trace table: one row per scene, ray kind and thread count, Mrays/s per
@@ -362,18 +366,19 @@ pub fn markdown(points: &[TracePoint]) -> String {
         }
     }
     let has_embree = backends.iter().any(|b| b.starts_with("embree"));
-    let mut out = String::from(
-        "### Trace throughput (no shading; the same recorded rays for every backend; median Mrays/s of wall time)\n\n| scene | triangles | rays | threads |",
-    );
+    let mut table = Table::new([
+        ("scene", Left),
+        ("triangles", Right),
+        ("rays", Left),
+        ("threads", Right),
+    ]);
     for b in &backends {
-        out.push_str(&format!(" {b} |"));
+        table.column(*b, Right);
     }
     if has_embree {
-        out.push_str(" best own | own/Embree time |");
+        table.column("best own", Right);
+        table.column("own/Embree time", Right);
     }
-    out.push_str("\n|---|---:|---|---:|");
-    out.push_str(&"---:|".repeat(backends.len() + if has_embree { 2 } else { 0 }));
-    out.push('\n');
     let mut rows: Vec<(&str, &str, usize)> = Vec::new();
     for p in points {
         let key = (p.scene.as_str(), p.kind.as_str(), p.threads);
@@ -387,19 +392,20 @@ pub fn markdown(points: &[TracePoint]) -> String {
             .filter(|p| p.scene == scene && p.kind == kind && p.threads == threads)
             .collect();
         let first = cell[0];
-        out.push_str(&format!(
-            "| {scene} | {} | {kind} ({}) | {threads} |",
-            first.triangles, first.rays
-        ));
+        let mut row = vec![
+            scene.to_string(),
+            first.triangles.to_string(),
+            format!("{kind} ({})", first.rays),
+            threads.to_string(),
+        ];
         for b in &backends {
-            match cell.iter().find(|p| p.backend == *b) {
-                Some(p) if p.differing > 0 => out.push_str(&format!(
-                    " {:.2} ({} differ) |",
-                    p.mrays.median, p.differing
-                )),
-                Some(p) => out.push_str(&format!(" {:.2} |", p.mrays.median)),
-                None => out.push_str(" |"),
-            }
+            row.push(match cell.iter().find(|p| p.backend == *b) {
+                Some(p) if p.differing > 0 => {
+                    format!("{:.2} ({} differ)", p.mrays.median, p.differing)
+                }
+                Some(p) => format!("{:.2}", p.mrays.median),
+                None => String::new(),
+            });
         }
         if has_embree {
             let best = cell
@@ -408,19 +414,20 @@ pub fn markdown(points: &[TracePoint]) -> String {
                 .max_by(|a, b| a.mrays.median.total_cmp(&b.mrays.median));
             let embree = cell.iter().find(|p| p.backend.starts_with("embree"));
             match (best, embree) {
-                (Some(b), Some(e)) => out.push_str(&format!(
-                    " {} | {:.2} |",
-                    b.backend,
-                    e.mrays.median / b.mrays.median.max(1e-12)
-                )),
-                _ => out.push_str(" | |"),
+                (Some(b), Some(e)) => {
+                    row.push(b.backend.clone());
+                    row.push(format!("{:.2}", e.mrays.median / b.mrays.median.max(1e-12)));
+                }
+                _ => row.extend([String::new(), String::new()]),
             }
         }
-        out.push('\n');
+        table.row(row);
     }
-    out.push_str(&build_markdown(points));
-    out.push('\n');
-    out
+    format!(
+        "### Trace throughput (no shading; the same recorded rays for every backend; median Mrays/s of wall time)\n\n{}{}\n",
+        table.markdown(),
+        build_markdown(points)
+    )
 }
 
 #[cfg(test)]

@@ -15,6 +15,7 @@ use crate::progress::Progress;
 use crate::render::schedule::default_threads;
 use crate::render::{self, output, Schedule};
 use crate::scene::load::load_scene;
+use crate::table::ms;
 
 #[derive(Args, Debug)]
 pub struct RenderArgs {
@@ -61,10 +62,6 @@ fn significant(x: f64) -> String {
     }
     let decimals = (2 - x.log10().floor() as i32).clamp(0, 9) as usize;
     format!("{x:.decimals$}")
-}
-
-fn ms(d: Duration) -> f64 {
-    d.as_secs_f64() * 1e3
 }
 
 #[derive(Serialize)]

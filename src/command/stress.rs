@@ -6,6 +6,7 @@ use clap::Args;
 
 use crate::error::{Error, Result};
 use crate::render::output;
+use crate::table::{Align, Table};
 
 #[derive(Args, Debug)]
 pub struct StressArgs {
@@ -76,22 +77,33 @@ pub fn run(args: &StressArgs) -> Result<()> {
         let write = |name: &str, text: &str| output::write_text(&dir.join(name), text);
         write("stress.md", &report.markdown())?;
         write("stress.json", &json)?;
-        let mut csv =
-            String::from("mesh,triangles,backend,intersector,rays,leaks,leak_rate,ns_per_ray\n");
+        // The leak table's columns, with the numbers unrounded.
+        let mut csv = Table::new(
+            [
+                "mesh",
+                "triangles",
+                "backend",
+                "intersector",
+                "rays",
+                "leaks",
+                "leak_rate",
+                "ns_per_ray",
+            ]
+            .map(|c| (c, Align::Left)),
+        );
         for r in &report.leaks {
-            csv.push_str(&format!(
-                "{},{},{},{},{},{},{},{}\n",
-                r.mesh,
-                r.triangles,
-                r.backend,
-                r.intersector,
-                r.rays,
-                r.leaks,
-                r.leak_rate,
-                r.ns_per_ray
-            ));
+            csv.row([
+                r.mesh.clone(),
+                r.triangles.to_string(),
+                r.backend.clone(),
+                r.intersector.clone(),
+                r.rays.to_string(),
+                r.leaks.to_string(),
+                r.leak_rate.to_string(),
+                r.ns_per_ray.to_string(),
+            ]);
         }
-        write("leaks.csv", &csv)?;
+        write("leaks.csv", &csv.csv())?;
     }
     if args.json {
         println!("{json}");

@@ -13,6 +13,10 @@ use crate::render::output;
 use crate::render::schedule::default_threads;
 use crate::scene::builtin::BUILTIN_SCENES;
 use crate::scene::load::load_scene;
+use crate::table::{
+    Align::{Left, Right},
+    Table,
+};
 
 #[derive(Args, Debug)]
 pub struct ValidateArgs {
@@ -167,22 +171,7 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
                 tested.name(),
                 reference.name()
             );
-            println!("| set | rays | hit/miss agree | same triangle | ties | genuine | occlusion mismatches | max rel dt | mean rel dt |");
-            println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
-            for r in &set_reports {
-                println!(
-                    "| {} | {} | {} | {} | {} | {} | {} | {:.2e} | {:.2e} |",
-                    r.set,
-                    r.rays,
-                    r.hit_miss_agree,
-                    r.same_triangle,
-                    r.ties,
-                    r.genuine,
-                    r.occlusion_mismatches,
-                    r.max_rel_dt,
-                    r.mean_rel_dt
-                );
-            }
+            print!("{}", set_table(&set_reports).markdown());
             let verdict = if genuine <= args.max_genuine {
                 "ok"
             } else {
@@ -222,4 +211,33 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
             failed.join(", ")
         )))
     }
+}
+
+/// One row per ray set: how the backend under test agreed with the reference.
+fn set_table(sets: &[crate::validate::SetReport]) -> Table {
+    let mut t = Table::new([
+        ("set", Left),
+        ("rays", Right),
+        ("hit/miss agree", Right),
+        ("same triangle", Right),
+        ("ties", Right),
+        ("genuine", Right),
+        ("occlusion mismatches", Right),
+        ("max rel dt", Right),
+        ("mean rel dt", Right),
+    ]);
+    for r in sets {
+        t.row([
+            r.set.to_string(),
+            r.rays.to_string(),
+            r.hit_miss_agree.to_string(),
+            r.same_triangle.to_string(),
+            r.ties.to_string(),
+            r.genuine.to_string(),
+            r.occlusion_mismatches.to_string(),
+            format!("{:.2e}", r.max_rel_dt),
+            format!("{:.2e}", r.mean_rel_dt),
+        ]);
+    }
+    t
 }
