@@ -80,13 +80,13 @@ pub fn main() -> i32 {
     let result = match &cli.command {
         Command::Render(args) => sub
             .map_or(Ok(()), |m| {
-                crate::command::args::check_backend_flags(m, args.backend)
+                crate::command::args::check_backend_flags(m, args.accel.backend)
             })
             .and_then(|()| render::run(args)),
         Command::Stats(args) => stats::run(args),
         Command::Validate(args) => sub
             .map_or(Ok(()), |m| {
-                crate::command::args::check_backend_flags(m, args.backend)
+                crate::command::args::check_backend_flags(m, args.accel.backend)
             })
             .and_then(|()| validate::run(args)),
         Command::Stress(args) => stress::run(args),

@@ -147,8 +147,29 @@ pub struct EmbreeArgs {
     pub embree_robust: bool,
 }
 
+/// The backend a command builds, and how (`--backend` and the options of each
+/// backend).
+#[derive(Args, Debug, Clone)]
+pub struct BackendArgs {
+    /// Acceleration structure [default: bvh, raylab's fastest; naive is the
+    /// study's O(N) baseline, hours on a large model].
+    #[arg(long, value_enum, default_value_t = BackendKind::Bvh)]
+    pub backend: BackendKind,
+    #[command(flatten)]
+    pub bvh: BvhArgs,
+    #[command(flatten)]
+    pub embree: EmbreeArgs,
+}
+
+impl BackendArgs {
+    /// The backend these flags describe, built on `threads`.
+    pub fn spec(&self, threads: usize) -> BackendSpec {
+        backend_spec(self.backend, &self.bvh, &self.embree, threads)
+    }
+}
+
 /// The backend a command's flags describe.
-pub fn backend_spec(
+fn backend_spec(
     kind: BackendKind,
     bvh: &BvhArgs,
     embree: &EmbreeArgs,

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 use clap::Args;
 use serde::Serialize;
 
-use super::args::{backend_spec, parse_threads, BvhArgs, EmbreeArgs, ViewArgs};
+use super::args::{parse_threads, BackendArgs, ViewArgs};
 use crate::accel::embree::version_or_none as embree_version;
 use crate::accel::{build_backend, BackendKind};
 use crate::error::Result;
@@ -22,14 +22,8 @@ pub struct RenderArgs {
     /// An .obj file or a built-in scene name (see `raylab scenes`).
     #[arg(default_value = "cornell-original")]
     scene: String,
-    /// Acceleration structure [default: bvh, raylab's fastest; naive is the
-    /// study's O(N) baseline, hours on a large model].
-    #[arg(long, value_enum, default_value_t = BackendKind::Bvh)]
-    pub backend: BackendKind,
     #[command(flatten)]
-    bvh: BvhArgs,
-    #[command(flatten)]
-    embree: EmbreeArgs,
+    pub accel: BackendArgs,
     /// How the image is divided between threads.
     #[arg(long, value_enum, default_value_t = Schedule::Tiles)]
     schedule: Schedule,
@@ -138,10 +132,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         ms(load_time)
     ));
 
-    let backend = build_backend(
-        &backend_spec(args.backend, &args.bvh, &args.embree, threads),
-        &scene,
-    )?;
+    let backend = build_backend(&args.accel.spec(threads), &scene)?;
     say(format!(
         "backend {}: built in {:.1} ms",
         backend.name(),
@@ -247,7 +238,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
             output: args.output.display().to_string(),
             image_hash: hash,
             warnings,
-            embree_version: (args.backend == BackendKind::Embree).then(embree_version),
+            embree_version: (args.accel.backend == BackendKind::Embree).then(embree_version),
         };
         let text = serde_json::to_string(&report)?;
         println!("{text}");

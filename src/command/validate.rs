@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use clap::Args;
 use serde::Serialize;
 
-use super::args::{backend_spec, parse_threads, BvhArgs, EmbreeArgs, ViewArgs};
+use super::args::{parse_threads, BackendArgs, ViewArgs};
 use crate::accel::bvh::BuildParams;
 use crate::accel::{build_backend, BackendKind, BackendSpec};
 use crate::error::{Error, Result};
@@ -22,13 +22,8 @@ use crate::table::{
 pub struct ValidateArgs {
     /// .obj files or built-in names [default: the four built-in Cornell boxes].
     scenes: Vec<String>,
-    /// The backend under test.
-    #[arg(long, value_enum, default_value_t = BackendKind::Bvh)]
-    pub backend: BackendKind,
     #[command(flatten)]
-    bvh: BvhArgs,
-    #[command(flatten)]
-    embree: EmbreeArgs,
+    pub accel: BackendArgs,
     /// The reference backend (built with its defaults).
     #[arg(long, value_enum, default_value_t = if crate::accel::embree::AVAILABLE { BackendKind::Embree } else { BackendKind::Naive })]
     against: BackendKind,
@@ -111,7 +106,7 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
         _ => RaySet::ALL.to_vec(),
     };
     let count = args.count as usize;
-    let spec = backend_spec(args.backend, &args.bvh, &args.embree, threads);
+    let spec = args.accel.spec(threads);
     // The reference with its defaults (Embree MEDIUM, SAH BVH, MT) on `threads`.
     let reference_spec =
         BackendSpec::bvh(BuildParams::sah().with_threads(threads)).with_kind(args.against);
