@@ -117,59 +117,55 @@ pub fn frame_axes(up: Vec3) -> (Vec3, Vec3, Vec3) {
     (up, front, up.cross(front))
 }
 
-/// `--light`: `point:X,Y,Z[:POWER]` (intensity POWER per steradian, white) or
-/// `quad:X,Y,Z:SIZE[:RADIANCE]` (a square of side SIZE centred at X,Y,Z, facing
-/// down -Y). Without a power, the light gives [`TARGET_IRRADIANCE`] at the scene's
-/// centre; that needs the scene, so parsing leaves a placeholder
-/// ([`LightSpec::power`] `None`) that [`LightSpec::emitter`] resolves.
+/// `--light`: `point:X,Y,Z[:INTENSITY]` (a white point light of that radiant
+/// intensity) or `quad:X,Y,Z:SIZE[:RADIANCE]` (a white square of side SIZE
+/// centred at X,Y,Z, facing down -Y). Without a power, the light gives
+/// [`TARGET_IRRADIANCE`] at the scene's centre, which [`LightArg::emitter`]
+/// works out from the scene's bounds.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct LightSpec {
-    pub kind: LightKind,
-    pub position: Vec3,
-    pub power: Option<f32>,
+pub enum LightArg {
+    Point {
+        position: Vec3,
+        intensity: Option<f32>,
+    },
+    Quad {
+        centre: Vec3,
+        side: f32,
+        radiance: Option<f32>,
+    },
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum LightKind {
-    Point,
-    /// A square of this side length.
-    Quad,
-}
-
-impl LightSpec {
+impl LightArg {
     /// The emitter for a scene with bounds `bounds`.
-    pub fn emitter(&self, bounds: &Aabb, side: f32) -> Emitter {
+    pub fn emitter(&self, bounds: &Aabb) -> Emitter {
         let c = bounds.center();
-        let r2 = (c - self.position).length_squared().max(f32::MIN_POSITIVE);
-        match self.kind {
-            LightKind::Point => Emitter::Point {
-                position: self.position,
-                // E = I / r^2 at the centre, facing the light.
-                intensity: Vec3::splat(self.power.unwrap_or(TARGET_IRRADIANCE * r2)),
-            },
-            LightKind::Quad => {
-                let n = -Vec3::Y;
-                let u = Vec3::X * side;
-                let v = n.cross(Vec3::X) * side;
-                let radiance = self
-                    .power
-                    .unwrap_or(TARGET_IRRADIANCE * r2.max(side * side) / (side * side));
-                Emitter::Quad {
-                    corner: self.position - (u + v) * 0.5,
-                    edge_u: u,
-                    edge_v: v,
-                    radiance: Vec3::splat(radiance),
+        match *self {
+            LightArg::Point {
+                position,
+                intensity,
+            } => {
+                // E = I / r^2 at the centre, facing the light (r^2 in f64).
+                let r2 = (c - position).as_dvec3().length_squared();
+                let target = (TARGET_IRRADIANCE as f64 * r2) as f32;
+                Emitter::Point {
+                    position,
+                    intensity: Vec3::splat(intensity.unwrap_or(target.max(f32::MIN_POSITIVE))),
                 }
+            }
+            LightArg::Quad {
+                centre,
+                side,
+                radiance,
+            } => {
+                let dist = ((c - centre).as_dvec3().length() as f32).max(f32::MIN_POSITIVE);
+                let mut quad = Emitter::square(centre, -Vec3::Y * dist, Vec3::X, side);
+                if let (Some(l), Emitter::Quad { radiance: r, .. }) = (radiance, &mut quad) {
+                    *r = Vec3::splat(l);
+                }
+                quad
             }
         }
     }
-}
-
-/// A parsed `--light` value: the spec and, for a quad, its side.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct LightArg {
-    pub spec: LightSpec,
-    pub side: f32,
 }
 
 impl FromStr for LightArg {
@@ -177,9 +173,9 @@ impl FromStr for LightArg {
     fn from_str(s: &str) -> Result<Self, String> {
         let usage = "expected point:X,Y,Z[:INTENSITY] or quad:X,Y,Z:SIZE[:RADIANCE]";
         let mut parts = s.split(':');
-        let kind = match parts.next() {
-            Some("point") => LightKind::Point,
-            Some("quad") => LightKind::Quad,
+        let quad = match parts.next() {
+            Some("point") => false,
+            Some("quad") => true,
             _ => return Err(format!("'{s}': {usage}")),
         };
         let pos = parts.next().ok_or_else(|| format!("'{s}': {usage}"))?;
@@ -193,37 +189,36 @@ impl FromStr for LightArg {
                 "'{pos}': position must be three finite numbers X,Y,Z"
             ));
         }
+        let position = Vec3::new(xyz[0], xyz[1], xyz[2]);
         let positive = |w: &str, what: &str| -> Result<f32, String> {
             match w.trim().parse::<f32>() {
                 Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
                 _ => Err(format!("'{w}': {what} must be a positive number")),
             }
         };
-        let mut side = 0.0;
-        if kind == LightKind::Quad {
+        let side = if quad {
             let w = parts
                 .next()
                 .ok_or_else(|| format!("'{s}': a quad needs :SIZE"))?;
-            side = positive(w, "SIZE")?;
-        }
+            Some(positive(w, "SIZE")?)
+        } else {
+            None
+        };
         let power = parts.next().map(|w| positive(w, "the power")).transpose()?;
         if parts.next().is_some() {
             return Err(format!("'{s}': too many fields; {usage}"));
         }
-        Ok(LightArg {
-            spec: LightSpec {
-                kind,
-                position: Vec3::new(xyz[0], xyz[1], xyz[2]),
-                power,
+        Ok(match side {
+            Some(side) => LightArg::Quad {
+                centre: position,
+                side,
+                radiance: power,
             },
-            side,
+            None => LightArg::Point {
+                position,
+                intensity: power,
+            },
         })
-    }
-}
-
-impl LightArg {
-    pub fn emitter(&self, bounds: &Aabb) -> Emitter {
-        self.spec.emitter(bounds, self.side)
     }
 }
 
@@ -271,11 +266,42 @@ mod tests {
     #[test]
     fn light_flags_parse_and_bad_ones_say_why() {
         let l: LightArg = "point:1,2,3".parse().unwrap();
-        assert_eq!(l.spec.kind, LightKind::Point);
-        assert_eq!(l.spec.position, Vec3::new(1.0, 2.0, 3.0));
-        assert_eq!(l.spec.power, None);
+        assert_eq!(
+            l,
+            LightArg::Point {
+                position: Vec3::new(1.0, 2.0, 3.0),
+                intensity: None
+            }
+        );
         let q: LightArg = "quad:0,5,0:2:10".parse().unwrap();
-        assert_eq!((q.side, q.spec.power), (2.0, Some(10.0)));
+        assert_eq!(
+            q,
+            LightArg::Quad {
+                centre: Vec3::new(0.0, 5.0, 0.0),
+                side: 2.0,
+                radiance: Some(10.0)
+            }
+        );
+        // Without a power: the target irradiance at the scene's centre.
+        let Emitter::Point { intensity, .. } = l.emitter(&unit_box()) else {
+            panic!()
+        };
+        let r2 = (Vec3::new(1.0, 2.0, 3.0) - Vec3::splat(0.5)).length_squared();
+        assert!((intensity.x / r2 / TARGET_IRRADIANCE - 1.0).abs() < 1e-5);
+        let Emitter::Quad {
+            radiance,
+            edge_u,
+            edge_v,
+            ..
+        } = q.emitter(&unit_box())
+        else {
+            panic!()
+        };
+        assert_eq!(radiance, Vec3::splat(10.0));
+        assert!(
+            edge_u.cross(edge_v).normalize().dot(-Vec3::Y) > 0.999,
+            "faces down"
+        );
         for bad in [
             "",
             "spot:1,2,3",
