@@ -608,3 +608,31 @@ fn huge_and_far_triangles_render_lit_not_black() {
     );
     std::fs::remove_dir_all(&d).ok();
 }
+
+#[test]
+fn a_light_from_the_command_line_replaces_the_default_one() {
+    let d = temp_dir("light-flag");
+    let obj = d.join("floor.obj");
+    std::fs::write(
+        &obj,
+        "v -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nf 1 3 2\nf 1 4 3\n",
+    )
+    .unwrap();
+    for light in ["point:0,2,0", "quad:0,2,0:0.5", "quad:0,2,0:0.5:40"] {
+        let v = render_json(&obj, &d.join("l.png"), &["--light", light, "--ao", "off"]);
+        assert!(v["rays"]["shadow"].as_u64().unwrap() > 0, "{light}: {v}");
+        assert!(
+            !v["warnings"].to_string().contains("default area light"),
+            "{light}"
+        );
+    }
+    // A light under the floor: the side the camera sees faces away from it, so
+    // no shadow ray is cast.
+    let v = render_json(&obj, &d.join("under.png"), &["--light", "quad:0,-1,0:0.5"]);
+    assert_eq!(v["rays"]["shadow"], 0, "{v}");
+    assert_one_line_error(
+        &["render", obj.to_str().unwrap(), "--light", "spot:0,1,0"],
+        "--light",
+    );
+    std::fs::remove_dir_all(&d).ok();
+}
