@@ -29,8 +29,9 @@ pub enum Agreement {
     Same,
     /// Decided by rounding, not geometry: both hit different triangles at the
     /// same `t` (within tolerance) on a shared vertex or edge or where they
-    /// overlap in one plane; or only one hits, exactly on its triangle's edge;
-    /// or one reports a hit at the ray's very start (a self-intersection).
+    /// overlap in one plane; or only one hits, or hits nearer, exactly on its
+    /// triangle's edge (the other passed through the edge); or one reports a
+    /// hit at the ray's very start (a self-intersection).
     Tie,
     /// One misses, or the hits are at different distances or on unrelated triangles.
     Genuine,
@@ -129,6 +130,11 @@ pub fn classify(ray: &Ray, a: Option<Hit>, b: Option<Hit>, triangles: &[[Vec3; 3
             }
         }
         (Some(h), None) | (None, Some(h)) if on_edge(&h) => Agreement::Tie,
+        // One backend hits a triangle on its edge, the other passed through that
+        // edge and hit something farther: the same edge rounding as a hit
+        // against a miss (Moller-Trumbore leaks through shared edges; seen on a
+        // primary ray through the sphere of CornellBox-Water).
+        (Some(x), Some(y)) if on_edge(if x.t <= y.t { &x } else { &y }) => Agreement::Tie,
         _ => Agreement::Genuine,
     }
 }
@@ -493,6 +499,15 @@ mod tests {
             tri: 0,
         });
         assert_eq!(classify(&r, edge, None, &tris), Agreement::Tie);
+        // Through the edge to something farther: a tie; nearer off the edge and
+        // the edge hit farther: genuine.
+        assert_eq!(classify(&r, edge, hit(1.5, 2), &tris), Agreement::Tie);
+        assert_eq!(classify(&r, hit(1.5, 2), edge, &tris), Agreement::Tie);
+        let far_edge = edge.map(|h| Hit { t: 2.0, ..h });
+        assert_eq!(
+            classify(&r, hit(1.5, 2), far_edge, &tris),
+            Agreement::Genuine
+        );
         // A ray starting on a surface: tiny t, judged against the origin's scale.
         let on_surface = Ray::new(Vec3::new(0.2, 0.2, 1.0), Vec3::Z);
         assert_eq!(
