@@ -6,6 +6,9 @@
 //! `ao-error`, `builders`, `leaks` and `validate` ([`extras`]), and `trace`
 //! (query throughput without shading, [`trace`]). Images for the
 //! report come from the matrix's own renders.
+//!
+//! How the matrix measures and what each part does: `docs/design.md`, "The
+//! bench"; results of full runs: `docs/results.md`.
 
 pub mod charts;
 pub mod extras;

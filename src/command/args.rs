@@ -46,10 +46,11 @@ pub struct ViewArgs {
     /// Shadow rays per pixel towards the lights.
     #[arg(long, value_name = "N", default_value_t = 1)]
     pub light_samples: u32,
-    /// A light that is not geometry: point:X,Y,Z[:INTENSITY] or
-    /// quad:X,Y,Z:SIZE[:RADIANCE] (a square facing down -Y); without a power it
-    /// gives the default light's irradiance at the scene's centre. It is added to
-    /// the scene's emitters, and replaces the default light of a scene without.
+    /// A light that is not geometry: point:X,Y,Z (or point:X,Y,Z:INTENSITY), or
+    /// quad:X,Y,Z:SIZE (or quad:X,Y,Z:SIZE:RADIANCE), a square facing down -Y;
+    /// without a power it gives the default light's irradiance at the scene's
+    /// centre. It is added to the scene's emitters, and replaces the default
+    /// light of a scene without.
     #[arg(long, value_name = "SPEC", allow_hyphen_values = true)]
     pub light: Option<LightArg>,
     /// Emitters shine from both faces, not only from the side their winding's

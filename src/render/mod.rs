@@ -2,7 +2,7 @@
 //! schedules that divide the image between threads, and image output.
 //!
 //! Data flows one way: a [`Scene`](crate::scene::Scene) and a
-//! [`Backend`](crate::accel::Backend) go in, a linear-radiance [`Frame`] and
+//! [`Backend`] go in, a linear-radiance [`Frame`] and
 //! [`RenderStats`] come out, and [`output`] turns the frame into 8-bit sRGB.
 
 pub mod output;

@@ -15,6 +15,9 @@
 //! Determinism: a node's partition depends only on its primitives (bins are
 //! exact unions and counts, however the reduction is chunked), and the layout
 //! depends only on the tree, so the tree is the same for every thread count.
+//!
+//! How the SAH build is made fast, step by step with what each gave:
+//! `docs/design.md`, "Builders, layouts and traversal".
 
 pub mod median;
 pub mod nary;

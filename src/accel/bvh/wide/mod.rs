@@ -3,6 +3,9 @@
 //! ([`super::simd`]), and leaf triangles in blocks of four tested together
 //! ([`super::leaf`]). [`node`] is the layout, `collapse` makes a wide tree
 //! from a binary one, `traverse` answers the queries.
+//!
+//! The layout, kernels and traversal choices and their measurements:
+//! `docs/design.md`, "Wide trees".
 
 mod collapse;
 pub mod node;
