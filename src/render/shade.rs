@@ -182,6 +182,8 @@ fn direct_light<T: Tracer + ?Sized>(
     // the two with probability 1/2 (the first random number decides and, rescaled,
     // picks the triangle), so the estimate divides by that probability.
     let sources = has_tris as u32 + lights.extra.is_some() as u32;
+    // The extra quad's normal, once per pixel rather than per sample.
+    let extra_normal = lights.extra.and_then(|e| e.normal());
     let mut rng = Rng::for_pixel(s.pixel, settings.seed, STREAM_LIGHT);
     let origin = ray_offset(s.p, s.ng);
     let mut sum_tris = Vec3::ZERO;
@@ -202,8 +204,7 @@ fn direct_light<T: Tracer + ?Sized>(
         // The sampled point, its radiance (a point light's intensity) and the
         // light's unit normal there (None for a point light, which has no area).
         let (q, le, light_normal) = if use_extra {
-            let extra = lights.extra.expect("an extra light");
-            match extra {
+            match lights.extra.expect("an extra light") {
                 Emitter::Point {
                     position,
                     intensity,
@@ -213,7 +214,7 @@ fn direct_light<T: Tracer + ?Sized>(
                     edge_u,
                     edge_v,
                     radiance,
-                } => (corner + edge_u * r1 + edge_v * r2, radiance, extra.normal()),
+                } => (corner + edge_u * r1 + edge_v * r2, radiance, extra_normal),
             }
         } else {
             let light = lights.triangles[lights.pick(u)];
