@@ -309,8 +309,7 @@ impl ObjReader<'_> {
         let mut unnamed = 0usize;
         let mut triangles = Vec::new();
         let mut material_ids = Vec::new();
-        let mut corner_pos = Vec::new();
-        let mut local = Vec::new();
+        let mut triangulator = polygon::FaceTriangulator::default();
         for f in &self.faces {
             let ids: Vec<u32> = f
                 .corners
@@ -330,18 +329,12 @@ impl ObjReader<'_> {
                     })
                 })
                 .collect();
-            corner_pos.clear();
-            corner_pos.extend(ids.iter().map(|&i| positions[i as usize]));
-            local.clear();
-            polygon::triangulate(&corner_pos, &mut local);
+            let added = triangulator.face(&positions, &ids, &mut triangles);
             let material = f.material.unwrap_or(grey);
             if f.material.is_none() {
-                unnamed += local.len();
+                unnamed += added;
             }
-            for t in &local {
-                triangles.push(t.map(|i| ids[i]));
-                material_ids.push(material);
-            }
+            material_ids.extend(std::iter::repeat_n(material, added));
         }
         if unnamed > 0 && grey > 0 {
             self.warnings.push(format!(

@@ -192,8 +192,8 @@ pub fn load_ply_bytes(bytes: &[u8], path: &Path) -> Result<Scene> {
     });
     let mut triangles = Vec::with_capacity(faces.len() * 2);
     let mut short_faces = 0usize;
-    let mut corners = Vec::new();
-    let mut local = Vec::new();
+    let mut triangulator = polygon::FaceTriangulator::default();
+    let mut ids: Vec<u32> = Vec::new();
     for (fi, f) in faces.iter().enumerate() {
         if f.indices.len() < 3 {
             short_faces += 1;
@@ -209,11 +209,10 @@ pub fn load_ply_bytes(bytes: &[u8], path: &Path) -> Result<Scene> {
                 positions.len()
             )));
         }
-        corners.clear();
-        corners.extend(f.indices.iter().map(|&i| positions[i as usize]));
-        local.clear();
-        polygon::triangulate(&corners, &mut local);
-        triangles.extend(local.iter().map(|t| t.map(|c| f.indices[c] as u32)));
+        // In range (checked above), so they fit u32.
+        ids.clear();
+        ids.extend(f.indices.iter().map(|&i| i as u32));
+        triangulator.face(&positions, &ids, &mut triangles);
     }
     let mut warnings = Vec::new();
     if stray_lines > 0 {

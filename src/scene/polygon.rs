@@ -44,6 +44,28 @@ pub fn triangulate(corners: &[Vec3], out: &mut Vec<[usize; 3]>) {
     );
 }
 
+/// Triangulates faces given as vertex indices into one position array (what the
+/// OBJ and PLY readers have), reusing its buffers from face to face.
+#[derive(Default)]
+pub struct FaceTriangulator {
+    corners: Vec<Vec3>,
+    local: Vec<[usize; 3]>,
+}
+
+impl FaceTriangulator {
+    /// Appends the triangles of the face whose corners are `positions[ids[..]]`,
+    /// in order, to `out` as index triples; returns how many it appended.
+    pub fn face(&mut self, positions: &[Vec3], ids: &[u32], out: &mut Vec<[u32; 3]>) -> usize {
+        self.corners.clear();
+        self.corners
+            .extend(ids.iter().map(|&i| positions[i as usize]));
+        self.local.clear();
+        triangulate(&self.corners, &mut self.local);
+        out.extend(self.local.iter().map(|t| t.map(|c| ids[c])));
+        self.local.len()
+    }
+}
+
 /// Newell's normal of a polygon (robust for non-planar and concave outlines);
 /// its length is twice the projected area. In f64, so any f32 input is exact.
 fn newell_normal(corners: &[Vec3]) -> DVec3 {
