@@ -6,8 +6,8 @@
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::Vec3;
 use raylab::accel::bvh::BuildParams;
-use raylab::accel::naive::Naive;
-use raylab::accel::Backend;
+
+use raylab::accel::{build_backend, Backend, BackendSpec};
 use raylab::camera::Camera;
 use raylab::geometry::{intersect_triangle, safe_reciprocal, Aabb, Ray, TriangleTest, Watertight};
 use raylab::scene::builtin::builtin;
@@ -141,9 +141,9 @@ fn ray_triangle(c: &mut Criterion) {
 /// The backends compared on one scene: naive (only where it finishes in
 /// reasonable time), both BVH builders, the SAH tree 4- and 8-wide, and Embree.
 fn backends(scene: &raylab::scene::Scene, with_naive: bool) -> Vec<(String, Box<dyn Backend>)> {
-    let mut out: Vec<(String, Box<dyn Backend>)> = Vec::new();
+    let mut specs = Vec::new();
     if with_naive {
-        out.push(("naive".into(), Box::new(Naive::new(scene))));
+        specs.push(BackendSpec::naive());
     }
     for params in [
         BuildParams::median(),
@@ -151,16 +151,18 @@ fn backends(scene: &raylab::scene::Scene, with_naive: bool) -> Vec<(String, Box<
         BuildParams::sah().with_width(4),
         BuildParams::sah().with_width(8),
     ] {
-        let b = raylab::accel::bvh::BvhBackend::new(scene, &params).unwrap();
-        out.push((b.name(), Box::new(b)));
+        specs.push(BackendSpec::bvh(params));
     }
-    #[cfg(feature = "embree")]
-    {
-        use raylab::accel::embree::{EmbreeBackend, Quality};
-        let e = EmbreeBackend::new(scene, Quality::Medium, false, 1).unwrap();
-        out.push((e.name(), Box::new(e)));
+    if raylab::accel::embree::AVAILABLE {
+        specs.push(BackendSpec::embree(1));
     }
-    out
+    specs
+        .iter()
+        .map(|spec| {
+            let built = build_backend(spec, scene).unwrap();
+            (built.name(), built.backend)
+        })
+        .collect()
 }
 
 /// Closest hit and any hit per backend on the same coherent camera rays.
@@ -229,7 +231,7 @@ fn bvh_builds(c: &mut Criterion) {
                 let id = format!("{}{wide}-{threads}t", params.builder.name());
                 g.bench_with_input(BenchmarkId::new(id, n), &tris, |b, tris| {
                     // The tree the renderer traverses (wide trees built directly).
-                    b.iter(|| raylab::accel::bvh::Tree::build(tris, &p).unwrap())
+                    b.iter(|| raylab::accel::bvh::build(tris, &p).unwrap())
                 });
             }
         }

@@ -160,11 +160,10 @@ impl Aabb {
     /// never culled by rounding.
     #[inline]
     pub fn intersect(&self, origin: Vec3, inv_dir: Vec3, tmin: f32, tmax: f32) -> Option<f32> {
-        const GROW: f32 = 1.0 + 2.0 * GAMMA3;
         let t0 = (self.min - origin) * inv_dir;
         let t1 = (self.max - origin) * inv_dir;
         let near = t0.min(t1).max_element().max(tmin);
-        let far = (t0.max(t1).min_element() * GROW).min(tmax);
+        let far = (t0.max(t1).min_element() * SLAB_GROW).min(tmax);
         if near <= far {
             Some(near)
         } else {
@@ -176,6 +175,10 @@ impl Aabb {
 /// `gamma(3) = 3u / (1 - 3u)` with `u = 2^-24`: the relative error bound of three
 /// rounded f32 operations (pbrt's error analysis).
 pub const GAMMA3: f32 = 3.0 * (f32::EPSILON * 0.5) / (1.0 - 3.0 * (f32::EPSILON * 0.5));
+
+/// The conservative slab test's growth of exit distances, 1 + 2 gamma(3) (Ize
+/// 2013): [`Aabb::intersect`] and the wide trees' node kernels use it.
+pub const SLAB_GROW: f32 = 1.0 + 2.0 * GAMMA3;
 
 /// `1 / d` per component, with zero components mapped to a huge finite value of the
 /// same sign instead of infinity, so the slab test never computes `0 * inf = NaN`

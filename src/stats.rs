@@ -9,8 +9,7 @@ use serde::Serialize;
 
 use crate::accel::bvh::quality::TreeStats;
 use crate::accel::bvh::traverse::{Counts, Traversal};
-use crate::accel::bvh::wide::WideBvh;
-use crate::accel::bvh::{build, build::sah, BuildParams, Bvh};
+use crate::accel::bvh::{build, params, BuildParams, Bvh, Tree};
 use crate::error::Result;
 use crate::geometry::{Hit, Ray};
 use crate::progress::Progress;
@@ -77,26 +76,31 @@ pub struct SahConstants {
 }
 
 const SAH_CONSTANTS: SahConstants = SahConstants {
-    traversal: sah::C_TRAVERSAL,
-    intersect: sah::C_INTERSECT,
+    traversal: params::C_TRAVERSAL,
+    intersect: params::C_INTERSECT,
     normalised_by: "root surface area",
 };
 
-/// Builds `reps` times and returns the median time and the last tree.
-fn timed_build(
-    triangles: &[[glam::Vec3; 3]],
-    params: &BuildParams,
-    reps: usize,
-) -> Result<(Duration, Bvh)> {
+/// Builds `reps` times as the renderer builds ([`build`] over the scene) and
+/// returns the median time and the last tree.
+fn timed_build(scene: &Scene, params: &BuildParams, reps: usize) -> Result<(Duration, Tree)> {
     let mut times = Vec::with_capacity(reps);
-    let mut bvh = Bvh::default();
+    let mut tree = None;
     for _ in 0..reps.max(1) {
         let start = Instant::now();
-        bvh = Bvh::build(triangles, params)?;
+        tree = Some(build(scene, params)?);
         times.push(start.elapsed());
     }
     times.sort();
-    Ok((times[times.len() / 2], bvh))
+    Ok((times[times.len() / 2], tree.expect("at least one build")))
+}
+
+/// The binary tree of a [`timed_build`].
+fn binary(tree: Tree) -> Bvh {
+    match tree {
+        Tree::Binary(bvh) => bvh,
+        _ => unreachable!("a build of width 2 is binary"),
+    }
 }
 
 /// Measures one builder on `scene`: `reps` timed builds serially and on
@@ -108,13 +112,14 @@ pub fn builder_report(
     threads: usize,
     reps: usize,
 ) -> Result<BuilderReport> {
-    let triangles = scene.triangle_vertices();
-    let (serial_time, serial) = timed_build(&triangles, &params.with_threads(1), reps)?;
-    let (parallel_time, parallel) = timed_build(&triangles, &params.with_threads(threads), reps)?;
+    let params = params.with_width(2);
+    let (serial_time, serial) = timed_build(scene, &params.with_threads(1), reps)?;
+    let (parallel_time, parallel) = timed_build(scene, &params.with_threads(threads), reps)?;
+    let (serial, parallel) = (binary(serial), binary(parallel));
     let deterministic = serial.nodes == parallel.nodes && serial.tri_ids == parallel.tri_ids;
     let (primary, shadow, ao) = counted_work(scene, &parallel, settings, threads)?;
-    let wide4 = wide_report::<4>(scene, &triangles, params, settings, threads, reps)?;
-    let wide8 = wide_report::<8>(scene, &triangles, params, settings, threads, reps)?;
+    let wide4 = wide_report(scene, &params, 4, settings, threads, reps)?;
+    let wide8 = wide_report(scene, &params, 8, settings, threads, reps)?;
     Ok(BuilderReport {
         scene: scene.name.clone(),
         triangles: scene.triangle_count(),
@@ -154,49 +159,43 @@ fn counted_work<B: Traversal + Sync>(
     Ok(tracer.work())
 }
 
-/// Builds the tree `--bvh-width N` traverses and counts its traversal work
-/// over a render.
-fn wide_report<const N: usize>(
+/// Builds the tree `--bvh-width width` traverses, timed as the renderer
+/// builds it, and counts its traversal work over a render.
+fn wide_report(
     scene: &Scene,
-    triangles: &[[glam::Vec3; 3]],
     params: &BuildParams,
+    width: usize,
     settings: &RenderSettings,
     threads: usize,
     reps: usize,
-) -> Result<WideReport>
-where
-    WideBvh<N>: Traversal,
-{
-    let params = params.with_width(N).with_threads(threads);
-    // Timed as the renderer builds it (directly wide for raylab's builders);
-    // the SAH cost is the binary tree's of the same splits.
-    let mut times = Vec::new();
-    let mut built = None;
-    for _ in 0..reps.max(1) {
-        let start = Instant::now();
-        let tree = build::in_pool(threads, || build::wide_here::<N, _>(triangles, &params))?;
-        times.push(start.elapsed());
-        built = Some(tree);
-    }
-    times.sort();
-    let wide = built.expect("at least one build");
+) -> Result<WideReport> {
+    let params = params.with_width(width).with_threads(threads);
+    let (time, wide) = timed_build(scene, &params, reps)?;
+    // The SAH cost is the binary tree's of the same splits (the same leaf
+    // costs in blocks).
     let tree = TreeStats::with_block(
-        &Bvh::build(triangles, &params)?,
+        &binary(build(scene, &params.binary())?),
         scene.triangle_count(),
         params.sah_block,
     );
+    let (nodes, blocks, triangles) = match &wide {
+        Tree::Wide4(t) => (t.nodes.len(), t.blocks.len(), t.triangle_count()),
+        Tree::Wide8(t) => (t.nodes.len(), t.blocks.len(), t.triangle_count()),
+        Tree::Binary(_) => unreachable!("a build of width 4 or 8 is wide"),
+    };
     let (primary, shadow, ao) = counted_work(scene, &wide, settings, threads)?;
-    let lanes = wide.blocks.len() * crate::accel::bvh::leaf::LANES;
+    let lanes = blocks * crate::accel::bvh::leaf::LANES;
+    let memory = wide.memory_bytes();
     Ok(WideReport {
-        width: N,
-        build_ms: ms(times[times.len() / 2]),
+        width,
+        build_ms: ms(time),
         sah_cost: tree.sah_cost,
         mean_leaf_size: tree.mean_leaf_size,
-        nodes: wide.nodes.len(),
-        blocks: wide.blocks.len(),
-        block_fill: wide.triangle_count() as f64 / lanes.max(1) as f64,
-        memory_bytes: wide.memory_bytes(),
-        bytes_per_triangle: wide.memory_bytes() as f64 / scene.triangle_count().max(1) as f64,
+        nodes,
+        blocks,
+        block_fill: triangles as f64 / lanes.max(1) as f64,
+        memory_bytes: memory,
+        bytes_per_triangle: memory as f64 / scene.triangle_count().max(1) as f64,
         primary,
         shadow,
         ao,

@@ -22,11 +22,13 @@ use glam::Vec3;
 use serde::Serialize;
 
 use crate::accel::bvh::{BuildParams, BvhBackend};
+use crate::accel::embree::Quality;
 use crate::accel::naive::Naive;
-use crate::accel::Backend;
+use crate::accel::{build_backend, Backend, BackendSpec, Built};
 use crate::error::{Error, Result};
 use crate::geometry::{Aabb, Intersector, OffsetStrategy, Ray};
 use crate::render::rng::Rng;
+use crate::scene::MeshRef;
 use crate::table::{
     Align::{Left, Right},
     Table,
@@ -356,6 +358,8 @@ pub struct LeakRow {
     pub mesh: String,
     pub triangles: usize,
     pub backend: String,
+    /// Embree, which has its own ray/triangle test (`intersector` reads `embree`).
+    pub embree: bool,
     pub intersector: String,
     pub rays: usize,
     pub leaks: usize,
@@ -423,42 +427,60 @@ pub fn parse_stress_backends(s: &str) -> Result<Vec<StressBackend>> {
     Ok(out)
 }
 
+/// The specs of the backends `kinds` name, each with MT and watertight
+/// (Embree: plain and robust), all built on one thread.
+fn stress_specs(kinds: &[StressBackend]) -> Vec<BackendSpec> {
+    let mut out = Vec::new();
+    for intersector in [Intersector::Mt, Intersector::Watertight] {
+        for (kind, spec) in [
+            (StressBackend::Naive, BackendSpec::naive()),
+            (
+                StressBackend::BvhMedian,
+                BackendSpec::bvh(BuildParams::median()),
+            ),
+            (StressBackend::BvhSah, BackendSpec::bvh(BuildParams::sah())),
+        ] {
+            if kinds.contains(&kind) {
+                out.push(spec.with_intersector(intersector));
+            }
+        }
+    }
+    if kinds.contains(&StressBackend::Embree) && crate::accel::embree::AVAILABLE {
+        for robust in [false, true] {
+            out.push(BackendSpec::Embree {
+                quality: Quality::Medium,
+                robust,
+                threads: 1,
+            });
+        }
+    }
+    out
+}
+
+/// The backends `kinds` name built over raw arrays (degenerate triangles
+/// kept), with each one's ray/triangle test as reports name it (`mt`,
+/// `watertight`, or `embree` for Embree's own).
 fn stress_backends(
     positions: &[Vec3],
     triangles: &[[u32; 3]],
     kinds: &[StressBackend],
-) -> Result<Vec<(Box<dyn Backend>, String)>> {
-    let tris: Vec<[Vec3; 3]> = triangles
+) -> Result<Vec<(Built, String)>> {
+    let mesh = MeshRef {
+        positions,
+        triangles,
+    };
+    stress_specs(kinds)
         .iter()
-        .map(|t| t.map(|i| positions[i as usize]))
-        .collect();
-    let mut out: Vec<(Box<dyn Backend>, String)> = Vec::new();
-    for intersector in [Intersector::Mt, Intersector::Watertight] {
-        if kinds.contains(&StressBackend::Naive) {
-            out.push((
-                Box::new(Naive::from_triangles(tris.clone()).with_intersector(intersector)),
-                intersector.name().into(),
-            ));
-        }
-        for (kind, params) in [
-            (StressBackend::BvhMedian, BuildParams::median()),
-            (StressBackend::BvhSah, BuildParams::sah()),
-        ] {
-            if kinds.contains(&kind) {
-                let bvh = BvhBackend::from_triangles(&tris, &params)?.with_intersector(intersector);
-                out.push((Box::new(bvh), intersector.name().into()));
-            }
-        }
-    }
-    #[cfg(feature = "embree")]
-    if kinds.contains(&StressBackend::Embree) {
-        for robust in [false, true] {
-            use crate::accel::embree::{EmbreeBackend, Quality};
-            let e = EmbreeBackend::from_mesh(positions, triangles, Quality::Medium, robust, 1)?;
-            out.push((Box::new(e), "embree".into()));
-        }
-    }
-    Ok(out)
+        .map(|spec| {
+            let test = match spec {
+                BackendSpec::Naive { intersector } | BackendSpec::Bvh { intersector, .. } => {
+                    intersector.name()
+                }
+                BackendSpec::Embree { .. } => "embree",
+            };
+            Ok((build_backend(spec, mesh)?, test.to_string()))
+        })
+        .collect()
 }
 
 /// The leak suite over `meshes` with every backend.
@@ -486,6 +508,7 @@ pub fn leak_suite_with(
                 mesh: mesh.name.clone(),
                 triangles: mesh.triangles.len(),
                 backend: backend.name(),
+                embree: backend.spec.is_embree(),
                 intersector,
                 rays: rays.len(),
                 leaks,
@@ -552,8 +575,7 @@ pub fn offset_suite(translations: &[f32], points: usize) -> Result<Vec<OffsetRow
         );
         for intersector in [Intersector::Mt, Intersector::Watertight] {
             let make = |t: &[[Vec3; 3]]| {
-                BvhBackend::from_triangles(t, &BuildParams::sah())
-                    .map(|b| b.with_intersector(intersector))
+                BvhBackend::new(t, &BuildParams::sah()).map(|b| b.with_intersector(intersector))
             };
             let (floor_only, near_b) = (make(&floor)?, make(&near)?);
             let (closer_b, nearest_b) = (make(&closer)?, make(&nearest)?);

@@ -5,11 +5,10 @@
 
 mod common;
 
-use common::{settings, TestRng};
+use common::{binary, settings, TestRng};
 use glam::Vec3;
 use raylab::accel::bvh::simd::Kernel;
-use raylab::accel::bvh::wide::{Bvh4, Bvh8};
-use raylab::accel::bvh::{BuildParams, BuilderKind, Bvh, BvhBackend, Tree};
+use raylab::accel::bvh::{build, BuildParams, BuilderKind, Bvh, BvhBackend, Traversal, Tree};
 use raylab::accel::naive::Naive;
 use raylab::accel::Backend;
 use raylab::geometry::{Aabb, Intersector, Ray};
@@ -25,30 +24,31 @@ const BUILDERS: [BuildParams; 3] = [
     BuildParams::median().with_max_leaf_size(3),
 ];
 
-/// The wide trees checked beside the binary one: `bvh` collapsed 4 and 8 wide
-/// (each node kernel), and the tree built for 8-wide traversal (leaf costs in
-/// blocks of four) collapsed.
-fn wide_trees(tris: &[[Vec3; 3]], bvh: &Bvh, params: &BuildParams) -> Vec<(String, Tree)> {
+/// The wide trees checked beside the binary one: the same splits 4 and 8
+/// wide (each node kernel), and the tree built for 8-wide traversal (leaf
+/// costs in blocks of two).
+fn wide_trees(tris: &[[Vec3; 3]], params: &BuildParams) -> Vec<(String, Tree)> {
+    let same_splits = |width| {
+        let p = params.with_width(width).with_sah_block(params.sah_block);
+        build(tris, &p).unwrap()
+    };
     let mut out = vec![
-        (
-            "4-wide".to_string(),
-            Tree::Wide4(Bvh4::collapse(bvh).unwrap()),
-        ),
+        ("4-wide".to_string(), same_splits(4)),
         (
             "8-wide portable".to_string(),
-            Tree::Wide8(Bvh8::collapse_with(bvh, Kernel::Portable).unwrap()),
+            same_splits(8).with_kernel(Kernel::Portable),
         ),
     ];
     if let Kernel::Avx2(_) = Kernel::detect() {
         out.push((
             "8-wide avx2".to_string(),
-            Tree::Wide8(Bvh8::collapse_with(bvh, Kernel::detect()).unwrap()),
+            same_splits(8).with_kernel(Kernel::detect()),
         ));
     }
     if params.builder == BuilderKind::Sah {
         out.push((
             "8-wide built for blocks".to_string(),
-            Tree::build(tris, &params.with_width(8)).unwrap(),
+            build(tris, &params.with_width(8)).unwrap(),
         ));
     }
     out
@@ -110,8 +110,8 @@ fn assert_same_hits(
         .extent()
         .length();
     for params in BUILDERS {
-        let bvh = Bvh::build(tris, &params).unwrap();
-        let wide = wide_trees(tris, &bvh, &params);
+        let bvh = binary(tris, &params);
+        let wide = wide_trees(tris, &params);
         for (i, ray) in rays.iter().enumerate() {
             let want = naive.intersect(ray);
             let got = bvh.intersect(ray);
@@ -264,15 +264,11 @@ fn trees_keep_their_invariants() {
         builtin("cornell-water").unwrap().triangle_vertices(),
     ] {
         for params in BUILDERS {
-            check_invariants(
-                &Bvh::build(&tris, &params).unwrap(),
-                &tris,
-                params.max_leaf_size,
-            );
+            check_invariants(&binary(&tris, &params), &tris, params.max_leaf_size);
         }
         for leaf in [1, 2, 8] {
             let params = BuildParams::sah().with_max_leaf_size(leaf);
-            check_invariants(&Bvh::build(&tris, &params).unwrap(), &tris, leaf);
+            check_invariants(&binary(&tris, &params), &tris, leaf);
         }
     }
 }
@@ -280,7 +276,7 @@ fn trees_keep_their_invariants() {
 #[test]
 fn median_tree_is_the_studys_shape() {
     let tris = soup(1000, 4);
-    let bvh = Bvh::build(&tris, &BuildParams::median()).unwrap();
+    let bvh = binary(&tris, &BuildParams::median());
     let s = raylab::accel::bvh::quality::TreeStats::of(&bvh, tris.len());
     // One triangle per leaf, balanced: 2n - 1 nodes, depth ceil(log2 n).
     assert_eq!(s.leaves, 1000);
@@ -327,7 +323,7 @@ fn degenerate_inputs_build_and_trace() {
         let rays = random_rays(bounds, 2000, 1);
         let naive = Naive::from_triangles(tris.clone());
         for params in BUILDERS {
-            let bvh = Bvh::build(&tris, &params).unwrap();
+            let bvh = binary(&tris, &params);
             for r in &rays {
                 assert_eq!(bvh.intersect(r), naive.intersect(r), "{name} {params:?}");
             }
@@ -341,13 +337,12 @@ fn degenerate_inputs_build_and_trace() {
 fn tree_is_identical_for_any_thread_count() {
     let tris = soup(30_000, 12);
     for builder in [BuilderKind::Median, BuilderKind::Sah] {
-        let one = Bvh::build(&tris, &BuildParams::for_builder(builder)).unwrap();
+        let one = binary(&tris, &BuildParams::for_builder(builder));
         for threads in [2, 4] {
-            let many = Bvh::build(
+            let many = binary(
                 &tris,
                 &BuildParams::for_builder(builder).with_threads(threads),
-            )
-            .unwrap();
+            );
             assert!(
                 one.nodes == many.nodes && one.tri_ids == many.tri_ids,
                 "{builder:?} on {threads} threads"
@@ -375,8 +370,7 @@ fn bvh_renders_are_bit_identical_to_naive() {
                 render(&scene, &bvh, &s, Schedule::Tiles, 2, &Progress::new()).unwrap();
             assert!(
                 frame == reference,
-                "{name}: {} image differs from naive",
-                bvh.name()
+                "{name}: {params:?} image differs from naive"
             );
         }
     }
@@ -387,11 +381,8 @@ fn sah_tree_is_cheaper_than_median_on_the_big_scenes() {
     use raylab::accel::bvh::quality::TreeStats;
     for name in ["cornell-sphere", "cornell-water"] {
         let tris = builtin(name).unwrap().triangle_vertices();
-        let median = TreeStats::of(
-            &Bvh::build(&tris, &BuildParams::median()).unwrap(),
-            tris.len(),
-        );
-        let sah = TreeStats::of(&Bvh::build(&tris, &BuildParams::sah()).unwrap(), tris.len());
+        let median = TreeStats::of(&binary(&tris, &BuildParams::median()), tris.len());
+        let sah = TreeStats::of(&binary(&tris, &BuildParams::sah()), tris.len());
         assert!(
             sah.sah_cost < median.sah_cost,
             "{name}: sah {} vs median {}",

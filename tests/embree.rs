@@ -5,9 +5,9 @@
 
 mod common;
 
-use common::{settings, TestRng};
+use common::{binary, settings, TestRng};
 use glam::Vec3;
-use raylab::accel::bvh::{BuildParams, BuilderKind, Bvh, BvhBackend};
+use raylab::accel::bvh::{BuildParams, BuilderKind, BvhBackend};
 use raylab::accel::embree::{Device, EmbreeBackend, EmbreeScene, Quality};
 use raylab::accel::naive::Naive;
 use raylab::accel::Backend;
@@ -149,7 +149,10 @@ fn embree_built_trees_are_traversed_by_ours_and_match_naive() {
         ] {
             let params = BuildParams::for_builder(builder).with_threads(2);
             let backend = BvhBackend::new(&scene, &params).unwrap();
-            let bvh = backend.binary().expect("width 2 traverses the binary tree");
+            let bvh = backend
+                .tree
+                .binary()
+                .expect("width 2 traverses the binary tree");
             // Every triangle is referenced by some leaf (spatial splits may repeat it).
             let mut seen = vec![false; tris.len()];
             for &id in &bvh.tri_ids {
@@ -187,8 +190,8 @@ fn embree_high_quality_splits_triangles_on_long_thin_geometry() {
             [a, b, a + Vec3::splat(0.01)]
         })
         .collect();
-    let high = Bvh::build(&tris, &BuildParams::for_builder(BuilderKind::EmbreeHigh)).unwrap();
-    let medium = Bvh::build(&tris, &BuildParams::for_builder(BuilderKind::EmbreeMedium)).unwrap();
+    let high = binary(&tris, &BuildParams::for_builder(BuilderKind::EmbreeHigh));
+    let medium = binary(&tris, &BuildParams::for_builder(BuilderKind::EmbreeMedium));
     assert!(
         high.tri_ids.len() > tris.len(),
         "no spatial splits at high quality"
@@ -209,12 +212,6 @@ struct DropsTriangle {
 }
 
 impl Backend for DropsTriangle {
-    fn name(&self) -> String {
-        "drops-one".into()
-    }
-    fn build_time(&self) -> std::time::Duration {
-        std::time::Duration::ZERO
-    }
     fn intersect(&self, ray: &Ray) -> Option<Hit> {
         // The naive answer without the dropped triangle.
         let mut best: Option<Hit> = None;

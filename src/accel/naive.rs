@@ -1,8 +1,6 @@
 //! The naive backend: every ray is tested against every triangle, as in the
 //! study's baseline. O(N) per ray; the reference the other backends must match.
 
-use std::time::{Duration, Instant};
-
 use glam::Vec3;
 
 use super::Backend;
@@ -12,26 +10,19 @@ use crate::scene::Scene;
 pub struct Naive {
     triangles: Vec<[Vec3; 3]>,
     intersector: Intersector,
-    build_time: Duration,
 }
 
 impl Naive {
+    /// Over the scene's triangles (gathered in index order).
     pub fn new(scene: &Scene) -> Self {
-        let start = Instant::now();
-        let triangles = scene.triangle_vertices();
-        Naive {
-            triangles,
-            intersector: Intersector::Mt,
-            build_time: start.elapsed(),
-        }
+        Self::from_triangles(scene.triangle_vertices())
     }
 
-    /// A naive backend over raw triangles (tests and benches).
+    /// Over raw triangles (degenerate ones included).
     pub fn from_triangles(triangles: Vec<[Vec3; 3]>) -> Self {
         Naive {
             triangles,
             intersector: Intersector::Mt,
-            build_time: Duration::ZERO,
         }
     }
 
@@ -76,17 +67,6 @@ impl Naive {
 }
 
 impl Backend for Naive {
-    fn name(&self) -> String {
-        match self.intersector {
-            Intersector::Mt => "naive".into(),
-            other => format!("naive-{}", other.name()),
-        }
-    }
-
-    fn build_time(&self) -> Duration {
-        self.build_time
-    }
-
     fn intersect(&self, ray: &Ray) -> Option<Hit> {
         match self.intersector {
             Intersector::Mt => self.closest::<MollerTrumbore>(ray),

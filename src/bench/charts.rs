@@ -712,7 +712,7 @@ where
 {
     root.fill(&WHITE)?;
     let method = |r: &LeakRow| {
-        if r.backend.starts_with("embree") {
+        if r.embree {
             r.backend.clone()
         } else {
             format!(

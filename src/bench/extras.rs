@@ -11,7 +11,7 @@ use super::measure::{Stat, View};
 use super::metrics::{psnr, rmse};
 use super::variants::Variant;
 use crate::accel::bvh::{BuildParams, BuilderKind, BvhBackend};
-use crate::accel::{build_backend, Backend, BackendKind};
+use crate::accel::{build_backend, Backend, BackendKind, BackendSpec};
 use crate::error::Result;
 use crate::progress::{Progress, StepBar};
 use crate::render::{render, AoMode, Frame, RenderSettings, Schedule};
@@ -392,11 +392,7 @@ pub fn validation(
     } else {
         BackendKind::Naive
     };
-    let reference = build_backend(
-        &crate::accel::BackendSpec::bvh(BuildParams::sah().with_threads(threads))
-            .with_kind(against),
-        scene,
-    )?;
+    let reference = build_backend(&BackendSpec::default_for(against, threads), scene)?;
     let triangles = scene.triangle_vertices();
     let sets = ray_sets(
         scene,
@@ -413,9 +409,9 @@ pub fn validation(
             builder.name(),
             scene.name
         ));
-        let tested = BvhBackend::new(
+        let tested = build_backend(
+            &BackendSpec::bvh(BuildParams::for_builder(builder).with_threads(threads)),
             scene,
-            &BuildParams::for_builder(builder).with_threads(threads),
         )?;
         let mut row = ValidationRow {
             scene: scene.name.clone(),
@@ -426,7 +422,13 @@ pub fn validation(
             genuine: 0,
         };
         for (set, rays) in &sets {
-            let (r, _) = compare(set.name(), rays, &tested, reference.as_ref(), &triangles);
+            let (r, _) = compare(
+                set.name(),
+                rays,
+                tested.as_ref(),
+                reference.as_ref(),
+                &triangles,
+            );
             row.rays += r.rays;
             row.ties += r.ties;
             row.genuine += r.genuine;

@@ -452,14 +452,7 @@ impl Matrix<'_> {
                     view: String::new(),
                     ao: settings.ao.to_string(),
                     variant: variant.name.to_string(),
-                    backend: match variant.kind {
-                        BackendKind::Naive => "naive".to_string(),
-                        BackendKind::Bvh if variant.width == 4 => {
-                            format!("bvh4-{}", variant.builder.name())
-                        }
-                        BackendKind::Bvh => format!("bvh-{}", variant.builder.name()),
-                        BackendKind::Embree => "embree".to_string(),
-                    },
+                    backend: variant.spec(self.threads).name(),
                     schedule: variant.schedule.name().to_string(),
                     build_threads: variant.build_threads(self.threads),
                     render_threads: variant.schedule.threads_used(self.threads, settings.height),

@@ -15,7 +15,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::measure::Stat;
-use crate::accel::{build_backend, Backend, BackendKind, BackendSpec};
+use crate::accel::{build_backend, Backend, BackendKind, BackendSpec, Built};
 use crate::error::{Error, Result};
 use crate::geometry::Ray;
 use crate::os::FlushDenormals;
@@ -39,6 +39,8 @@ pub struct TracePoint {
     pub scene: String,
     pub triangles: usize,
     pub backend: String,
+    /// Embree's (the reference the own backends' times are divided by).
+    pub embree: bool,
     /// `primary` (closest hit), `shadow` or `ao` (any hit).
     pub kind: String,
     pub threads: usize,
@@ -122,14 +124,8 @@ pub fn trace(backend: &dyn Backend, kind: RaySet, rays: &[Ray], threads: usize) 
 pub fn trace_specs(variants: &[super::variants::Variant], threads: usize) -> Vec<BackendSpec> {
     let mut specs: Vec<BackendSpec> = Vec::new();
     for v in variants.iter().filter(|v| v.kind != BackendKind::Naive) {
-        let mut spec = v.spec(threads);
-        spec.bvh.threads = threads;
-        let same = |s: &BackendSpec| {
-            s.kind == spec.kind
-                && (s.kind == BackendKind::Embree
-                    || (s.bvh.builder == spec.bvh.builder && s.bvh.width == spec.bvh.width))
-        };
-        if !specs.iter().any(same) {
+        let spec = v.spec(threads).with_build_threads(threads);
+        if !specs.contains(&spec) {
             specs.push(spec);
         }
     }
@@ -143,7 +139,7 @@ pub fn trace_specs(variants: &[super::variants::Variant], threads: usize) -> Vec
 /// Builds are measured too: on each thread count, a warm-up build and `reps`
 /// timed ones per backend, backends interleaved build by build (so a noisy
 /// spell of the machine falls on all of them), each build as the backend
-/// times itself ([`Backend::build_time`]). The rays are traced by the last
+/// is timed by [`build_backend`]. The rays are traced by the last
 /// build on the largest thread count.
 pub fn trace_throughput(
     scene: &Scene,
@@ -153,7 +149,7 @@ pub fn trace_throughput(
     reps: usize,
     bar: &StepBar,
 ) -> Result<Vec<TracePoint>> {
-    let mut kept: Vec<Option<Box<dyn Backend>>> = specs.iter().map(|_| None).collect();
+    let mut kept: Vec<Option<Built>> = specs.iter().map(|_| None).collect();
     let mut builds = vec![vec![Vec::new(); thread_counts.len()]; specs.len()];
     let largest = (0..thread_counts.len()).max_by_key(|&i| thread_counts[i]);
     for (ti, &threads) in thread_counts.iter().enumerate() {
@@ -164,11 +160,9 @@ pub fn trace_throughput(
                 reps.max(1)
             ));
             for (si, spec) in specs.iter().enumerate() {
-                let mut spec = *spec;
-                spec.bvh.threads = threads;
-                let b = build_backend(&spec, scene)?;
+                let b = build_backend(&spec.with_build_threads(threads), scene)?;
                 if run > 0 {
-                    builds[si][ti].push(ms(b.build_time()));
+                    builds[si][ti].push(ms(b.build_time));
                 }
                 if Some(ti) == largest {
                     kept[si] = Some(b);
@@ -176,7 +170,7 @@ pub fn trace_throughput(
             }
         }
     }
-    let backends: Vec<(Box<dyn Backend>, Vec<f64>)> = kept
+    let backends: Vec<(Built, Vec<f64>)> = kept
         .into_iter()
         .zip(builds)
         .filter_map(|(b, runs)| Some((b?, runs.iter().map(|r| Stat::of(r).median).collect())))
@@ -189,7 +183,7 @@ pub fn trace_throughput(
 pub fn trace_backends(
     scene: &Scene,
     settings: &RenderSettings,
-    backends: &[(Box<dyn Backend>, Vec<f64>)],
+    backends: &[(Built, Vec<f64>)],
     thread_counts: &[usize],
     reps: usize,
     bar: &StepBar,
@@ -199,7 +193,7 @@ pub fn trace_backends(
     }
     let reference = backends
         .iter()
-        .position(|(b, _)| !b.name().starts_with("embree"))
+        .position(|(b, _)| !b.spec.is_embree())
         .unwrap_or(0);
     bar.set_message(format!("trace: recording the rays of {}", scene.name));
     let kinds = [RaySet::Primary, RaySet::Shadow, RaySet::Ao];
@@ -225,7 +219,7 @@ pub fn trace_backends(
         for (b, _) in backends {
             // Embree computes t with its own arithmetic: only the triangle hit
             // is comparable.
-            let exact = !b.name().starts_with("embree");
+            let exact = !b.spec.is_embree();
             let same = |a: Answer, w: Answer| match (a, w) {
                 (Answer::Closest(a), Answer::Closest(w)) if !exact => {
                     a.map(|h| h.0) == w.map(|h| h.0)
@@ -237,7 +231,7 @@ pub fn trace_backends(
                 .zip(&want)
                 .filter(|(r, w)| !same(answer(b.as_ref(), *kind, r), **w))
                 .count();
-            if n > 0 && !b.name().starts_with("embree") {
+            if n > 0 && exact {
                 return Err(Error::Other(format!(
                     "trace: {} differs from {} on {n} of {} {} rays of {}",
                     b.name(),
@@ -283,6 +277,7 @@ pub fn trace_backends(
                     scene: scene.name.clone(),
                     triangles: scene.triangle_count(),
                     backend: b.name(),
+                    embree: b.spec.is_embree(),
                     kind: kind.name().to_string(),
                     threads,
                     rays: rays.len(),
@@ -304,7 +299,7 @@ fn build_markdown(points: &[TracePoint]) -> String {
     let mut counts: Vec<usize> = points.iter().map(|p| p.threads).collect();
     counts.sort_unstable();
     counts.dedup();
-    let has_embree = points.iter().any(|p| p.backend.starts_with("embree"));
+    let has_embree = points.iter().any(|p| p.embree);
     let mut table = Table::new([("scene", Left), ("backend", Left)]);
     for t in &counts {
         table.column(format!("build ms, {t} thr"), Right);
@@ -321,23 +316,21 @@ fn build_markdown(points: &[TracePoint]) -> String {
         seen.push((&p.scene, &p.backend));
         let mut row = vec![p.scene.clone(), p.backend.clone()];
         for &t in &counts {
-            let build = |backend: &dyn Fn(&str) -> bool| {
+            let build = |which: &dyn Fn(&TracePoint) -> bool| {
                 points
                     .iter()
-                    .find(|q| q.scene == p.scene && q.threads == t && backend(&q.backend))
+                    .find(|q| q.scene == p.scene && q.threads == t && which(q))
                     .map(|q| q.build_ms)
             };
-            let own = build(&|b| b == p.backend);
+            let own = build(&|q| q.backend == p.backend);
             row.push(match own {
                 Some(ms) if ms.is_finite() => crate::table::fmt_ms(ms),
                 _ => "-".to_string(),
             });
             if has_embree {
-                let embree = build(&|b| b.starts_with("embree"));
+                let embree = build(&|q| q.embree);
                 row.push(match (own, embree) {
-                    (Some(o), Some(e))
-                        if !p.backend.starts_with("embree") && o.is_finite() && e > 0.0 =>
-                    {
+                    (Some(o), Some(e)) if !p.embree && o.is_finite() && e > 0.0 => {
                         format!("{:.2}", o / e)
                     }
                     _ => String::new(),
@@ -365,7 +358,7 @@ pub fn markdown(points: &[TracePoint]) -> String {
             backends.push(&p.backend);
         }
     }
-    let has_embree = backends.iter().any(|b| b.starts_with("embree"));
+    let has_embree = points.iter().any(|p| p.embree);
     let mut table = Table::new([
         ("scene", Left),
         ("triangles", Right),
@@ -410,9 +403,9 @@ pub fn markdown(points: &[TracePoint]) -> String {
         if has_embree {
             let best = cell
                 .iter()
-                .filter(|p| !p.backend.starts_with("embree"))
+                .filter(|p| !p.embree)
                 .max_by(|a, b| a.mrays.median.total_cmp(&b.mrays.median));
-            let embree = cell.iter().find(|p| p.backend.starts_with("embree"));
+            let embree = cell.iter().find(|p| p.embree);
             match (best, embree) {
                 (Some(b), Some(e)) => {
                     row.push(b.backend.clone());
@@ -442,12 +435,6 @@ mod tests {
     struct Planted(BvhBackend);
 
     impl Backend for Planted {
-        fn name(&self) -> String {
-            "planted".into()
-        }
-        fn build_time(&self) -> std::time::Duration {
-            self.0.build_time()
-        }
         fn intersect(&self, ray: &Ray) -> Option<Hit> {
             let hit = self.0.intersect(ray)?;
             let wrong = ray
@@ -509,15 +496,19 @@ mod tests {
     #[test]
     fn a_wrong_own_backend_fails_the_trace() {
         let (scene, settings) = setup();
-        let build = || BvhBackend::new(&scene, &BuildParams::sah()).unwrap();
-        let backends: Vec<(Box<dyn Backend>, Vec<f64>)> = vec![
-            (Box::new(build()), Vec::new()),
-            (Box::new(Planted(build())), Vec::new()),
-        ];
+        let right = build_backend(&BackendSpec::bvh(BuildParams::sah()), &scene).unwrap();
+        // The planted fault in the 4-wide tree, named as such.
+        let wide = BuildParams::sah().with_width(4);
+        let planted = Built {
+            spec: BackendSpec::bvh(wide),
+            backend: Box::new(Planted(BvhBackend::new(&scene, &wide).unwrap())),
+            build_time: std::time::Duration::ZERO,
+        };
+        let backends = vec![(right, Vec::new()), (planted, Vec::new())];
         let bar = StepBar::new(0, true);
         let err = trace_backends(&scene, &settings, &backends, &[1], 1, &bar)
             .unwrap_err()
             .to_string();
-        assert!(err.contains("planted differs from bvh-sah"), "{err}");
+        assert!(err.contains("bvh4-sah differs from bvh-sah"), "{err}");
     }
 }

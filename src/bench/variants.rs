@@ -7,10 +7,8 @@
 //! all bench threads whenever they render in parallel, as a modern renderer would.
 
 use crate::accel::bvh::{BuildParams, BuilderKind};
-use crate::accel::embree::Quality;
 use crate::accel::{BackendKind, BackendSpec};
 use crate::error::{Error, Result};
-use crate::geometry::Intersector;
 use crate::render::Schedule;
 
 /// One column of the study's tables.
@@ -109,14 +107,15 @@ impl Variant {
 
     /// How to build this variant's backend with `threads` bench threads.
     pub fn spec(&self, threads: usize) -> BackendSpec {
-        BackendSpec {
-            kind: self.kind,
-            bvh: BuildParams::for_builder(self.builder)
-                .with_threads(self.build_threads(threads))
-                .with_width(self.width),
-            intersector: Intersector::Mt,
-            embree_quality: Quality::Medium,
-            embree_robust: false,
+        let threads = self.build_threads(threads);
+        match self.kind {
+            Naive => BackendSpec::naive(),
+            Bvh => BackendSpec::bvh(
+                BuildParams::for_builder(self.builder)
+                    .with_threads(threads)
+                    .with_width(self.width),
+            ),
+            Embree => BackendSpec::embree(threads),
         }
     }
 
@@ -214,10 +213,19 @@ mod tests {
     #[test]
     fn build_threads_follow_the_variant() {
         let v = Variant::named("bvh-median-tiles").unwrap();
-        assert_eq!(v.spec(8).bvh.threads, 1);
+        assert_eq!(v.spec(8).build_threads(), 1);
         let v = Variant::named("bvh-median-pbuild-tiles").unwrap();
-        assert_eq!(v.spec(8).bvh.threads, 8);
-        assert_eq!(v.spec(8).bvh.builder, BuilderKind::Median);
-        assert_eq!(v.spec(8).bvh.max_leaf_size, 1);
+        let BackendSpec::Bvh { params, .. } = v.spec(8) else {
+            panic!("{v:?} is a BVH")
+        };
+        assert_eq!(params.threads, 8);
+        assert_eq!(params.builder, BuilderKind::Median);
+        assert_eq!(params.max_leaf_size, 1);
+        let v = Variant::named("embree-tiles").unwrap();
+        assert_eq!(v.spec(8), BackendSpec::embree(8));
+        assert_eq!(
+            Variant::named("embree-serial").unwrap().spec(8),
+            BackendSpec::embree(1)
+        );
     }
 }

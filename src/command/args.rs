@@ -176,12 +176,20 @@ fn backend_spec(
     embree: &EmbreeArgs,
     threads: usize,
 ) -> BackendSpec {
-    BackendSpec {
-        kind,
-        bvh: bvh.params(bvh.builder, threads),
-        intersector: bvh.intersector,
-        embree_quality: embree.embree_quality,
-        embree_robust: embree.embree_robust,
+    let params = bvh.params(bvh.builder, threads);
+    match kind {
+        BackendKind::Naive => BackendSpec::Naive {
+            intersector: bvh.intersector,
+        },
+        BackendKind::Bvh => BackendSpec::Bvh {
+            params,
+            intersector: bvh.intersector,
+        },
+        BackendKind::Embree => BackendSpec::Embree {
+            quality: embree.embree_quality,
+            robust: embree.embree_robust,
+            threads: params.threads,
+        },
     }
 }
 

@@ -8,8 +8,8 @@ use clap::Args;
 use serde::Serialize;
 
 use super::args::{parse_threads, BackendArgs, ViewArgs};
+use crate::accel::build_backend;
 use crate::accel::embree::version_or_none as embree_version;
-use crate::accel::{build_backend, BackendKind};
 use crate::error::Result;
 use crate::progress::Progress;
 use crate::render::schedule::default_threads;
@@ -136,7 +136,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     say(format!(
         "backend {}: built in {:.1} ms",
         backend.name(),
-        ms(backend.build_time())
+        ms(backend.build_time)
     ));
 
     let progress = Progress::new();
@@ -220,7 +220,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
             light_samples: settings.light_samples,
             seed: settings.seed,
             load_ms: ms(load_time),
-            build_ms: ms(backend.build_time()),
+            build_ms: ms(backend.build_time),
             memory_bytes: backend.memory_bytes(),
             render_ms: ms(render_time),
             rays: RayCounts {
@@ -238,7 +238,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
             output: args.output.display().to_string(),
             image_hash: hash,
             warnings,
-            embree_version: (args.accel.backend == BackendKind::Embree).then(embree_version),
+            embree_version: backend.spec.is_embree().then(embree_version),
         };
         let text = serde_json::to_string(&report)?;
         println!("{text}");

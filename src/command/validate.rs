@@ -6,7 +6,6 @@ use clap::Args;
 use serde::Serialize;
 
 use super::args::{parse_threads, BackendArgs, ViewArgs};
-use crate::accel::bvh::BuildParams;
 use crate::accel::{build_backend, BackendKind, BackendSpec};
 use crate::error::{Error, Result};
 use crate::render::output;
@@ -108,8 +107,7 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
     let count = args.count as usize;
     let spec = args.accel.spec(threads);
     // The reference with its defaults (Embree MEDIUM, SAH BVH, MT) on `threads`.
-    let reference_spec =
-        BackendSpec::bvh(BuildParams::sah().with_threads(threads)).with_kind(args.against);
+    let reference_spec = BackendSpec::default_for(args.against, threads);
     let mut reports = Vec::new();
     for name in &names {
         let mut scene = load_scene(name)?;

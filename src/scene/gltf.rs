@@ -30,7 +30,7 @@ pub fn load_gltf_bytes(bytes: &[u8], path: &Path) -> Result<Scene> {
     };
     let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| {
         if is_gltf1(bytes) {
-            err(format!("a glTF 1.0 file: {}", super::load::READS))
+            err(format!("a glTF 1.0 file: {}", super::READS))
         } else if uses_draco(bytes) {
             err("Draco-compressed meshes (KHR_draco_mesh_compression) are not read: raylab reads uncompressed glTF 2.0".into())
         } else {

@@ -5,11 +5,8 @@
 
 use std::path::Path;
 
-use super::{gltf, obj, ply, Scene};
+use super::{gltf, obj, ply, Scene, READS};
 use crate::error::{Error, Result};
-
-/// What raylab reads, for messages.
-pub const READS: &str = "raylab reads OBJ (.obj), PLY (.ply) and glTF 2.0 (.gltf, .glb)";
 
 /// File extensions of scene formats raylab reads, in lower case.
 pub const EXTENSIONS: &[&str] = &["obj", "ply", "gltf", "glb"];

@@ -16,6 +16,9 @@ use glam::Vec3;
 use crate::error::{Error, Result};
 use crate::geometry::{triangle_area, triangle_unit_normal, Aabb};
 
+/// What raylab reads, for messages.
+pub const READS: &str = "raylab reads OBJ (.obj), PLY (.ply) and glTF 2.0 (.gltf, .glb)";
+
 /// The MTL values the shader uses; everything else in an MTL file is ignored.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Material {
@@ -88,6 +91,40 @@ impl Lights {
     pub fn pick(&self, u: f32) -> usize {
         let i = self.cdf.partition_point(|&c| c <= u);
         i.min(self.triangles.len() - 1)
+    }
+}
+
+/// The geometry backends are built over: vertex positions and index
+/// triples, borrowed from a [`Scene`] or from raw arrays (the stress suites
+/// keep degenerate triangles a scene would drop). Indices must be in range.
+#[derive(Clone, Copy, Debug)]
+pub struct MeshRef<'a> {
+    pub positions: &'a [Vec3],
+    pub triangles: &'a [[u32; 3]],
+}
+
+impl MeshRef<'_> {
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len()
+    }
+
+    /// The three vertex positions of triangle `i`.
+    #[inline]
+    pub fn triangle(&self, i: usize) -> [Vec3; 3] {
+        self.triangles[i].map(|v| self.positions[v as usize])
+    }
+
+    /// All triangles' vertices gathered in index order.
+    pub fn triangle_vertices(&self) -> Vec<[Vec3; 3]> {
+        (0..self.triangles.len())
+            .map(|i| self.triangle(i))
+            .collect()
+    }
+}
+
+impl<'a> From<&'a Scene> for MeshRef<'a> {
+    fn from(scene: &'a Scene) -> Self {
+        scene.mesh()
     }
 }
 
@@ -266,17 +303,23 @@ impl Scene {
         self.triangles.len()
     }
 
+    /// Its geometry, as backends are built over it.
+    pub fn mesh(&self) -> MeshRef<'_> {
+        MeshRef {
+            positions: &self.positions,
+            triangles: &self.triangles,
+        }
+    }
+
     /// The three vertex positions of triangle `i`.
     #[inline]
     pub fn triangle(&self, i: usize) -> [Vec3; 3] {
-        self.triangles[i].map(|v| self.positions[v as usize])
+        self.mesh().triangle(i)
     }
 
     /// All triangles' vertices gathered in index order: what backends intersect.
     pub fn triangle_vertices(&self) -> Vec<[Vec3; 3]> {
-        (0..self.triangles.len())
-            .map(|i| self.triangle(i))
-            .collect()
+        self.mesh().triangle_vertices()
     }
 
     #[inline]

@@ -108,3 +108,14 @@ pub fn assert_one_line_error(args: &[&str], needle: &str) {
         "{args:?}: expected '{needle}' in: {err}"
     );
 }
+
+/// The binary tree of `params`' splits, built through the one entry point.
+pub fn binary(
+    tris: &[[Vec3; 3]],
+    params: &raylab::accel::bvh::BuildParams,
+) -> raylab::accel::bvh::Bvh {
+    match raylab::accel::bvh::build(tris, &params.binary()).unwrap() {
+        raylab::accel::bvh::Tree::Binary(bvh) => bvh,
+        _ => unreachable!("width 2 builds a binary tree"),
+    }
+}

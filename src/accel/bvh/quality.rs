@@ -4,8 +4,8 @@
 
 use serde::Serialize;
 
-use super::build::sah::{C_INTERSECT, C_TRAVERSAL};
-use super::Bvh;
+use super::node::Bvh;
+use super::params::{C_INTERSECT, C_TRAVERSAL};
 
 /// What `raylab stats` reports of a tree's shape.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]

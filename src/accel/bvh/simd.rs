@@ -13,10 +13,7 @@
 use glam::Vec4;
 
 use super::wide::WideNode;
-use crate::geometry::{Ray, GAMMA3};
-
-/// The slab test's conservative growth of exit distances (see [`crate::geometry::Aabb::intersect`]).
-const GROW: f32 = 1.0 + 2.0 * GAMMA3;
+use crate::geometry::{Ray, SLAB_GROW as GROW};
 
 /// A ray prepared for the node kernels: origin, reciprocal direction, and for
 /// each axis which bound row of a node is the near plane and which the far.

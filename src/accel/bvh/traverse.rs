@@ -6,24 +6,11 @@
 //! empty methods compile away, and `raylab stats` uses [`Counts`].
 
 use super::leaf::BlockTest;
-use super::Bvh;
+use super::node::Bvh;
+use super::params::{CULL_SLACK, SLAB_SLACK, STACK};
 use crate::geometry::{
     safe_reciprocal, Hit, Intersector, MollerTrumbore, Ray, TriangleTest, Watertight,
 };
-
-/// Depth bound of every builder's trees (see `build::MAX_SPLIT_DEPTH`).
-const STACK_SIZE: usize = 64;
-
-/// Slab intervals are widened by this relative amount so that f32 rounding in the
-/// slab test never culls a box that holds a hit the triangle test would report
-/// (the conservative slab test of Ize 2013 uses 1 + 2 gamma(3), about 7.2e-7).
-pub(crate) const SLAB_SLACK: f32 = 1e-6;
-
-/// Closest-hit traversal skips a box only when it starts beyond the best hit by
-/// this relative amount: Moller-Trumbore's t for rays grazing a vertex can be off
-/// by more than 1e-5 relative (measured on the adversarial rays of the tests),
-/// and a tighter cut makes the answer depend on the order boxes are visited in.
-pub(crate) const CULL_SLACK: f32 = 1e-4;
 
 /// Receives traversal events.
 pub trait Counter {
@@ -179,7 +166,7 @@ impl Traversal for Bvh {
         // Triangle tests use `tmax` just above the best t so that a hit at the same
         // t with a lower index is still found; `is_closer_than` decides.
         let mut test_ray = *ray;
-        let mut stack = [(0u32, 0f32); STACK_SIZE];
+        let mut stack = [(0u32, 0f32); STACK];
         let mut sp = 0usize;
         let root_t = self.enter(0, ray, inv_dir, ray.tmax)?;
         let mut current = Some((0u32, root_t));
@@ -225,7 +212,7 @@ impl Traversal for Bvh {
                     } else {
                         ((right, b), (left, a))
                     };
-                    debug_assert!(sp < STACK_SIZE);
+                    debug_assert!(sp < STACK);
                     stack[sp] = second;
                     sp += 1;
                     current = Some(first);
@@ -247,7 +234,7 @@ impl Traversal for Bvh {
         if self.enter(0, ray, inv_dir, ray.tmax).is_none() {
             return false;
         }
-        let mut stack = [0u32; STACK_SIZE];
+        let mut stack = [0u32; STACK];
         let mut sp = 0usize;
         let mut current = Some(0u32);
         loop {
@@ -278,7 +265,7 @@ impl Traversal for Bvh {
             let hit_right = self.enter(right, ray, inv_dir, ray.tmax).is_some();
             match (hit_left, hit_right) {
                 (true, true) => {
-                    debug_assert!(sp < STACK_SIZE);
+                    debug_assert!(sp < STACK);
                     stack[sp] = right;
                     sp += 1;
                     current = Some(left);

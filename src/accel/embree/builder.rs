@@ -14,7 +14,7 @@ use std::sync::Arc;
 use glam::Vec3;
 
 use super::{ffi, Device, Quality};
-use crate::accel::bvh::build::{skeleton_of, BuildNode, Skeleton};
+use crate::accel::bvh::node::{skeleton_of, BuildNode, Skeleton};
 use crate::error::{Error, Result};
 use crate::geometry::Aabb;
 
@@ -232,8 +232,8 @@ pub fn build(
 
     // SAH constants: the same as raylab's own SAH builder.
     let (c_t, c_i) = (
-        crate::accel::bvh::build::sah::C_TRAVERSAL,
-        crate::accel::bvh::build::sah::C_INTERSECT,
+        crate::accel::bvh::params::C_TRAVERSAL,
+        crate::accel::bvh::params::C_INTERSECT,
     );
     // SAFETY: a live device.
     let bvh = unsafe { ffi::rtcNewBVH(device.raw()) };

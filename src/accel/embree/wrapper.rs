@@ -5,7 +5,6 @@
 use std::ffi::{c_char, c_void, CStr, CString};
 use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
 
 use glam::Vec3;
 
@@ -339,8 +338,6 @@ fn embree_ray(ray: &Ray) -> ffi::RTCRay {
 /// Embree as a render backend.
 pub struct EmbreeBackend {
     scene: EmbreeScene,
-    name: String,
-    build_time: Duration,
 }
 
 impl EmbreeBackend {
@@ -349,8 +346,8 @@ impl EmbreeBackend {
         self.scene.bvh_bytes()
     }
 
-    /// Builds on a device with `threads` build threads; the build time covers
-    /// device creation, buffer copies and the BVH build.
+    /// Builds on a new device with `threads` build threads (device creation,
+    /// buffer copies and the BVH build: what [`crate::accel::build_backend`] times).
     pub fn new(scene: &Scene, quality: Quality, robust: bool, threads: usize) -> Result<Self> {
         Self::from_mesh(&scene.positions, &scene.triangles, quality, robust, threads)
     }
@@ -363,30 +360,13 @@ impl EmbreeBackend {
         robust: bool,
         threads: usize,
     ) -> Result<Self> {
-        let start = Instant::now();
         let device = Device::new(&format!("threads={threads}"))?;
         let embree = EmbreeScene::new(&device, positions, triangles, quality, robust)?;
-        Ok(EmbreeBackend {
-            scene: embree,
-            name: format!(
-                "embree-{}{}",
-                quality.name(),
-                if robust { "-robust" } else { "" }
-            ),
-            build_time: start.elapsed(),
-        })
+        Ok(EmbreeBackend { scene: embree })
     }
 }
 
 impl Backend for EmbreeBackend {
-    fn name(&self) -> String {
-        self.name.clone()
-    }
-
-    fn build_time(&self) -> Duration {
-        self.build_time
-    }
-
     fn memory_bytes(&self) -> Option<usize> {
         Some(self.scene.bvh_bytes())
     }

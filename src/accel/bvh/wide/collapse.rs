@@ -8,11 +8,12 @@ use arrayvec::ArrayVec;
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::super::build::{Skeleton, Triangles};
 use super::super::leaf::{Tri4, LANES};
+use super::super::node::{Bvh, Node, Skeleton};
+use super::super::params::MERGE_MAX;
+use super::super::prim::Triangles;
 use super::super::simd::Kernel;
-use super::super::{Bvh, Node};
-use super::node::{leaf_ref, pack_leaves, WideBvh, WideNode, EMPTY, MAX_SLOTS, MERGE_MAX};
+use super::node::{leaf_ref, pack_leaves, WideBvh, WideNode, EMPTY, MAX_SLOTS};
 use crate::error::{Error, Result};
 
 impl<const N: usize> WideBvh<N> {

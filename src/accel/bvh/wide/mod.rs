@@ -11,16 +11,16 @@ mod collapse;
 pub mod node;
 mod traverse;
 
-pub(crate) use node::{leaf_ref, pack_leaves, LEAF};
-pub use node::{Bvh4, Bvh8, WideBvh, WideNode, EMPTY, MAX_LEAF, MAX_SLOTS, MERGE_MAX};
+pub use node::{Bvh4, Bvh8, WideBvh, WideNode, EMPTY, MAX_LEAF, MAX_SLOTS};
 
 #[cfg(test)]
 mod tests {
-    use super::node::{for_leaf_blocks, leaf_slots, DEEP_STACK, STACK};
+    use super::node::{for_leaf_blocks, leaf_ref, leaf_slots, LEAF};
     use super::*;
     use crate::accel::bvh::leaf::{Tri4, LANES};
+    use crate::accel::bvh::params::{DEEP_STACK, MERGE_MAX, STACK};
     use crate::accel::bvh::simd::Kernel;
-    use crate::accel::bvh::test_fixtures::random_tris;
+    use crate::accel::bvh::test_fixtures::{binary, random_tris};
     use crate::accel::bvh::traverse::Traversal;
     use crate::accel::bvh::BuildParams;
     use crate::accel::bvh::Bvh;
@@ -40,7 +40,7 @@ mod tests {
     #[test]
     fn small_leaves_share_blocks() {
         let tris = random_tris(4000, 5);
-        let bvh = Bvh::build(&tris, &BuildParams::sah().with_width(8)).unwrap();
+        let bvh = binary(&tris, &BuildParams::sah().with_width(8));
         let wide = Bvh8::collapse(&bvh).unwrap();
         let fill = wide.triangle_count() as f64 / (wide.blocks.len() * LANES) as f64;
         let mean_leaf = tris.len() as f64 / bvh.nodes.iter().filter(|n| n.is_leaf()).count() as f64;
@@ -55,7 +55,7 @@ mod tests {
     fn leaves_over_sixteen_triangles_are_refused_for_wide_trees() {
         // 200 triangles halved down to at most 32 per leaf: leaves of 25.
         let tris = random_tris(200, 1);
-        let bvh = Bvh::build(&tris, &BuildParams::median().with_max_leaf_size(32)).unwrap();
+        let bvh = binary(&tris, &BuildParams::median().with_max_leaf_size(32));
         let Err(err) = Bvh8::collapse(&bvh) else {
             panic!("a leaf of 25 triangles was accepted");
         };
@@ -103,7 +103,7 @@ mod tests {
                 BuildParams::median(),
                 BuildParams::sah().with_max_leaf_size(9),
             ] {
-                let bvh = Bvh::build(&tris, &params).unwrap();
+                let bvh = binary(&tris, &params);
                 let wide = WideBvh::<N>::collapse(&bvh).unwrap();
                 // Every triangle lands in exactly one block lane.
                 let mut ids: Vec<u32> = wide
@@ -173,7 +173,7 @@ mod tests {
     fn check_merged<const N: usize>() {
         let tris = random_tris(5000, 21);
         // The wide trees' SAH (leaf tests in pairs): leaves of 2 to 4.
-        let bvh = Bvh::build(&tris, &BuildParams::sah().with_sah_block(2)).unwrap();
+        let bvh = binary(&tris, &BuildParams::sah().with_sah_block(2));
         let binary_small = (1..bvh.nodes.len())
             .filter(|&i| {
                 let n = bvh.nodes[i];
@@ -227,7 +227,7 @@ mod tests {
     {
         let tris = random_tris(2000, 11);
         for params in [BuildParams::median(), BuildParams::sah()] {
-            let bvh = Bvh::build(&tris, &params).unwrap();
+            let bvh = binary(&tris, &params);
             let wide = WideBvh::<N>::collapse_with(&bvh, kernel).unwrap();
             let mut rng = Rng::for_pixel(2, 13, 1);
             for k in 0..20_000 {
@@ -273,7 +273,7 @@ mod tests {
                 ]
             })
             .collect();
-        let bvh = Bvh::build(&tris, &BuildParams::median()).unwrap();
+        let bvh = binary(&tris, &BuildParams::median());
         let wide = Bvh8::collapse(&bvh).unwrap();
         assert!(wide.stack_need <= DEEP_STACK);
         let ray = Ray::new(Vec3::new(0.0, 0.5, -1.0), Vec3::Z);

@@ -20,28 +20,11 @@ pub(crate) const LEAF: u32 = 1 << 31;
 /// A leaf reference holds the leaf's first triangle slot (block * 4 + lane)
 /// in its low bits and its triangle count minus one above them.
 pub(super) const SLOT_BITS: u32 = 27;
-/// Most triangles in one leaf of a wide tree.
+/// Most triangles in one leaf of a wide tree (the count's four bits above
+/// the slot).
 pub const MAX_LEAF: usize = 16;
-
-/// A wide node's interior child of at most this many triangles whose two
-/// halves are both leaves is made one leaf of all of them (two blocks at
-/// most), not a node of two leaf lanes. Such nodes were 37% of mesh:1e6's
-/// 8-wide nodes, for a box test that saves at most one block test; as
-/// leaves, the tree took 59.3 bytes per triangle instead of 68.6, and its
-/// rays ran at the same speed or faster on one thread (cornell-sphere,
-/// cornell-water, mesh:1e5, mesh:1e6, two trace runs each). The SAH with
-/// pair-costed leaves would merge few of them: it prices the node's test at
-/// one triangle pair, below what it costs.
-pub const MERGE_MAX: usize = 8;
 /// Triangle slots addressable by a leaf reference (2^27, about 134 million).
 pub const MAX_SLOTS: usize = 1 << SLOT_BITS;
-
-/// Stack entries of the traversals of ordinary trees; a tree whose deepest
-/// path could need more (see [`WideBvh::stack_need`]) is traversed with
-/// [`DEEP_STACK`] entries.
-pub(super) const STACK: usize = 64;
-/// Enough for any tree of binary depth 64, the bound every builder keeps.
-pub(super) const DEEP_STACK: usize = 64 * 7 + 1;
 
 /// Packs the leaves of one node, of `counts` triangles, into new blocks
 /// numbered from `first_block`: first fit, largest first, so that leaves of

@@ -7,9 +7,10 @@
 use arrayvec::ArrayVec;
 
 use super::super::leaf::{BlockTest, Ray4, LANES};
+use super::super::params::{CULL_SLACK, DEEP_STACK, SLAB_SLACK, STACK};
 use super::super::simd::{prefetch, Avx2, Kernel, NodeKernel, Portable, WideRay};
-use super::super::traverse::{Counter, Traversal, CULL_SLACK, SLAB_SLACK};
-use super::node::{for_leaf_blocks, leaf_slots, WideBvh, DEEP_STACK, LEAF, STACK};
+use super::super::traverse::{Counter, Traversal};
+use super::node::{for_leaf_blocks, leaf_slots, WideBvh, LEAF};
 use crate::geometry::{safe_reciprocal, Hit, Ray};
 
 impl<const N: usize> WideBvh<N> {

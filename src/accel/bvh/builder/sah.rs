@@ -14,17 +14,12 @@
 
 use glam::{Vec3, Vec4};
 
-use super::{median_partition, side_infos, Box4, NodeInfo, PrimRef, Splitter, MAX_SPLIT_DEPTH};
+use super::topdown::{median_partition, side_infos, Splitter};
+use crate::accel::bvh::params::{
+    BIN_ROUND, C_INTERSECT, C_TRAVERSAL, MAX_SPLIT_DEPTH, PARALLEL_REDUCE_CUTOFF, SWEEP_MAX,
+};
+use crate::accel::bvh::prim::{Box4, NodeInfo, PrimRef};
 use crate::accel::bvh::simd::bin_indices;
-
-/// Cost of visiting a node, relative to one ray/triangle test.
-pub const C_TRAVERSAL: f32 = 1.0;
-/// Cost of one ray/triangle test.
-pub const C_INTERSECT: f32 = 1.0;
-/// Default most triangles per leaf (see the README for the measurement).
-pub const DEFAULT_MAX_LEAF_SIZE: usize = 4;
-/// Nodes of at most this many triangles are split by the exact sweep.
-pub const SWEEP_MAX: usize = 16;
 
 pub struct BinnedSah {
     max_leaf: usize,
@@ -111,10 +106,6 @@ pub fn bins_for(n: usize) -> usize {
         8
     }
 }
-
-/// Primitives binned per round: their bin indices are computed first, then
-/// the bins updated.
-const BIN_ROUND: usize = 32;
 
 /// Bins `prims` into `B` bins. Two things keep the updates (a load, min or
 /// max and store of each axis's bin) from waiting on one another, which
@@ -212,10 +203,10 @@ impl BinnedSah {
         let scale =
             Vec3::select(extent.cmpgt(Vec3::ZERO), B as f32 / extent, Vec3::ZERO).extend(0.0);
         let bin_chunk = |chunk: &[PrimRef]| bin_pairs::<B>(chunk, lo, scale);
-        let bins = if parallel && n >= super::PARALLEL_REDUCE_CUTOFF {
+        let bins = if parallel && n >= PARALLEL_REDUCE_CUTOFF {
             use rayon::prelude::*;
             prims
-                .par_chunks(super::PARALLEL_REDUCE_CUTOFF / 4)
+                .par_chunks(PARALLEL_REDUCE_CUTOFF / 4)
                 .map(bin_chunk)
                 .reduce(Bins::empty, |mut a, b| {
                     a.add(&b);

@@ -24,14 +24,14 @@
 use arrayvec::ArrayVec;
 use rayon::prelude::*;
 
-use super::{
-    padded, prim_refs, try_split, NodeInfo, PrimRef, Splitter, Triangles, PARALLEL_CUTOFF,
-};
+use super::topdown::{prim_refs, try_split, Splitter};
 use crate::accel::bvh::leaf::{Tri4, EMPTY_ID, LANES};
+use crate::accel::bvh::node::padded;
+use crate::accel::bvh::params::{FILL_AHEAD, MERGE_MAX, PARALLEL_CUTOFF};
+use crate::accel::bvh::prim::{NodeInfo, PrimRef, Triangles};
 use crate::accel::bvh::simd::Kernel;
-use crate::accel::bvh::wide::{
-    leaf_ref, pack_leaves, WideBvh, WideNode, EMPTY, LEAF, MAX_SLOTS, MERGE_MAX,
-};
+use crate::accel::bvh::wide::node::{leaf_ref, pack_leaves, LEAF};
+use crate::accel::bvh::wide::{WideBvh, WideNode, EMPTY, MAX_SLOTS};
 use crate::error::{Error, Result};
 
 /// A split as [`Splitter::split`] returns it (`None`: a leaf).
@@ -520,10 +520,6 @@ impl<const N: usize> Layout<N> {
     }
 }
 
-/// Blocks ahead of the one being filled whose triangles' vertices are
-/// prefetched (and twice as far, their index triples).
-const FILL_AHEAD: usize = 8;
-
 /// Builds the `N`-wide tree over `triangles` with `splitter`, in parallel on
 /// the current rayon pool when `parallel`.
 pub fn build<const N: usize, T: Triangles + ?Sized, S: Splitter>(
@@ -565,13 +561,15 @@ pub fn build<const N: usize, T: Triangles + ?Sized, S: Splitter>(
 mod tests {
     use glam::Vec3;
 
-    use super::super::{build_skeleton, in_pool, wide_here, BuildParams};
+    use super::super::pool::in_pool;
+    use super::super::{skeleton, wide};
     use crate::accel::bvh::test_fixtures::random_tris;
     use crate::accel::bvh::wide::WideBvh;
+    use crate::accel::bvh::BuildParams;
 
     fn same_as_collapse<const N: usize>(tris: &Vec<[Vec3; 3]>, params: &BuildParams) {
-        let direct = in_pool(params.threads, || wide_here::<N, _>(tris, params)).unwrap();
-        let skeleton = build_skeleton(tris, params).unwrap();
+        let direct = in_pool(params.threads, || wide::<N, _>(tris, params)).unwrap();
+        let skeleton = in_pool(params.threads, || skeleton(tris, params)).unwrap();
         let collapsed = WideBvh::<N>::from_skeleton(&skeleton, tris, false).unwrap();
         let what = format!("N = {N}, {} triangles, {params:?}", tris.len());
         assert_eq!(direct.nodes.len(), collapsed.nodes.len(), "{what}");

@@ -4,7 +4,8 @@
 //! leaf. The partition is found by selection in O(n) rather than a full sort; the
 //! split sets are the same (ties broken by triangle index).
 
-use super::{median_partition, side_infos, NodeInfo, PrimRef, Splitter};
+use super::topdown::{median_partition, side_infos, Splitter};
+use crate::accel::bvh::prim::{NodeInfo, PrimRef};
 
 pub struct Median {
     pub max_leaf: usize,

@@ -1,0 +1,222 @@
+//! Every tunable of raylab's BVHs in one place: the builders a user can pick
+//! and their parameters ([`BuildParams`], with `const fn` presets), and the
+//! constants the builders, the wide layout and the traversals share. Each
+//! value was chosen by measurement; the measurements are in the doc comments
+//! and in `docs/design.md`. Constants that define a layout's encoding (bit
+//! fields, lane counts) stay beside the layout.
+
+/// The builders a user can choose with `--builder`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum BuilderKind {
+    /// The study's: median split on centroids along an axis cycling x, y, z.
+    Median,
+    /// Binned surface-area heuristic over all three axes.
+    Sah,
+    /// Embree's builder (rtcBuildBVH) at low quality, in raylab's layout.
+    EmbreeLow,
+    /// Embree's builder at medium quality.
+    EmbreeMedium,
+    /// Embree's builder at high quality (spatial splits).
+    EmbreeHigh,
+}
+
+impl BuilderKind {
+    pub const ALL: [BuilderKind; 5] = [
+        BuilderKind::Median,
+        BuilderKind::Sah,
+        BuilderKind::EmbreeLow,
+        BuilderKind::EmbreeMedium,
+        BuilderKind::EmbreeHigh,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            BuilderKind::Median => "median",
+            BuilderKind::Sah => "sah",
+            BuilderKind::EmbreeLow => "embree-low",
+            BuilderKind::EmbreeMedium => "embree-medium",
+            BuilderKind::EmbreeHigh => "embree-high",
+        }
+    }
+
+    /// Embree's build quality for the `embree-*` builders.
+    pub fn embree_quality(self) -> Option<crate::accel::embree::Quality> {
+        use crate::accel::embree::Quality;
+        match self {
+            BuilderKind::EmbreeLow => Some(Quality::Low),
+            BuilderKind::EmbreeMedium => Some(Quality::Medium),
+            BuilderKind::EmbreeHigh => Some(Quality::High),
+            _ => None,
+        }
+    }
+}
+
+/// Build parameters; the presets are the defaults chosen by measurement.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BuildParams {
+    pub builder: BuilderKind,
+    /// Most triangles in one leaf. The median builder splits down to this (the
+    /// study used 1); the SAH builder may stop earlier when a split does not pay.
+    pub max_leaf_size: usize,
+    /// Threads for the build: 1 builds serially on the calling thread.
+    pub threads: usize,
+    /// Children per node of the tree traversed: 2 (the built tree), 4 or 8
+    /// (wide SIMD nodes, [`super::wide`]).
+    pub width: usize,
+    /// The SAH counts a leaf's triangle tests in blocks of this many: 1 for the
+    /// binary tree (one test per triangle), 4 for the wide trees, whose leaves
+    /// are tested four triangles at once ([`super::leaf`]), as Embree's
+    /// `sahBlockSize`. Set by [`BuildParams::with_width`].
+    pub sah_block: usize,
+}
+
+impl BuildParams {
+    /// The study's tree: one triangle per leaf, built serially.
+    pub const fn median() -> Self {
+        BuildParams {
+            builder: BuilderKind::Median,
+            max_leaf_size: 1,
+            threads: 1,
+            width: 2,
+            sah_block: 1,
+        }
+    }
+
+    /// Binned SAH with the default leaf limit, built serially.
+    pub const fn sah() -> Self {
+        BuildParams {
+            builder: BuilderKind::Sah,
+            max_leaf_size: DEFAULT_MAX_LEAF_SIZE,
+            threads: 1,
+            width: 2,
+            sah_block: 1,
+        }
+    }
+
+    /// Each builder's defaults; Embree's builder gets the SAH builder's leaf limit
+    /// so that the two are compared like for like.
+    pub const fn for_builder(builder: BuilderKind) -> Self {
+        match builder {
+            BuilderKind::Median => Self::median(),
+            _ => BuildParams {
+                builder,
+                ..Self::sah()
+            },
+        }
+    }
+
+    pub const fn with_threads(mut self, threads: usize) -> Self {
+        self.threads = threads;
+        self
+    }
+
+    /// Traverse a `width`-wide tree (2, 4 or 8); wide trees are built with
+    /// the SAH counting leaf tests in pairs ([`WIDE_SAH_BLOCK`]).
+    pub const fn with_width(mut self, width: usize) -> Self {
+        self.width = width;
+        self.sah_block = if width > 2 { WIDE_SAH_BLOCK } else { 1 };
+        self
+    }
+
+    /// The binary tree of the same splits: width 2, the SAH block kept (what
+    /// a wide tree's SAH cost is measured on, and what a collapse starts from).
+    pub const fn binary(self) -> Self {
+        let block = self.sah_block;
+        self.with_width(2).with_sah_block(block)
+    }
+
+    /// Counts leaf tests in blocks of `block` triangles in the SAH.
+    pub const fn with_sah_block(mut self, block: usize) -> Self {
+        self.sah_block = block;
+        self
+    }
+
+    pub const fn with_max_leaf_size(mut self, n: usize) -> Self {
+        self.max_leaf_size = n;
+        self
+    }
+}
+
+/// The SAH's leaf-test block for wide trees, chosen by measurement (README):
+/// counting tests in blocks of four, as the SIMD leaf test does them, makes
+/// every node of up to four triangles a leaf however spread out, and rays
+/// that start on surfaces (shadow, AO) then test more triangles (AO on
+/// mesh:1e5 fell from 18.9 to 11.9 Mrays/s); counting one test per triangle
+/// leaves blocks half empty; pairs give the fastest trees, and small leaves
+/// share blocks ([`super::wide`]), which keeps their memory near the
+/// four-block tree's.
+pub const WIDE_SAH_BLOCK: usize = 2;
+
+// ---- The SAH ----
+
+/// Cost of visiting a node, relative to one ray/triangle test.
+pub const C_TRAVERSAL: f32 = 1.0;
+/// Cost of one ray/triangle test.
+pub const C_INTERSECT: f32 = 1.0;
+/// Default most triangles per leaf (see `docs/design.md` for the measurement).
+pub const DEFAULT_MAX_LEAF_SIZE: usize = 4;
+/// Nodes of at most this many triangles are split by the exact sweep.
+pub const SWEEP_MAX: usize = 16;
+/// Primitives binned per round: their bin indices are computed first, then
+/// the bins updated.
+pub const BIN_ROUND: usize = 32;
+
+// ---- Parallelism and depth of the top-down builds ----
+
+/// Below this many primitives a subtree is built on the current thread.
+pub const PARALLEL_CUTOFF: usize = 4096;
+
+/// Beyond this depth every builder falls back to an object-median split, which
+/// bounds the depth by `MAX_SPLIT_DEPTH + log2(n)`, within the traversal stack.
+pub const MAX_SPLIT_DEPTH: u32 = 32;
+
+/// Below this many primitives a per-node reduction (bounds, bins) runs serially.
+pub const PARALLEL_REDUCE_CUTOFF: usize = 1 << 16;
+
+// ---- Layouts ----
+
+/// Node boxes are stored grown by this fraction of their largest coordinate
+/// magnitude (and of their extent). The ray/triangle test accepts hits that lie
+/// outside a triangle by rounding error (a ray aimed at a shared vertex), and
+/// the box must still admit those rays or the BVH would miss hits the naive scan
+/// finds. A parent's margin is never smaller than its children's, so children
+/// stay inside their parents.
+pub const BOX_MARGIN: f32 = 1.0 / (1 << 20) as f32;
+
+/// A wide node's interior child of at most this many triangles whose two
+/// halves are both leaves is made one leaf of all of them (two blocks at
+/// most), not a node of two leaf lanes. Such nodes were 37% of mesh:1e6's
+/// 8-wide nodes, for a box test that saves at most one block test; as
+/// leaves, the tree took 59.3 bytes per triangle instead of 68.6, and its
+/// rays ran at the same speed or faster on one thread (cornell-sphere,
+/// cornell-water, mesh:1e5, mesh:1e6, two trace runs each). The SAH with
+/// pair-costed leaves would merge few of them: it prices the node's test at
+/// one triangle pair, below what it costs.
+pub const MERGE_MAX: usize = 8;
+
+/// Blocks ahead of the one being filled whose triangles' vertices are
+/// prefetched by the wide build's leaf fill (and twice as far, their index
+/// triples).
+pub const FILL_AHEAD: usize = 8;
+
+// ---- Traversal ----
+
+/// Stack entries of the traversals of ordinary trees: every builder bounds
+/// the binary depth by [`MAX_SPLIT_DEPTH`]` + log2(n)`, within 64. A wide
+/// tree whose deepest path could need more (see `WideBvh::stack_need`) is
+/// traversed with [`DEEP_STACK`] entries.
+pub const STACK: usize = 64;
+/// Enough for any wide tree of binary depth 64.
+pub const DEEP_STACK: usize = 64 * 7 + 1;
+
+/// Slab intervals are widened by this relative amount so that f32 rounding in the
+/// slab test never culls a box that holds a hit the triangle test would report
+/// (the conservative slab test of Ize 2013 uses 1 + 2 gamma(3), about 7.2e-7).
+pub const SLAB_SLACK: f32 = 1e-6;
+
+/// Closest-hit traversal skips a box only when it starts beyond the best hit by
+/// this relative amount: Moller-Trumbore's t for rays grazing a vertex can be off
+/// by more than 1e-5 relative (measured on the adversarial rays of the tests),
+/// and a tighter cut makes the answer depend on the order boxes are visited in.
+pub const CULL_SLACK: f32 = 1e-4;

@@ -1,0 +1,282 @@
+//! What to build, and building it: a [`BackendSpec`] names one backend with
+//! its own options, [`build_backend`] turns it into a [`Built`] backend, timed
+//! once here, and every report names a backend by its spec ([`BackendSpec::name`]).
+
+use std::time::{Duration, Instant};
+
+use super::bvh::{BuildParams, BvhBackend};
+use super::embree::Quality;
+use super::naive::Naive;
+use super::Backend;
+use crate::geometry::Intersector;
+use crate::scene::MeshRef;
+
+/// The backends a user can pick with `--backend` (and `validate --against`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum BackendKind {
+    /// Every triangle for every ray (the study's O(N) baseline).
+    Naive,
+    /// A hand-built BVH (`--builder` chooses how).
+    Bvh,
+    /// Intel Embree's single-ray queries (rtcIntersect1/rtcOccluded1).
+    Embree,
+}
+
+impl BackendKind {
+    /// The name `--backend` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            BackendKind::Naive => "naive",
+            BackendKind::Bvh => "bvh",
+            BackendKind::Embree => "embree",
+        }
+    }
+}
+
+/// One backend and how to build it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum BackendSpec {
+    /// The naive scan with its ray/triangle test.
+    Naive { intersector: Intersector },
+    /// raylab's BVH: builder, width, build threads, and the ray/triangle test.
+    Bvh {
+        params: BuildParams,
+        intersector: Intersector,
+    },
+    /// Embree's scene at a build quality, optionally robust, built on `threads`.
+    Embree {
+        quality: Quality,
+        robust: bool,
+        threads: usize,
+    },
+}
+
+impl BackendSpec {
+    /// The naive scan with Moller-Trumbore.
+    pub const fn naive() -> Self {
+        BackendSpec::Naive {
+            intersector: Intersector::Mt,
+        }
+    }
+
+    /// raylab's BVH built with `params`, Moller-Trumbore.
+    pub const fn bvh(params: BuildParams) -> Self {
+        BackendSpec::Bvh {
+            params,
+            intersector: Intersector::Mt,
+        }
+    }
+
+    /// Embree at medium quality, not robust (Embree's defaults), built on `threads`.
+    pub const fn embree(threads: usize) -> Self {
+        BackendSpec::Embree {
+            quality: Quality::Medium,
+            robust: false,
+            threads,
+        }
+    }
+
+    /// Each kind's default (for `bvh`: the 2-wide SAH tree), built on `threads`.
+    pub const fn default_for(kind: BackendKind, threads: usize) -> Self {
+        match kind {
+            BackendKind::Naive => Self::naive(),
+            BackendKind::Bvh => Self::bvh(BuildParams::sah().with_threads(threads)),
+            BackendKind::Embree => Self::embree(threads),
+        }
+    }
+
+    pub const fn kind(&self) -> BackendKind {
+        match self {
+            BackendSpec::Naive { .. } => BackendKind::Naive,
+            BackendSpec::Bvh { .. } => BackendKind::Bvh,
+            BackendSpec::Embree { .. } => BackendKind::Embree,
+        }
+    }
+
+    /// Whether this is Embree (the industrial reference, with its own arithmetic).
+    pub const fn is_embree(&self) -> bool {
+        matches!(self, BackendSpec::Embree { .. })
+    }
+
+    /// The name reports use: `naive`, `bvh-<builder>` (`bvh4-`, `bvh8-` for the
+    /// wide trees), `embree-<quality>` (`-robust`); raylab's backends add
+    /// `-watertight` for the watertight triangle test.
+    pub fn name(&self) -> String {
+        let with_test = |base: String, intersector: &Intersector| match intersector {
+            Intersector::Mt => base,
+            other => format!("{base}-{}", other.name()),
+        };
+        match self {
+            BackendSpec::Naive { intersector } => with_test("naive".into(), intersector),
+            BackendSpec::Bvh {
+                params,
+                intersector,
+            } => {
+                let tree = match params.width {
+                    2 => "bvh".to_string(),
+                    w => format!("bvh{w}"),
+                };
+                with_test(format!("{tree}-{}", params.builder.name()), intersector)
+            }
+            BackendSpec::Embree {
+                quality, robust, ..
+            } => format!(
+                "embree-{}{}",
+                quality.name(),
+                if *robust { "-robust" } else { "" }
+            ),
+        }
+    }
+
+    /// Threads the build runs on (the naive scan builds nothing: 1).
+    pub const fn build_threads(&self) -> usize {
+        match self {
+            BackendSpec::Naive { .. } => 1,
+            BackendSpec::Bvh { params, .. } => params.threads,
+            BackendSpec::Embree { threads, .. } => *threads,
+        }
+    }
+
+    /// The same backend built on `threads`.
+    pub const fn with_build_threads(mut self, threads: usize) -> Self {
+        match &mut self {
+            BackendSpec::Naive { .. } => {}
+            BackendSpec::Bvh { params, .. } => *params = params.with_threads(threads),
+            BackendSpec::Embree { threads: t, .. } => *t = threads,
+        }
+        self
+    }
+
+    /// The same backend with `intersector` for its triangle tests; Embree has
+    /// its own test, so its spec is returned unchanged.
+    pub const fn with_intersector(mut self, test: Intersector) -> Self {
+        match &mut self {
+            BackendSpec::Naive { intersector } | BackendSpec::Bvh { intersector, .. } => {
+                *intersector = test
+            }
+            BackendSpec::Embree { .. } => {}
+        }
+        self
+    }
+}
+
+/// A backend as built: the structure, the spec it was built from, and the wall
+/// time from the triangles to a ready structure.
+pub struct Built {
+    pub spec: BackendSpec,
+    pub backend: Box<dyn Backend>,
+    pub build_time: Duration,
+}
+
+impl Built {
+    /// [`BackendSpec::name`].
+    pub fn name(&self) -> String {
+        self.spec.name()
+    }
+}
+
+impl AsRef<dyn Backend> for Built {
+    fn as_ref(&self) -> &(dyn Backend + 'static) {
+        self.backend.as_ref()
+    }
+}
+
+impl std::ops::Deref for Built {
+    type Target = dyn Backend;
+    fn deref(&self) -> &(dyn Backend + 'static) {
+        self.backend.as_ref()
+    }
+}
+
+/// Builds the backend `spec` names over `mesh` (a scene, or raw arrays with
+/// degenerate triangles kept, as the stress suites want), and times it: from
+/// the triangles to a ready structure (gathering, device creation, buffer
+/// copies, the build and any collapse to a wide tree).
+pub fn build_backend<'a>(spec: &BackendSpec, mesh: impl Into<MeshRef<'a>>) -> crate::Result<Built> {
+    let mesh = mesh.into();
+    let start = Instant::now();
+    let backend: Box<dyn Backend> = match *spec {
+        BackendSpec::Naive { intersector } => {
+            Box::new(Naive::from_triangles(mesh.triangle_vertices()).with_intersector(intersector))
+        }
+        BackendSpec::Bvh {
+            params,
+            intersector,
+        } => Box::new(BvhBackend::new(&mesh, &params)?.with_intersector(intersector)),
+        #[cfg(feature = "embree")]
+        BackendSpec::Embree {
+            quality,
+            robust,
+            threads,
+        } => Box::new(super::embree::EmbreeBackend::from_mesh(
+            mesh.positions,
+            mesh.triangles,
+            quality,
+            robust,
+            threads,
+        )?),
+        #[cfg(not(feature = "embree"))]
+        BackendSpec::Embree { .. } => return Err(super::embree::unavailable()),
+    };
+    Ok(Built {
+        spec: *spec,
+        backend,
+        build_time: start.elapsed(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::bvh::BuilderKind;
+
+    #[test]
+    fn names_derive_from_the_spec() {
+        let sah = BuildParams::sah();
+        let cases = [
+            (BackendSpec::naive(), "naive"),
+            (
+                BackendSpec::naive().with_intersector(Intersector::Watertight),
+                "naive-watertight",
+            ),
+            (BackendSpec::bvh(BuildParams::median()), "bvh-median"),
+            (BackendSpec::bvh(sah.with_width(4)), "bvh4-sah"),
+            (
+                BackendSpec::bvh(sah.with_width(8)).with_intersector(Intersector::Watertight),
+                "bvh8-sah-watertight",
+            ),
+            (
+                BackendSpec::bvh(BuildParams::for_builder(BuilderKind::EmbreeHigh)),
+                "bvh-embree-high",
+            ),
+            (BackendSpec::embree(2), "embree-medium"),
+            (
+                BackendSpec::Embree {
+                    quality: Quality::High,
+                    robust: true,
+                    threads: 1,
+                },
+                "embree-high-robust",
+            ),
+        ];
+        for (spec, name) in cases {
+            assert_eq!(spec.name(), name);
+        }
+        // Embree keeps its own test whatever is asked.
+        let e = BackendSpec::embree(1);
+        assert_eq!(e.with_intersector(Intersector::Watertight), e);
+    }
+
+    #[test]
+    fn build_threads_follow_the_spec() {
+        for kind in [BackendKind::Naive, BackendKind::Bvh, BackendKind::Embree] {
+            let spec = BackendSpec::default_for(kind, 3);
+            assert_eq!(spec.kind(), kind);
+            let naive = kind == BackendKind::Naive;
+            assert_eq!(spec.build_threads(), if naive { 1 } else { 3 });
+            let five = spec.with_build_threads(5);
+            assert_eq!(five.build_threads(), if naive { 1 } else { 5 });
+            assert_eq!(five.kind(), kind);
+        }
+    }
+}
