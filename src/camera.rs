@@ -88,7 +88,7 @@ pub const FRAMING_DIRECTION: [f32; 3] = [0.5, 0.4, 1.0];
 /// framed bounding box.
 pub const FRAMING_MARGIN: f32 = 0.05;
 
-/// The default view of a scene (the README's rule): look at the centre of the
+/// The default view of a scene (the rule in docs/reference.md): look at the centre of the
 /// bounding box of `points` from [`FRAMING_DIRECTION`] (right, up, front), at
 /// the smallest distance where every point lies inside the image with a margin
 /// of [`FRAMING_MARGIN`] of its half-size (and the eye outside the bounding

@@ -20,7 +20,7 @@ use crate::scene::Scene;
 #[derive(Args, Debug, Clone)]
 pub struct ViewArgs {
     /// Eye position [default: (0,1,3) for the built-in boxes; for other scenes
-    /// the framing rule (see the README)].
+    /// the framing rule (docs/reference.md)].
     #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_vec3)]
     pub eye: Option<Vec3>,
     /// Point looked at [default: (0,1,0) for the built-in boxes; the centre of

@@ -57,7 +57,7 @@ impl Emitter {
         }
     }
 
-    /// The default light of a scene without emissive triangles (the rule the README
+    /// The default light of a scene without emissive triangles (the rule docs/reference.md
     /// documents): a square of side a quarter of the bounding box's diagonal `d`,
     /// facing down the `up` axis towards the box's centre `c`, centred at
     /// `c + up * (h/2 + d/2) + front * d/4` where `h` is the box's extent along

@@ -138,7 +138,7 @@ impl BuildParams {
     }
 }
 
-/// The SAH's leaf-test block for wide trees, chosen by measurement (README):
+/// The SAH's leaf-test block for wide trees, chosen by measurement (docs/design.md):
 /// counting tests in blocks of four, as the SIMD leaf test does them, makes
 /// every node of up to four triangles a leaf however spread out, and rays
 /// that start on surfaces (shadow, AO) then test more triangles (AO on
