@@ -19,7 +19,7 @@ use crate::accel::{build_backend, BackendKind};
 use crate::camera::Camera;
 use crate::error::Result;
 use crate::progress::{Progress, StepBar};
-use crate::render::{output, render, AoMode, Frame, RenderSettings, RenderStats};
+use crate::render::{output, render, AoMode, Frame, RenderSettings, RenderStats, Schedule};
 use crate::scene::Scene;
 use crate::table::ms;
 
@@ -526,6 +526,33 @@ pub fn run_once(
     )?;
     let render_ms = ms(start.elapsed());
     Ok((build_ms, render_ms, frame, stats))
+}
+
+/// Renders `reps` times and returns the render times and the last frame.
+pub(super) fn timed_renders(
+    scene: &Scene,
+    backend: &dyn crate::accel::Backend,
+    settings: &RenderSettings,
+    schedule: Schedule,
+    threads: usize,
+    reps: usize,
+) -> Result<(Stat, Frame)> {
+    let mut times = Vec::with_capacity(reps);
+    let mut frame = None;
+    for _ in 0..reps.max(1) {
+        let start = Instant::now();
+        let (f, _) = render(
+            scene,
+            backend,
+            settings,
+            schedule,
+            threads,
+            &Progress::new(),
+        )?;
+        times.push(ms(start.elapsed()));
+        frame = Some(f);
+    }
+    Ok((Stat::of(&times), frame.expect("at least one render")))
 }
 
 #[cfg(test)]

@@ -2,24 +2,24 @@
 //! experiments and charts that explain them, written as Markdown, CSV, JSON,
 //! PNG/SVG charts and one HTML page.
 //!
-//! Parts: `tables` (the variant matrix, [`measure`]), `scaling`, `growth`,
-//! `ao-error`, `builders`, `leaks` and `validate` ([`extras`]), and `trace`
-//! (query throughput without shading, [`trace`]). Images for the
-//! report come from the matrix's own renders.
+//! The parts (`--parts`) live in [`parts`], one file each: `tables` (the
+//! variant matrix, measured by [`measure`]), `trace` (query throughput without
+//! shading), `scaling`, `growth`, `ao-error`, `builders`, `leaks` and
+//! `validate`. This file runs them in order and writes the report; images for
+//! it come from the matrix's own renders.
 //!
 //! How the matrix measures and what each part does: `docs/design.md`, "The
 //! bench"; results of full runs: `docs/results.md`.
 
 pub mod charts;
-pub mod extras;
+pub mod config;
 pub mod html;
 pub mod measure;
 pub mod metrics;
-pub mod tables;
-pub mod trace;
+pub mod parts;
 pub mod variants;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use serde::Serialize;
 
@@ -27,169 +27,15 @@ use crate::error::{Error, Result};
 use crate::progress::StepBar;
 use crate::render::{output, AoMode};
 use crate::scene::Scene;
-use crate::table::{
-    Align::{Left, Right},
-    Table,
-};
-use extras::{AoErrorPoint, BuilderPoint, GrowthPoint, ScalingPoint, ValidationRow};
-use measure::{Matrix, Measurement, View, ViewPlan};
-use variants::Variant;
-
-/// The parts of a bench run (`--parts`), in the order they run. Each part's
-/// name, report title, chart and caption are here, in one place.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Part {
-    /// The study's matrix: every variant on every scene, view and AO mode.
-    Tables,
-    /// Query throughput per backend and ray kind on recorded rays, and builds.
-    Trace,
-    /// Render speedup over one thread, per schedule.
-    Scaling,
-    /// Build time and time per ray against triangle count.
-    Growth,
-    /// AO error against render time.
-    AoError,
-    /// Tree quality against build and render time, per builder.
-    Builders,
-    /// Rays that leak through closed meshes, per intersection method.
-    Leaks,
-    /// Every BVH's hits against Embree's (or naive's).
-    Validate,
-}
-
-impl Part {
-    pub const ALL: [Part; 8] = [
-        Part::Tables,
-        Part::Trace,
-        Part::Scaling,
-        Part::Growth,
-        Part::AoError,
-        Part::Builders,
-        Part::Leaks,
-        Part::Validate,
-    ];
-
-    /// The name `--parts` takes.
-    pub fn name(self) -> &'static str {
-        match self {
-            Part::Tables => "tables",
-            Part::Trace => "trace",
-            Part::Scaling => "scaling",
-            Part::Growth => "growth",
-            Part::AoError => "ao-error",
-            Part::Builders => "builders",
-            Part::Leaks => "leaks",
-            Part::Validate => "validate",
-        }
-    }
-
-    /// The HTML report's section title, the stem of the part's chart files and
-    /// the chart's caption, for the parts with a section of their own (the
-    /// tables part has the speedup section, validate has no chart).
-    fn section(self) -> Option<(&'static str, &'static str, &'static str)> {
-        Some(match self {
-            Part::Trace => ("Query throughput", "trace-", "Rays traced per second per backend, scene and ray kind, on one thread count per chart (log scale; the same recorded rays for every backend, no shading)."),
-            Part::Scaling => ("Thread scaling", "thread-scaling", "Render speedup over one thread per schedule; the grey line is ideal scaling."),
-            Part::Growth => ("Cost growth", "cost-growth", "Build time and time per ray against triangle count (log-log): naive grows as O(N) per ray, the hierarchies as O(log N)."),
-            Part::AoError => ("AO error against time", "ao-error", "Error of the study's 14 fixed AO directions and of N random cosine samples against a cosine reference, against render time."),
-            Part::Builders => ("Builder quality", "builders", "Tree quality (SAH cost, nodes visited per ray) against build and render time."),
-            Part::Leaks => ("Leaks against speed", "leaks", "Rays that pass through closed meshes at vertices and edges, against query time, per intersection method."),
-            Part::Tables | Part::Validate => return None,
-        })
-    }
-
-    /// Whether the part draws a chart (and so needs the chart font).
-    fn draws(self) -> bool {
-        self != Part::Validate
-    }
-}
-
-impl std::str::FromStr for Part {
-    type Err = String;
-    fn from_str(s: &str) -> std::result::Result<Part, String> {
-        Part::ALL
-            .into_iter()
-            .find(|p| p.name() == s)
-            .ok_or_else(|| {
-                let names: Vec<&str> = Part::ALL.iter().map(|p| p.name()).collect();
-                format!("unknown part '{s}' (known: all, {})", names.join(", "))
-            })
-    }
-}
-
-/// Everything a bench run needs; built by the CLI from its flags.
-#[derive(Clone, Debug)]
-pub struct BenchConfig {
-    pub scenes: Vec<String>,
-    pub views: ViewPlan,
-    pub variants: Vec<Variant>,
-    pub ao_modes: Vec<AoMode>,
-    pub reps: usize,
-    pub size: (u32, u32),
-    pub threads: usize,
-    pub quick: bool,
-    pub max_variant_s: f64,
-    pub parts: Vec<Part>,
-    pub out: PathBuf,
-    pub quiet: bool,
-}
-
-impl BenchConfig {
-    fn wants(&self, part: Part) -> bool {
-        self.parts.contains(&part)
-    }
-
-    /// Sizes of the procedural meshes of the cost-growth part.
-    fn growth_sizes(&self) -> Vec<u64> {
-        if self.quick {
-            vec![1_000, 10_000]
-        } else {
-            vec![1_000, 10_000, 100_000, 1_000_000, 10_000_000]
-        }
-    }
-
-    /// Sample counts N of `cosine:N` and the reference's N.
-    fn ao_samples(&self) -> (Vec<u32>, u32) {
-        if self.quick {
-            (vec![1, 4, 16], 256)
-        } else {
-            ((0..=8).map(|k| 1 << k).collect(), 1024)
-        }
-    }
-
-    /// Repetitions of the extra experiments (medians of these).
-    fn extra_reps(&self) -> usize {
-        if self.quick {
-            1
-        } else {
-            self.reps.clamp(1, 3)
-        }
-    }
-
-    /// An image size `divisor` times smaller than the bench's (at least 16 x 12).
-    fn smaller(&self, divisor: u32) -> (u32, u32) {
-        (
-            (self.size.0 / divisor).max(16),
-            (self.size.1 / divisor).max(12),
-        )
-    }
-
-    /// The thread counts of the trace part: one, and all bench threads.
-    fn trace_threads(&self) -> Vec<usize> {
-        if self.threads > 1 {
-            vec![1, self.threads]
-        } else {
-            vec![1]
-        }
-    }
-
-    /// The thread counts of the scaling part: 1..=threads, then twice that.
-    fn thread_counts(&self) -> Vec<usize> {
-        let mut t: Vec<usize> = (1..=self.threads).collect();
-        t.push(self.threads * 2);
-        t
-    }
-}
+pub use config::{BenchConfig, Part};
+use measure::{Matrix, Measurement, View};
+use parts::ao_error::AoErrorPoint;
+use parts::builders::BuilderPoint;
+use parts::growth::GrowthPoint;
+use parts::scaling::ScalingPoint;
+use parts::trace::TracePoint;
+use parts::validate::ValidationRow;
+use parts::{ao_error, builders, growth, leaks, scaling, tables, trace, validate};
 
 /// The machine a bench ran on.
 #[derive(Clone, Debug, Serialize)]
@@ -258,7 +104,7 @@ pub struct BenchReport {
     pub variants: Vec<(String, String)>,
     pub baseline: String,
     pub measurements: Vec<Measurement>,
-    pub trace: Vec<trace::TracePoint>,
+    pub trace: Vec<TracePoint>,
     pub scaling: Vec<ScalingPoint>,
     pub growth: Vec<GrowthPoint>,
     pub ao_error: Vec<AoErrorPoint>,
@@ -279,7 +125,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
         std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
     }
     output::check_writable(&cfg.out.join("images").join("probe.png"))?;
-    if cfg.parts.iter().any(|p| p.draws()) {
+    if cfg.parts.iter().any(|p| parts::draws(*p)) {
         // Every part but validate draws a chart: fail before measuring for an
         // hour, not after.
         charts::init_font()?;
@@ -304,34 +150,23 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
         seed: 1,
         images_ao,
     };
-    let last_two: Vec<&Scene> = scenes.iter().rev().take(2).rev().collect();
-    let (ao_n, _) = cfg.ao_samples();
     // Progress units are expected milliseconds; each step of the other parts
     // counts as `step` of them.
     let step: u64 = if cfg.quick { 100 } else { 3000 };
-    let mut steps = 0;
-    let trace_specs = trace::trace_specs(&cfg.variants, cfg.threads);
-    if cfg.wants(Part::Trace) {
-        steps += 3 * scenes.len() as u64;
-    }
-    if cfg.wants(Part::Scaling) {
-        steps += extras::scaling_variants().len() as u64;
-    }
-    if cfg.wants(Part::Growth) {
-        steps += (cfg.growth_sizes().len() * extras::growth_variants().len()) as u64;
-    }
-    if cfg.wants(Part::AoError) {
-        steps += (last_two.len() * (ao_n.len() + 2)) as u64;
-    }
-    if cfg.wants(Part::Builders) {
-        steps += (last_two.len() * extras::quality_builders().len()) as u64;
-    }
-    if cfg.wants(Part::Leaks) {
-        steps += 1;
-    }
-    if cfg.wants(Part::Validate) {
-        steps += 2 * scenes.len() as u64;
-    }
+    let steps_of = |part: Part, steps: fn(&BenchConfig, &[Scene]) -> u64| {
+        if cfg.wants(part) {
+            steps(cfg, scenes)
+        } else {
+            0
+        }
+    };
+    let steps = steps_of(Part::Trace, trace::steps)
+        + steps_of(Part::Scaling, scaling::steps)
+        + steps_of(Part::Growth, growth::steps)
+        + steps_of(Part::AoError, ao_error::steps)
+        + steps_of(Part::Builders, builders::steps)
+        + steps_of(Part::Leaks, leaks::steps)
+        + steps_of(Part::Validate, validate::steps);
     let mut units = steps * step;
     if cfg.wants(Part::Tables) {
         units += matrix.planned_units();
@@ -343,104 +178,27 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
     } else {
         (Vec::new(), Vec::new())
     };
-    let reps = cfg.extra_reps();
-    let last = scenes.last().expect("at least one scene");
-    // The parts that render one view use each scene's first view.
-    let first_view = |scene: &Scene, size| cfg.views.first_for(scene, size);
-    let mut trace_points = Vec::new();
-    if cfg.wants(Part::Trace) && !trace_specs.is_empty() {
-        let trace_reps = if cfg.quick { 1 } else { cfg.reps.clamp(1, 5) };
-        for scene in scenes {
-            let settings = first_view(scene, cfg.size).settings(cfg.size, AoMode::Paper, 1)?;
-            trace_points.extend(trace::trace_throughput(
-                scene,
-                &settings,
-                &trace_specs,
-                &cfg.trace_threads(),
-                trace_reps,
-                &bar,
-            )?);
+    /// A part's points when it is wanted, else none.
+    fn run_part<P>(
+        cfg: &BenchConfig,
+        part: Part,
+        scenes: &[Scene],
+        bar: &StepBar,
+        run: fn(&BenchConfig, &[Scene], &StepBar) -> Result<Vec<P>>,
+    ) -> Result<Vec<P>> {
+        if cfg.wants(part) {
+            run(cfg, scenes, bar)
+        } else {
+            Ok(Vec::new())
         }
     }
-    let scaling = if cfg.wants(Part::Scaling) {
-        let size = cfg.smaller(2);
-        let settings = first_view(last, size).settings(size, AoMode::Paper, 1)?;
-        extras::thread_scaling(last, &settings, &cfg.thread_counts(), reps, &bar)?
-    } else {
-        Vec::new()
-    };
-    let growth = if cfg.wants(Part::Growth) {
-        let settings = View::PAPER[0].settings(
-            if cfg.quick { (32, 24) } else { (96, 72) },
-            AoMode::Paper,
-            1,
-        )?;
-        let naive_max = if cfg.quick { 10_000 } else { 100_000 };
-        extras::cost_growth(
-            &cfg.growth_sizes(),
-            &settings,
-            cfg.threads,
-            reps,
-            naive_max,
-            &bar,
-        )?
-    } else {
-        Vec::new()
-    };
-    let mut ao_error = Vec::new();
-    if cfg.wants(Part::AoError) {
-        let (samples, reference) = cfg.ao_samples();
-        let size = if cfg.quick { (48, 36) } else { (256, 192) };
-        for scene in &last_two {
-            let setup = extras::AoErrorSetup {
-                view: first_view(scene, size),
-                size,
-                samples: samples.clone(),
-                reference,
-            };
-            ao_error.extend(extras::ao_error(scene, &setup, cfg.threads, reps, &bar)?);
-        }
-    }
-    let mut builders = Vec::new();
-    if cfg.wants(Part::Builders) {
-        let size = cfg.smaller(2);
-        for scene in &last_two {
-            let settings = first_view(scene, size).settings(size, AoMode::Paper, 1)?;
-            builders.extend(extras::builder_quality(
-                scene,
-                &settings,
-                cfg.threads,
-                reps,
-                &bar,
-            )?);
-        }
-    }
-    let leaks = if cfg.wants(Part::Leaks) {
-        bar.set_message("leaks: rays at vertices and edges of closed meshes".into());
-        let rows = crate::stress::leak_suite(
-            &crate::stress::leak_meshes(cfg.quick),
-            if cfg.quick { 2 } else { 4 },
-        )?;
-        bar.step();
-        rows
-    } else {
-        Vec::new()
-    };
-    let mut validation = Vec::new();
-    if cfg.wants(Part::Validate) {
-        let count = if cfg.quick { 2_000 } else { 20_000 };
-        for scene in scenes {
-            let size = cfg.smaller(4);
-            let settings = first_view(scene, size).settings(size, AoMode::Paper, 1)?;
-            validation.extend(extras::validation(
-                scene,
-                &settings,
-                count,
-                cfg.threads,
-                &bar,
-            )?);
-        }
-    }
+    let trace = run_part(cfg, Part::Trace, scenes, &bar, trace::run)?;
+    let scaling = run_part(cfg, Part::Scaling, scenes, &bar, scaling::run)?;
+    let growth = run_part(cfg, Part::Growth, scenes, &bar, growth::run)?;
+    let ao_error = run_part(cfg, Part::AoError, scenes, &bar, ao_error::run)?;
+    let builders = run_part(cfg, Part::Builders, scenes, &bar, builders::run)?;
+    let leaks = run_part(cfg, Part::Leaks, scenes, &bar, leaks::run)?;
+    let validation = run_part(cfg, Part::Validate, scenes, &bar, validate::run)?;
     bar.finish();
 
     let images = write_images(&cfg.out, scenes, &kept)?;
@@ -459,7 +217,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
             .collect(),
         baseline: tables::baseline_name(&measurements).to_string(),
         measurements,
-        trace: trace_points,
+        trace,
         scaling,
         growth,
         ao_error,
@@ -538,45 +296,28 @@ fn write_images(
 
 fn write_charts(dir: &Path, r: &BenchReport) -> Result<Vec<String>> {
     let mut files = Vec::new();
-    let mut push = |f: String| files.push(format!("charts/{f}"));
     if !r.measurements.is_empty() {
-        for ao in &r.ao_modes {
-            push(charts::speedup_chart(
-                dir,
-                &charts::SpeedupData {
-                    ms: &r.measurements,
-                    ao: ao.clone(),
-                },
-            )?);
-        }
+        files.extend(tables::charts(dir, &r.measurements, &r.ao_modes)?);
     }
-    let mut trace_threads: Vec<usize> = r.trace.iter().map(|p| p.threads).collect();
-    trace_threads.dedup();
-    for threads in trace_threads {
-        push(charts::trace_chart(
-            dir,
-            &charts::TraceData {
-                points: &r.trace,
-                threads,
-            },
-        )?);
+    if !r.trace.is_empty() {
+        files.extend(trace::charts(dir, &r.trace)?);
     }
     if !r.scaling.is_empty() {
-        push(charts::scaling_chart(dir, &r.scaling)?);
+        files.extend(scaling::charts(dir, &r.scaling)?);
     }
     if !r.growth.is_empty() {
-        push(charts::growth_chart(dir, &r.growth)?);
+        files.extend(growth::charts(dir, &r.growth)?);
     }
     if !r.ao_error.is_empty() {
-        push(charts::ao_error_chart(dir, &r.ao_error)?);
+        files.extend(ao_error::charts(dir, &r.ao_error)?);
     }
     if !r.builders.is_empty() {
-        push(charts::builders_chart(dir, &r.builders)?);
+        files.extend(builders::charts(dir, &r.builders)?);
     }
     if !r.leaks.is_empty() {
-        push(charts::leaks_chart(dir, &r.leaks)?);
+        files.extend(leaks::charts(dir, &r.leaks)?);
     }
-    Ok(files)
+    Ok(files.into_iter().map(|f| format!("charts/{f}")).collect())
 }
 
 /// The Markdown of the whole report: the study's tables, then one table per
@@ -625,128 +366,22 @@ pub fn markdown(r: &BenchReport) -> String {
         out.push_str(&trace::markdown(&r.trace));
     }
     if !r.scaling.is_empty() {
-        out.push_str("### Thread scaling (render only, median ms and speedup over 1 thread)\n\n");
-        let mut t = Table::new([
-            ("variant", Left),
-            ("threads", Right),
-            ("render ms", Right),
-            ("speedup", Right),
-        ]);
-        for p in &r.scaling {
-            t.row([
-                p.variant.clone(),
-                p.threads.to_string(),
-                format!("{:.1}", p.render_ms.median),
-                format!("{:.2}x", p.speedup),
-            ]);
-        }
-        out.push_str(&t.markdown());
-        out.push('\n');
+        out.push_str(&scaling::markdown(&r.scaling));
     }
     if !r.growth.is_empty() {
-        out.push_str("### Cost growth on mesh:N (build ms, ns per ray on one thread)\n\n");
-        let mut t = Table::new([
-            ("backend", Left),
-            ("triangles", Right),
-            ("build ms", Right),
-            ("render ms", Right),
-            ("ns/ray", Right),
-        ]);
-        for p in &r.growth {
-            t.row([
-                p.backend.clone(),
-                p.triangles.to_string(),
-                format!("{:.2}", p.build_ms),
-                format!("{:.1}", p.render_ms),
-                format!("{:.1}", p.ns_per_ray),
-            ]);
-        }
-        out.push_str(&t.markdown());
-        out.push('\n');
+        out.push_str(&growth::markdown(&r.growth));
     }
     if !r.ao_error.is_empty() {
-        out.push_str("### AO error against a cosine reference (display values)\n\n");
-        let mut t = Table::new([
-            ("scene", Left),
-            ("ao", Left),
-            ("AO rays/pixel", Right),
-            ("render ms", Right),
-            ("RMSE", Right),
-            ("PSNR dB", Right),
-        ]);
-        for p in &r.ao_error {
-            t.row([
-                p.scene.clone(),
-                p.ao.to_string(),
-                p.samples.to_string(),
-                format!("{:.1}", p.render_ms.median),
-                format!("{:.5}", p.rmse),
-                format!("{:.2}", p.psnr_db),
-            ]);
-        }
-        out.push_str(&t.markdown());
-        out.push('\n');
+        out.push_str(&ao_error::markdown(&r.ao_error));
     }
     if !r.builders.is_empty() {
-        out.push_str("### Builder quality\n\nBinary trees, and each builder's 8-wide tree (leaf tests counted in pairs).\n\n");
-        let mut t = Table::new([
-            ("scene", Left),
-            ("builder", Left),
-            ("build ms", Right),
-            ("SAH cost", Right),
-            ("nodes/ray", Right),
-            ("tris/ray", Right),
-            ("bytes/tri", Right),
-            ("render ms", Right),
-            ("8-wide build ms", Right),
-            ("8-wide SAH cost", Right),
-            ("8-wide bytes/tri", Right),
-        ]);
-        for p in &r.builders {
-            t.row([
-                p.scene.clone(),
-                p.builder.clone(),
-                format!("{:.2}", p.build_ms),
-                format!("{:.2}", p.sah_cost),
-                format!("{:.1}", p.nodes_per_ray),
-                format!("{:.1}", p.triangles_per_ray),
-                format!("{:.1}", p.bytes_per_triangle),
-                format!("{:.1}", p.render_ms.median),
-                format!("{:.2}", p.wide8_build_ms),
-                format!("{:.2}", p.wide8_sah_cost),
-                format!("{:.1}", p.wide8_bytes_per_triangle),
-            ]);
-        }
-        out.push_str(&t.markdown());
-        out.push('\n');
+        out.push_str(&builders::markdown(&r.builders));
     }
     if !r.leaks.is_empty() {
-        out.push_str("### Leaks against speed (rays through closed meshes)\n\n");
-        out.push_str(&crate::stress::leak_table(&r.leaks).markdown());
-        out.push('\n');
+        out.push_str(&leaks::markdown(&r.leaks));
     }
     if !r.validation.is_empty() {
-        out.push_str("### Validation (primary, shadow, AO and random rays)\n\n");
-        let mut t = Table::new([
-            ("scene", Left),
-            ("tested", Left),
-            ("reference", Left),
-            ("rays", Right),
-            ("ties", Right),
-            ("genuine", Right),
-        ]);
-        for v in &r.validation {
-            t.row([
-                v.scene.clone(),
-                v.tested.clone(),
-                v.reference.clone(),
-                v.rays.to_string(),
-                v.ties.to_string(),
-                v.genuine.to_string(),
-            ]);
-        }
-        out.push_str(&t.markdown());
-        out.push('\n');
+        out.push_str(&validate::markdown(&r.validation));
     }
     out
 }
@@ -808,27 +443,28 @@ fn report_html(r: &BenchReport, md: &str) -> String {
             .iter()
             .map(|(n, d)| format!("<tr><td>{}</td><td>{}</td></tr>", escape(n), escape(d)))
             .collect();
+        let section = &tables::SECTION;
         sections.push(Section {
             id: "speedups".into(),
-            title: "Speedups".into(),
+            title: section.title.into(),
             body: format!(
                 "{}<table>{variants}</table>",
-                chart(
-                    "speedup",
-                    "Speedup of each variant over the baseline, per scene and view (log scale)."
-                )
+                chart(section.stem, section.caption)
             ),
         });
     }
-    for part in Part::ALL {
-        let Some((title, stem, caption)) = part.section() else {
+    // The tables part has its section above (with the variants); the others
+    // show their charts.
+    for part in Part::ALL.into_iter().filter(|p| *p != Part::Tables) {
+        let section = parts::section(part);
+        if section.stem.is_empty() {
             continue;
-        };
-        let body = chart(stem, caption);
+        }
+        let body = chart(section.stem, section.caption);
         if !body.is_empty() {
             sections.push(Section {
                 id: part.name().into(),
-                title: title.into(),
+                title: section.title.into(),
                 body,
             });
         }

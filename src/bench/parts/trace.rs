@@ -12,14 +12,24 @@
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
+use std::path::Path;
+
 use serde::Serialize;
 
-use super::measure::Stat;
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use crate::bench::charts::{draw_bars, log_label, log_range, save, short, Bars, DrawResult};
+
+use super::ChartSection;
 use crate::accel::{build_backend, Backend, BackendKind, BackendSpec, Built};
+use crate::bench::config::BenchConfig;
+use crate::bench::measure::Stat;
 use crate::error::{Error, Result};
 use crate::geometry::Ray;
 use crate::os::FlushDenormals;
 use crate::progress::StepBar;
+use crate::render::AoMode;
 use crate::render::RenderSettings;
 use crate::scene::Scene;
 use crate::table::ms;
@@ -32,6 +42,55 @@ use crate::validate::{ray_sets, RaySet};
 /// Rays handed to a thread at a time: small enough to balance two threads,
 /// large enough that the shared counter is touched rarely.
 const CHUNK: usize = 512;
+
+pub const SECTION: ChartSection = ChartSection {
+    title: "Query throughput",
+    stem: "trace-",
+    caption: "Rays traced per second per backend, scene and ray kind, on one thread count per chart (log scale; the same recorded rays for every backend, no shading).",
+};
+
+/// The thread counts measured: one, and all bench threads.
+fn thread_counts(cfg: &BenchConfig) -> Vec<usize> {
+    if cfg.threads > 1 {
+        vec![1, cfg.threads]
+    } else {
+        vec![1]
+    }
+}
+
+/// Progress steps: one per scene and ray kind (none without a backend to trace).
+pub fn steps(cfg: &BenchConfig, scenes: &[Scene]) -> u64 {
+    if trace_specs(&cfg.variants, cfg.threads).is_empty() {
+        0
+    } else {
+        3 * scenes.len() as u64
+    }
+}
+
+/// Throughput of every backend of the bench's variants on each of `scenes`
+/// (the rays of one render from its first view, paper AO).
+pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<TracePoint>> {
+    let specs = trace_specs(&cfg.variants, cfg.threads);
+    let reps = if cfg.quick { 1 } else { cfg.reps.clamp(1, 5) };
+    let mut out = Vec::new();
+    if specs.is_empty() {
+        return Ok(out);
+    }
+    for scene in scenes {
+        let settings = cfg
+            .first_view(scene, cfg.size)
+            .settings(cfg.size, AoMode::Paper, 1)?;
+        out.extend(trace_throughput(
+            scene,
+            &settings,
+            &specs,
+            &thread_counts(cfg),
+            reps,
+            bar,
+        )?);
+    }
+    Ok(out)
+}
 
 /// One backend's throughput on one ray kind and thread count.
 #[derive(Clone, Debug, Serialize)]
@@ -121,7 +180,10 @@ pub fn trace(backend: &dyn Backend, kind: RaySet, rays: &[Ray], threads: usize) 
 
 /// The backends of the trace part for the bench's variants: each distinct
 /// backend once (schedules do not matter here), the naive scan left out.
-pub fn trace_specs(variants: &[super::variants::Variant], threads: usize) -> Vec<BackendSpec> {
+pub fn trace_specs(
+    variants: &[crate::bench::variants::Variant],
+    threads: usize,
+) -> Vec<BackendSpec> {
     let mut specs: Vec<BackendSpec> = Vec::new();
     for v in variants.iter().filter(|v| v.kind != BackendKind::Naive) {
         let spec = v.spec(threads).with_build_threads(threads);
@@ -420,6 +482,82 @@ pub fn markdown(points: &[TracePoint]) -> String {
         "### Trace throughput (no shading; the same recorded rays for every backend; median Mrays/s of wall time)\n\n{}{}\n",
         table.markdown(),
         build_markdown(points)
+    )
+}
+
+/// The part's charts: one per thread count.
+pub fn charts(dir: &Path, points: &[TracePoint]) -> Result<Vec<String>> {
+    let mut counts: Vec<usize> = points.iter().map(|p| p.threads).collect();
+    counts.dedup();
+    counts
+        .into_iter()
+        .map(|threads| {
+            let data = TraceData { points, threads };
+            let name = format!("{}{threads}t", SECTION.stem);
+            save(
+                dir,
+                &name,
+                (1390, 560),
+                |a| draw_trace(a, &data),
+                |a| draw_trace(a, &data),
+            )
+        })
+        .collect()
+}
+
+/// Query throughput per scene and ray kind on one thread count, one bar per
+/// backend (log scale), so each of raylab's trees stands beside Embree.
+struct TraceData<'a> {
+    points: &'a [TracePoint],
+    threads: usize,
+}
+
+fn draw_trace<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, d: &TraceData) -> DrawResult
+where
+    DB::ErrorType: 'static,
+{
+    let here: Vec<&TracePoint> = d.points.iter().filter(|p| p.threads == d.threads).collect();
+    let mut groups: Vec<(String, String)> = Vec::new();
+    let mut backends: Vec<String> = Vec::new();
+    for p in &here {
+        if !groups.iter().any(|(s, k)| *s == p.scene && *k == p.kind) {
+            groups.push((p.scene.clone(), p.kind.clone()));
+        }
+        if !backends.contains(&p.backend) {
+            backends.push(p.backend.clone());
+        }
+    }
+    let series = backends
+        .into_iter()
+        .map(|backend| {
+            let values = groups
+                .iter()
+                .map(|(scene, kind)| {
+                    here.iter()
+                        .find(|p| p.backend == backend && p.scene == *scene && p.kind == *kind)
+                        .map(|p| p.mrays.median)
+                })
+                .collect();
+            (backend, values)
+        })
+        .collect();
+    draw_bars(
+        root,
+        &Bars {
+            caption: format!(
+                "Query throughput without shading, {} thread{} (median Mrays/s)",
+                d.threads,
+                if d.threads == 1 { "" } else { "s" }
+            ),
+            y_desc: "Mrays/s (log)",
+            groups: groups
+                .iter()
+                .map(|(scene, kind)| (short(scene), kind.clone()))
+                .collect(),
+            series,
+            y: log_range(here.iter().map(|p| p.mrays.median)),
+            y_label: &log_label,
+        },
     )
 }
 

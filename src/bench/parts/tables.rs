@@ -1,9 +1,19 @@
 //! The study's tables from the bench's measurements: times in ms per scene
 //! (columns, by triangle count) and view (rows), one table per variant and AO
-//! mode, and speedups over the baseline (`naive-serial`); as Markdown and CSV.
+//! mode, and speedups over the baseline (`naive-serial`); as Markdown and CSV,
+//! and the speedup charts. The matrix itself is measured by
+//! [`crate::bench::measure`].
 
-use super::measure::Measurement;
-use super::variants::BASELINE;
+use std::path::Path;
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use super::ChartSection;
+use crate::bench::charts::{draw_bars, log_label, log_range, save, short, Bars, DrawResult};
+use crate::bench::measure::Measurement;
+use crate::bench::variants::BASELINE;
+use crate::error::Result;
 use crate::table::{
     fmt_ms,
     Align::{Left, Right},
@@ -199,6 +209,96 @@ pub fn csv(ms: &[Measurement]) -> String {
         ]);
     }
     table.csv()
+}
+
+pub const SECTION: ChartSection = ChartSection {
+    title: "Speedups",
+    stem: "speedup",
+    caption: "Speedup of each variant over the baseline, per scene and view (log scale).",
+};
+
+/// The part's charts: one per AO mode.
+pub fn charts(dir: &Path, ms: &[Measurement], ao_modes: &[String]) -> Result<Vec<String>> {
+    ao_modes
+        .iter()
+        .map(|ao| {
+            let data = SpeedupData { ms, ao: ao.clone() };
+            let name = format!("{}-ao-{}", SECTION.stem, ao.replace(':', "-"));
+            save(
+                dir,
+                &name,
+                (1390, 560),
+                |a| draw_speedup(a, &data),
+                |a| draw_speedup(a, &data),
+            )
+        })
+        .collect()
+}
+
+/// Speedup over the baseline per scene and view, one bar per variant (log scale).
+struct SpeedupData<'a> {
+    ms: &'a [Measurement],
+    ao: String,
+}
+
+fn draw_speedup<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, d: &SpeedupData) -> DrawResult
+where
+    DB::ErrorType: 'static,
+{
+    let here: Vec<&Measurement> = d.ms.iter().filter(|m| m.ao == d.ao).collect();
+    let mut groups: Vec<(String, String, usize)> = Vec::new();
+    let mut variants: Vec<String> = Vec::new();
+    for m in &here {
+        if !groups.iter().any(|(s, v, _)| *s == m.scene && *v == m.view) {
+            groups.push((m.scene.clone(), m.view.clone(), m.triangles));
+        }
+        if !variants.contains(&m.variant) {
+            variants.push(m.variant.clone());
+        }
+    }
+    let series = variants
+        .into_iter()
+        .map(|variant| {
+            let values = groups
+                .iter()
+                .map(|(scene, view, _)| {
+                    let m = here
+                        .iter()
+                        .find(|m| m.variant == variant && m.scene == *scene && m.view == *view)?;
+                    speedup(d.ms, m)
+                })
+                .collect();
+            (variant, values)
+        })
+        .collect();
+    let values: Vec<f64> = here.iter().filter_map(|m| speedup(d.ms, m)).collect();
+    let y = log_range(values.iter().copied().chain([1.0]));
+    let speedup_label = |v: &f64| {
+        let l = log_label(v);
+        if l.is_empty() {
+            l
+        } else {
+            format!("{l}x")
+        }
+    };
+    draw_bars(
+        root,
+        &Bars {
+            caption: format!(
+                "Speedup over {} (total time, median), AO {}",
+                super::tables::baseline_name(d.ms),
+                d.ao
+            ),
+            y_desc: "speedup (log)",
+            groups: groups
+                .iter()
+                .map(|(scene, view, tris)| (short(scene), format!("{tris} tris {view}")))
+                .collect(),
+            series,
+            y: (y.start.min(0.5))..y.end,
+            y_label: &speedup_label,
+        },
+    )
 }
 
 #[cfg(test)]
