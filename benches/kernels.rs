@@ -32,7 +32,7 @@ fn ao_rays(scene: &raylab::scene::Scene) -> Vec<Ray> {
         seed: 1,
         two_sided_lights: false,
     };
-    let bvh = raylab::accel::bvh::BvhBackend::new(scene, &BuildParams::sah()).unwrap();
+    let bvh = raylab::accel::bvh::BvhBackend::new(&scene.mesh(), &BuildParams::sah()).unwrap();
     raylab::validate::recorded_rays(scene, &bvh, &settings)
         .unwrap()
         .1

@@ -365,7 +365,7 @@ fn bvh_renders_are_bit_identical_to_naive() {
             BuildParams::median().with_width(4),
             BuildParams::sah().with_width(4),
         ] {
-            let bvh = BvhBackend::new(&scene, &params).unwrap();
+            let bvh = BvhBackend::new(&scene.mesh(), &params).unwrap();
             let (frame, _) =
                 render(&scene, &bvh, &s, Schedule::Tiles, 2, &Progress::new()).unwrap();
             assert!(

@@ -41,7 +41,7 @@ fn render_ray_sets_agree_between_bvh_and_embree() {
     let tris = scene.triangle_vertices();
     let s = settings(96, 72, AoMode::Paper);
     let embree = EmbreeBackend::new(&scene, Quality::High, false, 2).unwrap();
-    let bvh = BvhBackend::new(&scene, &BuildParams::sah()).unwrap();
+    let bvh = BvhBackend::new(&scene.mesh(), &BuildParams::sah()).unwrap();
     let (shadow, ao) = recorded_rays(&scene, &embree, &s).unwrap();
     assert!(!shadow.is_empty() && !ao.is_empty());
     for (label, rays) in [
@@ -148,7 +148,7 @@ fn embree_built_trees_are_traversed_by_ours_and_match_naive() {
             BuilderKind::EmbreeHigh,
         ] {
             let params = BuildParams::for_builder(builder).with_threads(2);
-            let backend = BvhBackend::new(&scene, &params).unwrap();
+            let backend = BvhBackend::new(&scene.mesh(), &params).unwrap();
             let bvh = backend
                 .tree
                 .binary()

@@ -121,6 +121,14 @@ where
     Ok(())
 }
 
+/// Draws `$draw(area, $data)` as `$dir/$name.svg` and `.png` (see [`save`]).
+macro_rules! save_chart {
+    ($dir:expr, $name:expr, $size:expr, $draw:ident, $data:expr) => {
+        $crate::bench::charts::save($dir, $name, $size, |a| $draw(a, $data), |a| $draw(a, $data))
+    };
+}
+pub(crate) use save_chart;
+
 /// Draws one chart as `dir/name.svg` and `dir/name.png`; returns the PNG's name.
 pub(super) fn save(
     dir: &Path,

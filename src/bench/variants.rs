@@ -21,7 +21,7 @@ pub struct Variant {
     pub schedule: Schedule,
     /// Build on all bench threads (else on one).
     pub parallel_build: bool,
-    /// Children per node traversed (2, or 4 for the collapsed SIMD tree).
+    /// Children per node traversed: 2 (the binary tree), 4 or 8 (SIMD nodes).
     pub width: usize,
 }
 
@@ -124,7 +124,7 @@ impl Variant {
         let backend = match self.kind {
             Naive => "all triangles per ray".to_string(),
             Bvh if self.width > 2 => format!(
-                "{} BVH collapsed to {}-wide SIMD nodes",
+                "{} BVH with {}-wide SIMD nodes",
                 self.builder.name(),
                 self.width
             ),

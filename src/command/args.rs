@@ -109,9 +109,9 @@ pub struct BvhArgs {
     /// Ray/triangle test of the naive and bvh backends.
     #[arg(long, value_enum, default_value_t = Intersector::Mt)]
     pub intersector: Intersector,
-    /// Children per BVH node traversed: 8 (8-wide nodes built directly and tested
-    /// with AVX2 where the CPU has it; the fastest), 4 (the built tree collapsed
-    /// into 4-wide nodes tested with SSE), or 2 (the binary tree as built).
+    /// Children per BVH node traversed: 8 (8-wide nodes tested with AVX2 where
+    /// the CPU has it; the fastest), 4 (4-wide nodes tested with SSE), or 2 (the
+    /// binary tree). Wide trees are built directly (Embree's builders: collapsed).
     #[arg(long, value_name = "N", default_value_t = 8, value_parser = parse_bvh_width)]
     pub bvh_width: usize,
 }

@@ -9,7 +9,7 @@ use rayon::prelude::*;
 use super::params::PARALLEL_REDUCE_CUTOFF;
 use super::simd::prefetch;
 use crate::geometry::Aabb;
-use crate::scene::{MeshRef, Scene};
+use crate::scene::MeshRef;
 
 /// The triangles a BVH is built over: vertex triples in a slice, or a mesh's
 /// (read through its index list, so the build makes no copy of them).
@@ -60,22 +60,6 @@ impl Triangles for MeshRef<'_> {
                 }
             }
         }
-    }
-}
-
-/// A scene's triangles: its [`MeshRef`]'s.
-impl Triangles for Scene {
-    #[inline]
-    fn count(&self) -> usize {
-        self.triangle_count()
-    }
-    #[inline]
-    fn get(&self, i: usize) -> [Vec3; 3] {
-        self.triangle(i)
-    }
-    #[inline]
-    fn prefetch(&self, i: usize, stage: u8) {
-        self.mesh().prefetch(i, stage)
     }
 }
 

@@ -11,7 +11,7 @@ use plotters::prelude::*;
 
 use super::ChartSection;
 use crate::accel::build_backend;
-use crate::bench::charts::{color, legend, log_label, log_range, save, DrawResult, FONT};
+use crate::bench::charts::{color, legend, log_label, log_range, save_chart, DrawResult, FONT};
 use crate::bench::config::BenchConfig;
 use crate::bench::measure::{timed_renders, Stat, View};
 use crate::bench::metrics::{psnr, rmse};
@@ -163,7 +163,6 @@ fn ao_error(
 
 /// The part's table.
 pub fn markdown(points: &[AoErrorPoint]) -> String {
-    let mut out = String::from("### AO error against a cosine reference (display values)\n\n");
     let mut t = Table::new([
         ("scene", Left),
         ("ao", Left),
@@ -182,19 +181,20 @@ pub fn markdown(points: &[AoErrorPoint]) -> String {
             format!("{:.2}", p.psnr_db),
         ]);
     }
-    out.push_str(&t.markdown());
-    out.push('\n');
-    out
+    format!(
+        "### AO error against a cosine reference (display values)\n\n{}\n",
+        t.markdown()
+    )
 }
 
 /// The part's chart.
 pub fn charts(dir: &Path, points: &[AoErrorPoint]) -> Result<Vec<String>> {
-    Ok(vec![save(
+    Ok(vec![save_chart!(
         dir,
         SECTION.stem,
         (1200, 520),
-        |a| draw_ao_error(a, points),
-        |a| draw_ao_error(a, points),
+        draw_ao_error,
+        points
     )?])
 }
 

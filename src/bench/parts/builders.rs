@@ -12,7 +12,7 @@ use plotters::prelude::*;
 use super::ChartSection;
 use crate::accel::bvh::{BuildParams, BuilderKind, BvhBackend};
 use crate::bench::charts::{
-    color, lin_range, log_label, log_range, save, side_legend, DrawResult, Swatch, FONT,
+    color, lin_range, log_label, log_range, save_chart, side_legend, DrawResult, Swatch, FONT,
     SIDE_LEGEND,
 };
 use crate::bench::config::BenchConfig;
@@ -101,7 +101,7 @@ fn builder_quality(
         bar.set_message(format!("builders: {} on {}", builder.name(), scene.name));
         let params = BuildParams::for_builder(builder).with_threads(threads);
         let report = crate::stats::builder_report(scene, &params, settings, threads, reps)?;
-        let backend = BvhBackend::new(scene, &params)?;
+        let backend = BvhBackend::new(&scene.mesh(), &params)?;
         let (render_ms, _) =
             timed_renders(scene, &backend, settings, Schedule::Tiles, threads, reps)?;
         bar.step();
@@ -131,7 +131,6 @@ fn builder_quality(
 
 /// The part's table.
 pub fn markdown(points: &[BuilderPoint]) -> String {
-    let mut out = String::from("### Builder quality\n\nBinary trees, and each builder's 8-wide tree (leaf tests counted in pairs).\n\n");
     let mut t = Table::new([
         ("scene", Left),
         ("builder", Left),
@@ -160,19 +159,17 @@ pub fn markdown(points: &[BuilderPoint]) -> String {
             format!("{:.1}", p.wide8_bytes_per_triangle),
         ]);
     }
-    out.push_str(&t.markdown());
-    out.push('\n');
-    out
+    format!("### Builder quality\n\nBinary trees, and each builder's 8-wide tree (leaf tests counted in pairs).\n\n{}\n", t.markdown())
 }
 
 /// The part's chart.
 pub fn charts(dir: &Path, points: &[BuilderPoint]) -> Result<Vec<String>> {
-    Ok(vec![save(
+    Ok(vec![save_chart!(
         dir,
         SECTION.stem,
         (1390, 520),
-        |a| draw_builders(a, points),
-        |a| draw_builders(a, points),
+        draw_builders,
+        points
     )?])
 }
 

@@ -12,7 +12,7 @@ use plotters::prelude::*;
 use super::ChartSection;
 use crate::accel::BackendKind;
 use crate::bench::charts::{
-    color, legend, line_with_points, log_label, log_range, save, DrawResult, FONT,
+    color, legend, line_with_points, log_label, log_range, save_chart, DrawResult, FONT,
 };
 use crate::bench::config::BenchConfig;
 use crate::bench::measure::{Stat, View};
@@ -139,8 +139,6 @@ fn cost_growth(
 
 /// The part's table.
 pub fn markdown(points: &[GrowthPoint]) -> String {
-    let mut out =
-        String::from("### Cost growth on mesh:N (build ms, ns per ray on one thread)\n\n");
     let mut t = Table::new([
         ("backend", Left),
         ("triangles", Right),
@@ -157,19 +155,20 @@ pub fn markdown(points: &[GrowthPoint]) -> String {
             format!("{:.1}", p.ns_per_ray),
         ]);
     }
-    out.push_str(&t.markdown());
-    out.push('\n');
-    out
+    format!(
+        "### Cost growth on mesh:N (build ms, ns per ray on one thread)\n\n{}\n",
+        t.markdown()
+    )
 }
 
 /// The part's chart.
 pub fn charts(dir: &Path, points: &[GrowthPoint]) -> Result<Vec<String>> {
-    Ok(vec![save(
+    Ok(vec![save_chart!(
         dir,
         SECTION.stem,
         (1200, 520),
-        |a| draw_growth(a, points),
-        |a| draw_growth(a, points),
+        draw_growth,
+        points
     )?])
 }
 

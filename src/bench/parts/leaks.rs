@@ -8,7 +8,7 @@ use plotters::prelude::*;
 
 use super::ChartSection;
 use crate::bench::charts::{
-    color, legend, lin_range, log_label, log_range, save, DrawResult, FONT,
+    color, legend, lin_range, log_label, log_range, save_chart, DrawResult, FONT,
 };
 use crate::bench::config::BenchConfig;
 use crate::error::Result;
@@ -48,12 +48,12 @@ pub fn markdown(points: &[LeakRow]) -> String {
 
 /// The part's chart.
 pub fn charts(dir: &Path, points: &[LeakRow]) -> Result<Vec<String>> {
-    Ok(vec![save(
+    Ok(vec![save_chart!(
         dir,
         SECTION.stem,
         (900, 520),
-        |a| draw_leaks(a, points),
-        |a| draw_leaks(a, points),
+        draw_leaks,
+        points
     )?])
 }
 

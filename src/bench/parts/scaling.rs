@@ -11,7 +11,7 @@ use plotters::prelude::*;
 
 use super::ChartSection;
 use crate::accel::{build_backend, BackendKind};
-use crate::bench::charts::{color, legend, line_with_points, save, DrawResult, FONT};
+use crate::bench::charts::{color, legend, line_with_points, save_chart, DrawResult, FONT};
 use crate::bench::config::BenchConfig;
 use crate::bench::measure::Stat;
 use crate::bench::variants::Variant;
@@ -133,8 +133,6 @@ fn thread_scaling(
 
 /// The part's table.
 pub fn markdown(points: &[ScalingPoint]) -> String {
-    let mut out =
-        String::from("### Thread scaling (render only, median ms and speedup over 1 thread)\n\n");
     let mut t = Table::new([
         ("variant", Left),
         ("threads", Right),
@@ -149,19 +147,20 @@ pub fn markdown(points: &[ScalingPoint]) -> String {
             format!("{:.2}x", p.speedup),
         ]);
     }
-    out.push_str(&t.markdown());
-    out.push('\n');
-    out
+    format!(
+        "### Thread scaling (render only, median ms and speedup over 1 thread)\n\n{}\n",
+        t.markdown()
+    )
 }
 
 /// The part's chart.
 pub fn charts(dir: &Path, points: &[ScalingPoint]) -> Result<Vec<String>> {
-    Ok(vec![save(
+    Ok(vec![save_chart!(
         dir,
         SECTION.stem,
         (800, 520),
-        |a| draw_scaling(a, points),
-        |a| draw_scaling(a, points),
+        draw_scaling,
+        points
     )?])
 }
 

@@ -10,7 +10,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::ChartSection;
-use crate::bench::charts::{draw_bars, log_label, log_range, save, short, Bars, DrawResult};
+use crate::bench::charts::{draw_bars, log_label, log_range, save_chart, short, Bars, DrawResult};
 use crate::bench::measure::Measurement;
 use crate::bench::variants::BASELINE;
 use crate::error::Result;
@@ -224,13 +224,7 @@ pub fn charts(dir: &Path, ms: &[Measurement], ao_modes: &[String]) -> Result<Vec
         .map(|ao| {
             let data = SpeedupData { ms, ao: ao.clone() };
             let name = format!("{}-ao-{}", SECTION.stem, ao.replace(':', "-"));
-            save(
-                dir,
-                &name,
-                (1390, 560),
-                |a| draw_speedup(a, &data),
-                |a| draw_speedup(a, &data),
-            )
+            save_chart!(dir, &name, (1390, 560), draw_speedup, &data)
         })
         .collect()
 }

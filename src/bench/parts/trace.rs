@@ -19,7 +19,7 @@ use serde::Serialize;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use crate::bench::charts::{draw_bars, log_label, log_range, save, short, Bars, DrawResult};
+use crate::bench::charts::{draw_bars, log_label, log_range, save_chart, short, Bars, DrawResult};
 
 use super::ChartSection;
 use crate::accel::{build_backend, Backend, BackendKind, BackendSpec, Built};
@@ -494,13 +494,7 @@ pub fn charts(dir: &Path, points: &[TracePoint]) -> Result<Vec<String>> {
         .map(|threads| {
             let data = TraceData { points, threads };
             let name = format!("{}{threads}t", SECTION.stem);
-            save(
-                dir,
-                &name,
-                (1390, 560),
-                |a| draw_trace(a, &data),
-                |a| draw_trace(a, &data),
-            )
+            save_chart!(dir, &name, (1390, 560), draw_trace, &data)
         })
         .collect()
 }
@@ -639,7 +633,7 @@ mod tests {
         let wide = BuildParams::sah().with_width(4);
         let planted = Built {
             spec: BackendSpec::bvh(wide),
-            backend: Box::new(Planted(BvhBackend::new(&scene, &wide).unwrap())),
+            backend: Box::new(Planted(BvhBackend::new(&scene.mesh(), &wide).unwrap())),
             build_time: std::time::Duration::ZERO,
         };
         let backends = vec![(right, Vec::new()), (planted, Vec::new())];

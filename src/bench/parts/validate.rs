@@ -117,7 +117,6 @@ fn validation(
 
 /// The part's table.
 pub fn markdown(points: &[ValidationRow]) -> String {
-    let mut out = String::from("### Validation (primary, shadow, AO and random rays)\n\n");
     let mut t = Table::new([
         ("scene", Left),
         ("tested", Left),
@@ -136,7 +135,8 @@ pub fn markdown(points: &[ValidationRow]) -> String {
             v.genuine.to_string(),
         ]);
     }
-    out.push_str(&t.markdown());
-    out.push('\n');
-    out
+    format!(
+        "### Validation (primary, shadow, AO and random rays)\n\n{}\n",
+        t.markdown()
+    )
 }

@@ -4,7 +4,7 @@
 //! leaf. The partition is found by selection in O(n) rather than a full sort; the
 //! split sets are the same (ties broken by triangle index).
 
-use super::topdown::{median_partition, side_infos, Splitter};
+use super::topdown::{median_partition, side_infos, Split, Splitter};
 use crate::accel::bvh::prim::{NodeInfo, PrimRef};
 
 pub struct Median {
@@ -12,13 +12,7 @@ pub struct Median {
 }
 
 impl Splitter for Median {
-    fn split(
-        &self,
-        prims: &mut [PrimRef],
-        _info: &NodeInfo,
-        depth: u32,
-        parallel: bool,
-    ) -> Option<(usize, NodeInfo, NodeInfo)> {
+    fn split(&self, prims: &mut [PrimRef], _info: &NodeInfo, depth: u32, parallel: bool) -> Split {
         if prims.len() <= self.max_leaf {
             return None;
         }

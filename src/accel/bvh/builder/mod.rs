@@ -29,7 +29,7 @@ use super::prim::{NodeInfo, PrimRef, Triangles, MAX_TRIANGLES};
 use super::simd::Kernel;
 use super::tree::Tree;
 use super::wide::WideBvh;
-use topdown::Splitter;
+use topdown::{Split, Splitter};
 
 /// Builds the tree `params` describe over `triangles` (indexed as in the
 /// scene): its builder, leaf limit and SAH block, collapsed or built to
@@ -80,13 +80,7 @@ impl OwnSplitter {
 }
 
 impl Splitter for OwnSplitter {
-    fn split(
-        &self,
-        prims: &mut [PrimRef],
-        info: &NodeInfo,
-        depth: u32,
-        parallel: bool,
-    ) -> Option<(usize, NodeInfo, NodeInfo)> {
+    fn split(&self, prims: &mut [PrimRef], info: &NodeInfo, depth: u32, parallel: bool) -> Split {
         match self {
             OwnSplitter::Median(s) => s.split(prims, info, depth, parallel),
             OwnSplitter::Sah(s) => s.split(prims, info, depth, parallel),
@@ -150,13 +144,14 @@ mod tests {
 
     #[test]
     fn wide_build_over_a_scene_equals_the_build_over_its_vertices() {
-        // A scene is read through its index list (and prefetched through it
+        // A mesh is read through its index list (and prefetched through it
         // in the leaf fill); the tree must not notice.
         let scene = crate::scene::builtin::builtin("cornell-water").unwrap();
+        let mesh = scene.mesh();
         let vertices = scene.triangle_vertices();
         for threads in [1, 2] {
             let params = BuildParams::sah().with_width(8).with_threads(threads);
-            let from_scene = pool::in_pool(threads, || wide::<8, _>(&scene, &params)).unwrap();
+            let from_scene = pool::in_pool(threads, || wide::<8, _>(&mesh, &params)).unwrap();
             let from_vertices =
                 pool::in_pool(threads, || wide::<8, _>(&vertices, &params)).unwrap();
             assert!(from_scene.nodes == from_vertices.nodes, "{threads} threads");
@@ -167,8 +162,8 @@ mod tests {
         }
         // Hints past the end are ignored.
         for stage in [0, 1] {
-            scene.prefetch(scene.triangle_count(), stage);
-            scene.prefetch(usize::MAX, stage);
+            mesh.prefetch(mesh.triangle_count(), stage);
+            mesh.prefetch(usize::MAX, stage);
         }
     }
 

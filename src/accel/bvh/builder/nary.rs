@@ -24,7 +24,7 @@
 use arrayvec::ArrayVec;
 use rayon::prelude::*;
 
-use super::topdown::{prim_refs, try_split, Splitter};
+use super::topdown::{prim_refs, try_split, Split, Splitter};
 use crate::accel::bvh::leaf::{Tri4, EMPTY_ID, LANES};
 use crate::accel::bvh::node::padded;
 use crate::accel::bvh::params::{FILL_AHEAD, MERGE_MAX, PARALLEL_CUTOFF};
@@ -33,9 +33,6 @@ use crate::accel::bvh::simd::Kernel;
 use crate::accel::bvh::wide::node::{leaf_ref, pack_leaves, LEAF};
 use crate::accel::bvh::wide::{WideBvh, WideNode, EMPTY, MAX_SLOTS};
 use crate::error::{Error, Result};
-
-/// A split as [`Splitter::split`] returns it (`None`: a leaf).
-type Split = Option<(usize, NodeInfo, NodeInfo)>;
 
 /// A child of the node being made: a range of the node's primitives, and its
 /// split (`None`: a leaf). Kept small and passed by reference: a node's

@@ -14,7 +14,7 @@
 
 use glam::{Vec3, Vec4};
 
-use super::topdown::{median_partition, side_infos, Splitter};
+use super::topdown::{median_partition, side_infos, Split, Splitter};
 use crate::accel::bvh::params::{
     BIN_ROUND, C_INTERSECT, C_TRAVERSAL, MAX_SPLIT_DEPTH, PARALLEL_REDUCE_CUTOFF, SWEEP_MAX,
 };
@@ -149,13 +149,7 @@ fn bin_pairs<const B: usize>(prims: &[PrimRef], lo: Vec4, scale: Vec4) -> Bins<B
 }
 
 impl Splitter for BinnedSah {
-    fn split(
-        &self,
-        prims: &mut [PrimRef],
-        info: &NodeInfo,
-        depth: u32,
-        parallel: bool,
-    ) -> Option<(usize, NodeInfo, NodeInfo)> {
+    fn split(&self, prims: &mut [PrimRef], info: &NodeInfo, depth: u32, parallel: bool) -> Split {
         let n = prims.len();
         // A leaf of at most one block costs one test; any split costs more.
         if n <= 1 || (n <= self.block as usize && n <= self.max_leaf) {
@@ -195,7 +189,7 @@ impl BinnedSah {
         info: &NodeInfo,
         extent: Vec3,
         parallel: bool,
-    ) -> Option<(usize, NodeInfo, NodeInfo)> {
+    ) -> Split {
         let n = prims.len();
         // Bin all three axes in one pass; an axis of zero extent gets scale 0 and
         // puts everything in bin 0, where no plane can separate it.
@@ -298,7 +292,7 @@ impl BinnedSah {
     /// on each axis the triangles sorted by centroid (then index), every split
     /// position costed with prefix and suffix boxes; ties keep the lowest axis
     /// and position.
-    fn sweep(&self, prims: &mut [PrimRef], info: &NodeInfo) -> Option<(usize, NodeInfo, NodeInfo)> {
+    fn sweep(&self, prims: &mut [PrimRef], info: &NodeInfo) -> Split {
         let n = prims.len();
         debug_assert!((2..=SWEEP_MAX).contains(&n));
         // Sort keys: each centroid's bits mapped to an order-preserving

@@ -28,19 +28,17 @@ use crate::accel::bvh::prim::{NodeInfo, PrimRef, Triangles};
 use crate::accel::bvh::Node;
 use crate::geometry::Aabb;
 
+/// A split as [`Splitter::split`] returns it: `None` for a leaf, or the
+/// number of primitives going left and each side's [`NodeInfo`].
+pub(crate) type Split = Option<(usize, NodeInfo, NodeInfo)>;
+
 /// Per-node decision of a top-down builder.
 pub trait Splitter: Sync {
     /// Either `None` (make a leaf of all `prims`) or `Some((mid, left, right))`
     /// with `0 < mid < prims.len()` after reordering `prims` so that `..mid`
     /// goes left, and each side's [`NodeInfo`]. `info` is `prims`' own.
     /// `parallel` allows the splitter to use rayon for large nodes.
-    fn split(
-        &self,
-        prims: &mut [PrimRef],
-        info: &NodeInfo,
-        depth: u32,
-        parallel: bool,
-    ) -> Option<(usize, NodeInfo, NodeInfo)>;
+    fn split(&self, prims: &mut [PrimRef], info: &NodeInfo, depth: u32, parallel: bool) -> Split;
 }
 
 /// `splitter`'s split of `prims`, with the rule every builder keeps: a split
@@ -52,7 +50,7 @@ pub(crate) fn try_split<S: Splitter>(
     info: &NodeInfo,
     depth: u32,
     parallel: bool,
-) -> Option<(usize, NodeInfo, NodeInfo)> {
+) -> Split {
     let n = prims.len();
     splitter
         .split(prims, info, depth, parallel)
