@@ -228,7 +228,12 @@ pub fn markdown_table(reports: &[BuilderReport]) -> String {
         ("block fill", Right),
     ];
     let mut table = Table::new(columns);
-    let per_kind = |p: f64, s: f64, a: f64| format!("{p:.1}/{s:.1}/{a:.1}");
+    // One figure per ray kind, "primary/shadow/AO".
+    let per_kind = |kinds: [&KindWork; 3], figure: fn(&KindWork) -> f64| {
+        let [p, s, a] = kinds.map(figure);
+        format!("{p:.1}/{s:.1}/{a:.1}")
+    };
+    let nodes = |w: &KindWork| w.nodes_per_ray;
     for r in reports {
         let t = &r.tree;
         table.row([
@@ -243,30 +248,14 @@ pub fn markdown_table(reports: &[BuilderReport]) -> String {
             format!("{:.2}/{}", t.mean_leaf_size, t.max_leaf_size),
             format!("{:.1}", t.bytes_per_triangle),
             format!("{:.2}", t.sah_cost),
-            per_kind(
-                r.primary.nodes_per_ray,
-                r.shadow.nodes_per_ray,
-                r.ao.nodes_per_ray,
-            ),
-            per_kind(
-                r.primary.triangles_per_ray,
-                r.shadow.triangles_per_ray,
-                r.ao.triangles_per_ray,
-            ),
+            per_kind([&r.primary, &r.shadow, &r.ao], nodes),
+            per_kind([&r.primary, &r.shadow, &r.ao], |w| w.triangles_per_ray),
             r.wide4.nodes.to_string(),
             format!("{:.1}", r.wide4.bytes_per_triangle),
-            per_kind(
-                r.wide4.primary.nodes_per_ray,
-                r.wide4.shadow.nodes_per_ray,
-                r.wide4.ao.nodes_per_ray,
-            ),
+            per_kind([&r.wide4.primary, &r.wide4.shadow, &r.wide4.ao], nodes),
             r.wide8.nodes.to_string(),
             format!("{:.1}", r.wide8.bytes_per_triangle),
-            per_kind(
-                r.wide8.primary.nodes_per_ray,
-                r.wide8.shadow.nodes_per_ray,
-                r.wide8.ao.nodes_per_ray,
-            ),
+            per_kind([&r.wide8.primary, &r.wide8.shadow, &r.wide8.ao], nodes),
             format!("{:.0}%", r.wide8.block_fill * 100.0),
         ]);
     }

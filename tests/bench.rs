@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::OnceLock;
 
-use common::{assert_one_line_error, raylab, temp_dir};
+use common::{assert_one_line_error, assert_success, raylab, temp_dir};
 
 /// Runs the quick bench once for all tests of this file; returns its folder and stdout.
 fn quick_report() -> &'static (PathBuf, String) {
@@ -403,7 +403,7 @@ fn a_chosen_part_and_variants_run_alone() {
         "--out",
         out.to_str().unwrap(),
     ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_success(&o);
     let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let ms = json["measurements"].as_array().unwrap();
     assert_eq!(ms.len(), 2 * 2);

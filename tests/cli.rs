@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{assert_one_line_error, raylab, temp_dir};
+use common::{assert_one_line_error, assert_success, raylab, temp_dir};
 
 #[test]
 fn bad_flags_fail_with_one_line_naming_the_flag() {
@@ -75,11 +75,7 @@ fn json_report_has_the_stable_keys_and_matches_the_png() {
         "-o",
         o.to_str().unwrap(),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_success(&out);
     let v: serde_json::Value =
         serde_json::from_slice(&out.stdout).expect("one JSON object on stdout");
     for key in [
@@ -126,11 +122,7 @@ fn json_report_has_the_stable_keys_and_matches_the_png() {
         "-o",
         o.to_str().unwrap(),
     ]);
-    assert!(
-        out3.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out3.stderr)
-    );
+    assert_success(&out3);
 
     // The same image from another schedule: same hash.
     let out2 = raylab(&[
@@ -166,11 +158,7 @@ fn stress_quick_writes_its_report() {
         "--out",
         d.to_str().unwrap(),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_success(&out);
     let table = String::from_utf8_lossy(&out.stdout);
     assert!(
         table.contains("| icosphere-320 |") && table.contains("naive-watertight"),
@@ -203,11 +191,7 @@ fn intersector_flag_selects_the_watertight_test() {
         "-o",
         o.to_str().unwrap(),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_success(&out);
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     // The default tree is the 8-wide one, the fastest.
     assert_eq!(v["backend"], "bvh8-sah-watertight");
@@ -242,11 +226,7 @@ fn stats_report_the_wide_trees_beside_the_binary_one() {
         "1",
         "--json",
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_success(&out);
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let r = &v[0];
     let nodes = r["nodes"].as_u64().unwrap();
@@ -300,7 +280,7 @@ fn render_json(
     ];
     args.extend(extra);
     let o = raylab(&args);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_success(&o);
     serde_json::from_slice(&o.stdout).unwrap()
 }
 
@@ -468,11 +448,7 @@ fn flags_the_chosen_backend_would_ignore_are_refused() {
         "-o",
         o,
     ]);
-    assert!(
-        ok.status.success(),
-        "{}",
-        String::from_utf8_lossy(&ok.stderr)
-    );
+    assert_success(&ok);
     std::fs::remove_dir_all(&d).ok();
 }
 

@@ -119,3 +119,12 @@ pub fn binary(
         _ => unreachable!("width 2 builds a binary tree"),
     }
 }
+
+/// Asserts that a raylab run succeeded, showing its stderr when it did not.
+pub fn assert_success(out: &Output) {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

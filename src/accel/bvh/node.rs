@@ -70,7 +70,7 @@ impl Bvh {
 /// (nothing points there; [`Skeleton::compact`] squeezes them out), and the
 /// scene index of each leaf slot.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct Skeleton {
+pub(crate) struct Skeleton {
     pub nodes: Vec<Node>,
     pub tri_ids: Vec<u32>,
 }
@@ -112,6 +112,8 @@ impl Skeleton {
 
 /// Temporary tree, flattened once into the compact layout (the Embree
 /// builder's callbacks make one). Leaves refer to a range of `tri_ids`.
+// Only Embree's builder makes one (none in a build without Embree).
+#[cfg_attr(not(feature = "embree"), allow(dead_code))]
 pub(crate) enum BuildNode {
     Leaf {
         bounds: Aabb,
@@ -155,6 +157,7 @@ fn compact(slots: &[Node]) -> Vec<Node> {
 
 /// Flattens a temporary tree whose leaves index `tri_ids` into the compact
 /// layout.
+#[cfg_attr(not(feature = "embree"), allow(dead_code))]
 pub(crate) fn skeleton_of(root: BuildNode, tri_ids: Vec<u32>) -> Skeleton {
     let mut nodes = Vec::with_capacity(2 * tri_ids.len());
     flatten(root, &mut nodes);
@@ -175,6 +178,7 @@ pub(crate) fn padded(b: Aabb) -> Aabb {
     }
 }
 
+#[cfg_attr(not(feature = "embree"), allow(dead_code))]
 fn flatten(node: BuildNode, nodes: &mut Vec<Node>) -> u32 {
     let index = nodes.len();
     nodes.push(UNUSED);

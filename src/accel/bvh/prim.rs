@@ -67,7 +67,7 @@ impl Triangles for MeshRef<'_> {
 const INDEX_BIAS: u32 = 0x0080_0000;
 
 /// Most triangles a build takes: indices stay below this after the bias.
-pub const MAX_TRIANGLES: usize = (0x7F00_0000 - 1) as usize;
+pub(crate) const MAX_TRIANGLES: usize = (0x7F00_0000 - 1) as usize;
 
 /// A triangle as the builders see it: its box as two SIMD vectors (32 bytes,
 /// as Embree's `PrimRef`). The minimum's w lane carries the scene index's bits,
@@ -75,7 +75,7 @@ pub const MAX_TRIANGLES: usize = (0x7F00_0000 - 1) as usize;
 /// arithmetic on whole vectors never meets a denormal (slow on many CPUs).
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[repr(C, align(16))]
-pub struct PrimRef {
+pub(crate) struct PrimRef {
     pub lo: Vec4,
     pub hi: Vec4,
 }
@@ -98,7 +98,7 @@ impl PrimRef {
         self.lo.w.to_bits() - INDEX_BIAS
     }
 
-    #[inline]
+    #[cfg(test)]
     pub fn bounds(&self) -> Aabb {
         Aabb {
             min: self.lo.truncate(),
@@ -116,7 +116,7 @@ impl PrimRef {
 
 /// An axis-aligned box as two SIMD vectors (w lanes unused).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Box4 {
+pub(crate) struct Box4 {
     pub lo: Vec4,
     pub hi: Vec4,
 }
@@ -162,7 +162,7 @@ impl Box4 {
 /// returns for each child: the union of their boxes and the bounds of their
 /// doubled centroids ([`PrimRef::centroid2`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct NodeInfo {
+pub(crate) struct NodeInfo {
     pub bounds: Box4,
     pub centroids: Box4,
 }
@@ -193,7 +193,7 @@ impl NodeInfo {
 /// Folds `prims` into one value; in parallel chunks for large inputs when
 /// `parallel`. Every use is exact (box unions, integer counts), so the result does
 /// not depend on the chunking and the tree stays deterministic.
-pub fn reduce_prims<T: Send + Sync + Clone>(
+pub(crate) fn reduce_prims<T: Send + Sync + Clone>(
     prims: &[PrimRef],
     parallel: bool,
     identity: T,

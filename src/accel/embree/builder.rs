@@ -196,7 +196,7 @@ unsafe extern "C" fn split_primitive(
 /// Builds a BVH over `triangles` with Embree's builder at `quality`, leaves of at
 /// most `max_leaf` triangles and the same SAH constants and block size
 /// (`sahBlockSize`) as raylab's SAH builder.
-pub fn build(
+pub(crate) fn build(
     device: &Arc<Device>,
     triangles: &[[Vec3; 3]],
     quality: Quality,

@@ -9,7 +9,9 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::super::leaf::{Tri4, LANES};
-use super::super::node::{Bvh, Node, Skeleton};
+#[cfg(test)]
+use super::super::node::Bvh;
+use super::super::node::{Node, Skeleton};
 use super::super::params::MERGE_MAX;
 use super::super::prim::Triangles;
 use super::super::simd::Kernel;
@@ -17,13 +19,17 @@ use super::node::{leaf_ref, pack_leaves, WideBvh, WideNode, EMPTY, MAX_SLOTS};
 use crate::error::{Error, Result};
 
 impl<const N: usize> WideBvh<N> {
-    /// Collapses `bvh` (left intact) with the kernel the CPU supports best.
-    pub fn collapse(bvh: &Bvh) -> Result<Self> {
+    /// Collapses `bvh` (left intact) with the kernel the CPU supports best
+    /// (the tests check the collapse against the direct wide build and the
+    /// binary tree; the renderer builds wide trees through `bvh::build`).
+    #[cfg(test)]
+    pub(crate) fn collapse(bvh: &Bvh) -> Result<Self> {
         Self::collapse_with(bvh, Kernel::detect())
     }
 
     /// Collapses `bvh` using `kernel` for queries (AVX2 serves only `N = 8`).
-    pub fn collapse_with(bvh: &Bvh, kernel: Kernel) -> Result<Self> {
+    #[cfg(test)]
+    pub(crate) fn collapse_with(bvh: &Bvh, kernel: Kernel) -> Result<Self> {
         Self::collapse_parts(
             &bvh.nodes,
             &bvh.tri_ids,
@@ -36,7 +42,7 @@ impl<const N: usize> WideBvh<N> {
     /// Collapses a tree whose triangles were not gathered: leaf slot `i` holds
     /// `triangles[skeleton.tri_ids[i]]`. The leaf blocks are filled in
     /// parallel on the current rayon pool when `parallel`.
-    pub fn from_skeleton<T: Triangles + ?Sized>(
+    pub(crate) fn from_skeleton<T: Triangles + ?Sized>(
         skeleton: &Skeleton,
         triangles: &T,
         parallel: bool,
