@@ -96,12 +96,9 @@ fn timed_build(scene: &Scene, params: &BuildParams, reps: usize) -> Result<(Dura
     Ok((times[times.len() / 2], tree.expect("at least one build")))
 }
 
-/// The binary tree of a [`timed_build`].
+/// The binary tree of a [`timed_build`] of width 2.
 fn binary(tree: Tree) -> Bvh {
-    match tree {
-        Tree::Binary(bvh) => bvh,
-        _ => unreachable!("a build of width 2 is binary"),
-    }
+    tree.into_binary().expect("a build of width 2 is binary")
 }
 
 /// Measures one builder on `scene`: `reps` timed builds serially and on

@@ -114,10 +114,8 @@ pub fn binary(
     tris: &[[Vec3; 3]],
     params: &raylab::accel::bvh::BuildParams,
 ) -> raylab::accel::bvh::Bvh {
-    match raylab::accel::bvh::build(tris, &params.binary()).unwrap() {
-        raylab::accel::bvh::Tree::Binary(bvh) => bvh,
-        _ => unreachable!("width 2 builds a binary tree"),
-    }
+    let tree = raylab::accel::bvh::build(tris, &params.binary()).unwrap();
+    tree.into_binary().expect("width 2 builds a binary tree")
 }
 
 /// Asserts that a raylab run succeeded, showing its stderr when it did not.

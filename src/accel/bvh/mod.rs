@@ -37,15 +37,13 @@ pub use tree::Tree;
 pub(crate) mod test_fixtures {
     use glam::Vec3;
 
-    use crate::accel::bvh::{build, BuildParams, Bvh, Tree, Triangles};
+    use crate::accel::bvh::{build, BuildParams, Bvh, Triangles};
     use crate::render::rng::Rng;
 
     /// The binary tree of `params`' splits ([`BuildParams::binary`]).
     pub fn binary<T: Triangles + ?Sized>(tris: &T, params: &BuildParams) -> Bvh {
-        match build(tris, &params.binary()).unwrap() {
-            Tree::Binary(bvh) => bvh,
-            _ => unreachable!("width 2"),
-        }
+        let tree = build(tris, &params.binary()).unwrap();
+        tree.into_binary().expect("width 2 builds a binary tree")
     }
 
     /// `n` small random triangles (sides up to 0.5) scattered in a box of side

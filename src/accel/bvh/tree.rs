@@ -64,6 +64,14 @@ impl Tree {
             _ => None,
         }
     }
+
+    /// The binary tree, when this is one (a build of width 2 always is).
+    pub fn into_binary(self) -> Option<Bvh> {
+        match self {
+            Tree::Binary(t) => Some(t),
+            _ => None,
+        }
+    }
 }
 
 impl Traversal for Tree {
