@@ -28,6 +28,26 @@ pub trait Backend: Send + Sync {
     /// Whether anything is hit within `(ray.tmin, ray.tmax)`.
     fn occluded(&self, ray: &Ray) -> bool;
 
+    /// [`Self::intersect`] for each of `rays` (each with its own `tmin` and
+    /// `tmax`) into `hits`, which is as long. A stream lets a backend trace
+    /// neighbouring rays together (packets); the answers must be the ones
+    /// the single-ray query gives. The default asks one ray at a time.
+    fn intersect_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
+        debug_assert_eq!(rays.len(), hits.len());
+        for (ray, hit) in rays.iter().zip(hits) {
+            *hit = self.intersect(ray);
+        }
+    }
+
+    /// [`Self::occluded`] for each of `rays` into `occluded`, as
+    /// [`Self::intersect_stream`].
+    fn occluded_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
+        debug_assert_eq!(rays.len(), occluded.len());
+        for (ray, o) in rays.iter().zip(occluded) {
+            *o = self.occluded(ray);
+        }
+    }
+
     /// Bytes of the acceleration structure (nodes and leaf data, as the
     /// backend holds them), when it has one to speak of.
     fn memory_bytes(&self) -> Option<usize> {

@@ -27,10 +27,30 @@ pub use schedule::{render, Schedule};
 /// (primary rays use `intersect`, shadow and AO rays `occluded`); instrumented
 /// tracers (counting traversal work, recording rays) implement it directly, so the
 /// loop that measures is the loop that renders.
+///
+/// The loop asks in streams (a tile's pass at a time, neighbouring rays
+/// adjacent: [`shade`]); a tracer that only answers single rays gets the
+/// default streams, which ask one ray at a time in stream order.
 pub trait Tracer: Sync {
     fn primary(&self, ray: &Ray) -> Option<Hit>;
     fn shadow(&self, ray: &Ray) -> bool;
     fn ao(&self, ray: &Ray) -> bool;
+
+    fn primary_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
+        for (ray, hit) in rays.iter().zip(hits) {
+            *hit = self.primary(ray);
+        }
+    }
+    fn shadow_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
+        for (ray, o) in rays.iter().zip(occluded) {
+            *o = self.shadow(ray);
+        }
+    }
+    fn ao_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
+        for (ray, o) in rays.iter().zip(occluded) {
+            *o = self.ao(ray);
+        }
+    }
     /// See [`Backend::flushes_denormals`].
     fn flushes_denormals(&self) -> bool {
         false
@@ -49,6 +69,15 @@ impl<B: Backend + ?Sized> Tracer for B {
     #[inline]
     fn ao(&self, ray: &Ray) -> bool {
         self.occluded(ray)
+    }
+    fn primary_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
+        self.intersect_stream(rays, hits)
+    }
+    fn shadow_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
+        self.occluded_stream(rays, occluded)
+    }
+    fn ao_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
+        self.occluded_stream(rays, occluded)
     }
     fn flushes_denormals(&self) -> bool {
         Backend::flushes_denormals(self)

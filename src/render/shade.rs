@@ -92,7 +92,44 @@ struct Surface {
     tri: u32,
 }
 
+/// Pixels per side of the blocks primary rays are issued in: a packet of 8
+/// consecutive rays covers 4 x 2 pixels, one of 16 the whole block.
+const BLOCK: u32 = 4;
+/// Most rays in one stream of secondary rays: a pass takes the surfaces in
+/// groups whose rays fit (a whole 64 x 48 tile at one ray per pixel), so a
+/// pass with thousands of samples per pixel does not hold them all at once.
+const STREAM_RAYS: usize = 4096;
+
+/// The pixels of `rect` in 4 x 4 blocks (row by row inside a block, blocks
+/// row by row), so that neighbouring rays of a stream are neighbouring pixels.
+fn block_order(rect: Rect) -> Vec<(u32, u32)> {
+    let mut pixels = Vec::with_capacity(rect.pixel_count());
+    for by in (rect.y0..rect.y1).step_by(BLOCK as usize) {
+        for bx in (rect.x0..rect.x1).step_by(BLOCK as usize) {
+            for y in by..(by + BLOCK).min(rect.y1) {
+                for x in bx..(bx + BLOCK).min(rect.x1) {
+                    pixels.push((x, y));
+                }
+            }
+        }
+    }
+    pixels
+}
+
+/// The surfaces of a pass in groups of at most [`STREAM_RAYS`] rays when each
+/// casts up to `per_surface` (at least one surface a group).
+fn groups(surfaces: &[Surface], per_surface: usize) -> std::slice::Chunks<'_, Surface> {
+    surfaces.chunks((STREAM_RAYS / per_surface.max(1)).max(1))
+}
+
 /// Renders `rect` into `out` (row-major, `rect.pixel_count()` long, linear radiance).
+///
+/// Each pass asks the tracer in streams with coherent rays adjacent: primary
+/// rays by 4 x 4 pixel blocks; shadow rays by surface, in that order; the
+/// study's AO direction by direction over the surfaces, cosine AO sample
+/// index by sample index. Every pixel's random numbers are drawn in the same
+/// order as one pixel at a time would, and every sum is added in the same
+/// order, so the image is the same bit for bit whatever the stream order.
 pub fn render_rect<T: Tracer + ?Sized>(
     scene: &Scene,
     tracer: &T,
@@ -103,43 +140,47 @@ pub fn render_rect<T: Tracer + ?Sized>(
     debug_assert_eq!(out.len(), rect.pixel_count());
     let mut stats = RenderStats::default();
     let width = rect.x1 - rect.x0;
+    out.fill(Vec3::ZERO);
 
     // Pass 1: primary rays; emission and the hit surfaces.
     let start = Instant::now();
+    let pixels = block_order(rect);
+    let rays: Vec<Ray> = pixels
+        .iter()
+        .map(|&(x, y)| settings.camera.ray(x, y))
+        .collect();
+    let mut hits = vec![None; rays.len()];
+    tracer.primary_stream(&rays, &mut hits);
     let mut surfaces = Vec::with_capacity(out.len());
-    for y in rect.y0..rect.y1 {
-        for x in rect.x0..rect.x1 {
-            let slot = ((y - rect.y0) * width + (x - rect.x0)) as usize;
-            let ray = settings.camera.ray(x, y);
-            out[slot] = Vec3::ZERO;
-            let Some(hit) = tracer.primary(&ray) else {
-                continue;
-            };
-            let tri = scene.triangle(hit.tri as usize);
-            let wo = -ray.dir;
-            let mut ng = triangle_unit_normal(&tri);
-            let front = ng.dot(wo) >= 0.0;
-            if !front {
-                ng = -ng;
-            }
-            let mut ns = scene.shading_normal(hit.tri, hit.u, hit.v).unwrap_or(ng);
-            if ns.dot(wo) < 0.0 {
-                ns = -ns;
-            }
-            // An emitter is seen glowing from its emitting side only.
-            if front || settings.two_sided_lights {
-                out[slot] = scene.material_of(hit.tri).ke;
-            }
-            surfaces.push(Surface {
-                slot,
-                pixel: y as u64 * settings.width as u64 + x as u64,
-                p: ray.at(hit.t),
-                ng,
-                ns,
-                wo,
-                tri: hit.tri,
-            });
+    for ((&(x, y), ray), hit) in pixels.iter().zip(&rays).zip(hits) {
+        let Some(hit) = hit else {
+            continue;
+        };
+        let slot = ((y - rect.y0) * width + (x - rect.x0)) as usize;
+        let tri = scene.triangle(hit.tri as usize);
+        let wo = -ray.dir;
+        let mut ng = triangle_unit_normal(&tri);
+        let front = ng.dot(wo) >= 0.0;
+        if !front {
+            ng = -ng;
         }
+        let mut ns = scene.shading_normal(hit.tri, hit.u, hit.v).unwrap_or(ng);
+        if ns.dot(wo) < 0.0 {
+            ns = -ns;
+        }
+        // An emitter is seen glowing from its emitting side only.
+        if front || settings.two_sided_lights {
+            out[slot] = scene.material_of(hit.tri).ke;
+        }
+        surfaces.push(Surface {
+            slot,
+            pixel: y as u64 * settings.width as u64 + x as u64,
+            p: ray.at(hit.t),
+            ng,
+            ns,
+            wo,
+            tri: hit.tri,
+        });
     }
     stats.primary_rays = out.len() as u64;
     stats.primary_hits = surfaces.len() as u64;
@@ -147,51 +188,113 @@ pub fn render_rect<T: Tracer + ?Sized>(
 
     // Pass 2: direct light.
     let start = Instant::now();
-    for s in &surfaces {
-        let (radiance, rays) = direct_light(scene, tracer, settings, s);
-        out[s.slot] += radiance;
-        stats.shadow_rays += rays;
-    }
+    stats.shadow_rays = direct_light(scene, tracer, settings, &surfaces, out);
     stats.shadow_time = start.elapsed();
 
     // Pass 3: ambient term, darkened by AO.
     let start = Instant::now();
-    for s in &surfaces {
-        let (visibility, rays) = ambient_visibility(tracer, settings, s);
-        out[s.slot] += AMBIENT * scene.material_of(s.tri).ka * visibility;
-        stats.ao_rays += rays;
-    }
+    stats.ao_rays = ambient(scene, tracer, settings, &surfaces, out);
     stats.ao_time = start.elapsed();
     stats
 }
 
-/// Reflected direct light at `s` and the number of shadow rays cast.
+/// A shadow ray's sample: what it adds to its surface's sum when unoccluded.
+#[derive(Clone, Copy)]
+struct LightSample {
+    contribution: Vec3,
+    /// Sampled on the extra light (else on the emissive triangles).
+    extra: bool,
+}
+
+/// Adds the reflected direct light of every surface to `out` and returns the
+/// number of shadow rays cast.
 fn direct_light<T: Tracer + ?Sized>(
     scene: &Scene,
     tracer: &T,
     settings: &RenderSettings,
-    s: &Surface,
-) -> (Vec3, u64) {
-    let mat = scene.material_of(s.tri);
+    surfaces: &[Surface],
+    out: &mut [Vec3],
+) -> u64 {
     let lights = &scene.lights;
     if lights.is_empty() || settings.light_samples == 0 {
-        return (Vec3::ZERO, 0);
+        return 0;
     }
+    // Monte Carlo estimate: the triangles' pdf is 1 / total light area; the extra
+    // quad's 1 / its area, a point light's a delta. With both emissive triangles
+    // and an extra light, each sample picks one of the two with probability 1/2,
+    // so the estimate divides by that probability.
+    // (Clamped: a quad of area beyond f32 would make 0 * inf = NaN.)
+    let sources = (!lights.triangles.is_empty()) as u32 + lights.extra.is_some() as u32;
+    let extra_area = match lights.extra {
+        Some(e) => e.area().unwrap_or(1.0).min(f32::MAX),
+        None => 1.0,
+    };
+    // (area * sources) / samples, in that order: with one source this is the
+    // same float as before extra lights existed, so old images stay bit-identical.
+    let n = settings.light_samples as f32;
+    let sources = sources as f32;
+    let (tris_scale, extra_scale) = (lights.total_area * sources / n, extra_area * sources / n);
+    let mut cast = 0;
+    let (mut rays, mut samples, mut counts) = (Vec::new(), Vec::new(), Vec::new());
+    let mut occluded = Vec::new();
+    for group in groups(surfaces, settings.light_samples as usize) {
+        rays.clear();
+        samples.clear();
+        counts.clear();
+        for s in group {
+            counts.push(light_samples(scene, settings, s, &mut rays, &mut samples));
+        }
+        occluded.clear();
+        occluded.resize(rays.len(), false);
+        tracer.shadow_stream(&rays, &mut occluded);
+        let mut next = 0;
+        for (s, &count) in group.iter().zip(&counts) {
+            let mut sum_tris = Vec3::ZERO;
+            let mut sum_extra = Vec3::ZERO;
+            for (sample, &blocked) in samples[next..next + count]
+                .iter()
+                .zip(&occluded[next..next + count])
+            {
+                if blocked {
+                    continue;
+                }
+                if sample.extra {
+                    sum_extra += sample.contribution;
+                } else {
+                    sum_tris += sample.contribution;
+                }
+            }
+            next += count;
+            out[s.slot] += sum_tris * tris_scale + sum_extra * extra_scale;
+        }
+        cast += rays.len() as u64;
+    }
+    cast
+}
+
+/// The light samples at `s`: pushes a shadow ray to `rays` and what it adds
+/// when unoccluded to `samples` for each sample that needs one (a light below
+/// the surface needs none), and returns how many it pushed.
+fn light_samples(
+    scene: &Scene,
+    settings: &RenderSettings,
+    s: &Surface,
+    rays: &mut Vec<Ray>,
+    samples: &mut Vec<LightSample>,
+) -> usize {
+    let mat = scene.material_of(s.tri);
+    let lights = &scene.lights;
     let has_tris = !lights.triangles.is_empty();
-    // With both emissive triangles and an extra light, each sample picks one of
-    // the two with probability 1/2 (the first random number decides and, rescaled,
-    // picks the triangle), so the estimate divides by that probability.
-    let sources = has_tris as u32 + lights.extra.is_some() as u32;
     // The extra quad's normal, once per pixel rather than per sample.
     let extra_normal = lights.extra.and_then(|e| e.normal());
     let mut rng = Rng::for_pixel(s.pixel, settings.seed, STREAM_LIGHT);
     let origin = ray_offset(s.p, s.ng);
-    let mut sum_tris = Vec3::ZERO;
-    let mut sum_extra = Vec3::ZERO;
-    let mut rays = 0;
+    let before = rays.len();
     for _ in 0..settings.light_samples {
         let mut u = rng.next_f32();
         let (r1, r2) = (rng.next_f32(), rng.next_f32());
+        // With both sources, the first random number decides and, rescaled,
+        // picks the triangle.
         let use_extra = match (has_tris, lights.extra.is_some()) {
             (true, true) => {
                 let extra = u >= 0.5;
@@ -249,79 +352,115 @@ fn direct_light<T: Tracer + ?Sized>(
         if cos_l <= 0.0 {
             continue;
         }
-        rays += 1;
-        let shadow = Ray::segment(origin, wi, 0.0, dist * (1.0 - SHADOW_END));
-        if tracer.shadow(&shadow) {
-            continue;
-        }
+        rays.push(Ray::segment(origin, wi, 0.0, dist * (1.0 - SHADOW_END)));
         let h = (wi + s.wo).normalize_or_zero();
         let spec = mat.ks * ((mat.ns + 2.0) / (2.0 * PI)) * s.ns.dot(h).max(0.0).powf(mat.ns);
         let brdf = mat.kd / PI + spec;
-        let contribution = le * brdf * (cos_s * cos_l / dist2);
-        if use_extra {
-            sum_extra += contribution;
-        } else {
-            sum_tris += contribution;
-        }
+        samples.push(LightSample {
+            contribution: le * brdf * (cos_s * cos_l / dist2),
+            extra: use_extra,
+        });
     }
-    // Monte Carlo estimate: the triangles' pdf is 1 / total light area; the extra
-    // quad's 1 / its area, a point light's a delta.
-    // (Clamped: a quad of area beyond f32 would make 0 * inf = NaN.)
-    let extra_area = match lights.extra {
-        Some(e) => e.area().unwrap_or(1.0).min(f32::MAX),
-        None => 1.0,
-    };
-    // (area * sources) / samples, in that order: with one source this is the
-    // same float as before extra lights existed, so old images stay bit-identical.
-    let n = settings.light_samples as f32;
-    let sources = sources as f32;
-    (
-        sum_tris * (lights.total_area * sources / n) + sum_extra * (extra_area * sources / n),
-        rays,
-    )
+    rays.len() - before
 }
 
-/// The unoccluded fraction of AO directions at `s` and the number of AO rays cast.
-fn ambient_visibility<T: Tracer + ?Sized>(
+/// Adds the ambient term of every surface, darkened by its unoccluded fraction
+/// of AO directions, to `out`, and returns the number of AO rays cast.
+fn ambient<T: Tracer + ?Sized>(
+    scene: &Scene,
     tracer: &T,
     settings: &RenderSettings,
-    s: &Surface,
-) -> (f32, u64) {
-    let origin = ray_offset(s.p, s.ng);
+    surfaces: &[Surface],
+    out: &mut [Vec3],
+) -> u64 {
+    let mut add = |s: &Surface, visibility: f32| {
+        out[s.slot] += AMBIENT * scene.material_of(s.tri).ka * visibility;
+    };
     let dist = settings.ao_dist;
+    let (mut rays, mut owners, mut occluded) = (Vec::new(), Vec::new(), Vec::new());
+    let mut cast = 0;
     match settings.ao {
-        AoMode::Off => (1.0, 0),
+        AoMode::Off => surfaces.iter().for_each(|s| add(s, 1.0)),
         AoMode::Paper => {
-            let mut cast = 0u32;
-            let mut open = 0u32;
-            for d in paper_ao_directions() {
-                if d.dot(s.ng) > 0.0 {
-                    cast += 1;
-                    open += !tracer.ao(&Ray::segment(origin, d, 0.0, dist)) as u32;
+            let dirs = paper_ao_directions();
+            for group in groups(surfaces, dirs.len()) {
+                let origins: Vec<Vec3> = group.iter().map(|s| ray_offset(s.p, s.ng)).collect();
+                // Direction by direction: a packet holds one direction from
+                // neighbouring pixels.
+                rays.clear();
+                owners.clear();
+                for d in dirs {
+                    for (i, s) in group.iter().enumerate() {
+                        if d.dot(s.ng) > 0.0 {
+                            rays.push(Ray::segment(origins[i], d, 0.0, dist));
+                            owners.push(i);
+                        }
+                    }
                 }
+                occluded.clear();
+                occluded.resize(rays.len(), false);
+                tracer.ao_stream(&rays, &mut occluded);
+                let mut open = vec![0u32; group.len()];
+                let mut count = vec![0u32; group.len()];
+                for (&i, &blocked) in owners.iter().zip(&occluded) {
+                    count[i] += 1;
+                    open[i] += !blocked as u32;
+                }
+                // At least one of the 14 directions lies in any open hemisphere.
+                for (i, s) in group.iter().enumerate() {
+                    add(s, open[i] as f32 / count[i] as f32);
+                }
+                cast += rays.len() as u64;
             }
-            // At least one of the 14 directions lies in any open hemisphere.
-            (open as f32 / cast as f32, cast as u64)
         }
         AoMode::Cosine(n) => {
-            let mut rng = Rng::for_pixel(s.pixel, settings.seed, STREAM_AO);
-            let (t, b) = basis(s.ng);
-            // Stratified: the radial coordinate in n jittered strata, the angle on a
-            // randomly rotated golden-ratio sequence.
-            let rotation = rng.next_f32();
-            let mut open = 0u32;
-            for i in 0..n {
-                let u1 = (i as f32 + rng.next_f32()) / n as f32;
-                let u2 = (rotation + i as f32 * 0.618_034).fract();
-                let r = u1.sqrt();
-                let phi = 2.0 * PI * u2;
-                let local = Vec3::new(r * phi.cos(), r * phi.sin(), (1.0 - u1).max(0.0).sqrt());
-                let d = t * local.x + b * local.y + s.ng * local.z;
-                open += !tracer.ao(&Ray::segment(origin, d, 0.0, dist)) as u32;
+            for group in groups(surfaces, n as usize) {
+                // Each surface's random stream, frame and rotation, drawn in the
+                // order one surface at a time would draw them.
+                let mut frames: Vec<(Rng, Vec3, Vec3, f32, Vec3)> = group
+                    .iter()
+                    .map(|s| {
+                        let mut rng = Rng::for_pixel(s.pixel, settings.seed, STREAM_AO);
+                        let (t, b) = basis(s.ng);
+                        // Stratified: the radial coordinate in n jittered strata, the
+                        // angle on a randomly rotated golden-ratio sequence.
+                        let rotation = rng.next_f32();
+                        (rng, t, b, rotation, ray_offset(s.p, s.ng))
+                    })
+                    .collect();
+                // Sample index by sample index over the surfaces.
+                rays.clear();
+                owners.clear();
+                for i in 0..n {
+                    for (k, (s, (rng, t, b, rotation, origin))) in
+                        group.iter().zip(&mut frames).enumerate()
+                    {
+                        let u1 = (i as f32 + rng.next_f32()) / n as f32;
+                        let u2 = (*rotation + i as f32 * 0.618_034).fract();
+                        let r = u1.sqrt();
+                        let phi = 2.0 * PI * u2;
+                        let local =
+                            Vec3::new(r * phi.cos(), r * phi.sin(), (1.0 - u1).max(0.0).sqrt());
+                        let d = *t * local.x + *b * local.y + s.ng * local.z;
+                        rays.push(Ray::segment(*origin, d, 0.0, dist));
+                        owners.push(k);
+                    }
+                }
+                occluded.clear();
+                occluded.resize(rays.len(), false);
+                tracer.ao_stream(&rays, &mut occluded);
+                let mut open = vec![0u32; group.len()];
+                for (&k, &blocked) in owners.iter().zip(&occluded) {
+                    open[k] += !blocked as u32;
+                }
+                for (k, s) in group.iter().enumerate() {
+                    add(s, open[k] as f32 / n as f32);
+                }
+                cast += rays.len() as u64;
             }
-            (open as f32 / n as f32, n as u64)
         }
     }
+    cast
 }
 
 #[cfg(test)]
