@@ -451,6 +451,7 @@ fn stress_specs(kinds: &[StressBackend]) -> Vec<BackendSpec> {
                 quality: Quality::Medium,
                 robust,
                 threads: 1,
+                query: crate::accel::Query::Single,
             });
         }
     }

@@ -5,8 +5,9 @@
 //! occlusion answers differ).
 //!
 //! Ray sets: the primary rays of a render (raster order), its shadow rays and
-//! its AO rays (recorded through the shared shading loop), and random rays in
-//! and around the scene.
+//! its AO rays (recorded through the shared shading loop), diffuse bounce rays
+//! (one cosine-weighted ray per primary hit, unbounded: incoherent work), and
+//! random rays in and around the scene.
 
 use std::sync::Mutex;
 
@@ -152,37 +153,112 @@ pub enum RaySet {
     Primary,
     Shadow,
     Ao,
+    /// One cosine-weighted bounce ray per primary hit, unbounded (closest hit).
+    Diffuse,
     Random,
 }
 
 impl RaySet {
-    pub const ALL: [RaySet; 4] = [RaySet::Primary, RaySet::Shadow, RaySet::Ao, RaySet::Random];
+    pub const ALL: [RaySet; 5] = [
+        RaySet::Primary,
+        RaySet::Shadow,
+        RaySet::Ao,
+        RaySet::Diffuse,
+        RaySet::Random,
+    ];
+
+    /// Whether the set asks for closest hits (else any hit).
+    pub fn closest(self) -> bool {
+        matches!(self, RaySet::Primary | RaySet::Diffuse | RaySet::Random)
+    }
 }
 
-/// Records the shadow and AO rays of a render while tracing with `backend`.
+/// Records the rays of a render, in the order the shading loop asks for
+/// them (its streams: neighbouring rays adjacent), while tracing with `backend`.
 struct Recorder<'a> {
     backend: &'a dyn Backend,
+    primary: Mutex<(Vec<Ray>, Vec<Option<Hit>>)>,
     shadow: Mutex<Vec<Ray>>,
     ao: Mutex<Vec<Ray>>,
 }
 
+fn record(into: &Mutex<Vec<Ray>>, rays: &[Ray]) {
+    if let Ok(mut v) = into.lock() {
+        v.extend_from_slice(rays);
+    }
+}
+
 impl Tracer for Recorder<'_> {
     fn primary(&self, ray: &Ray) -> Option<Hit> {
-        self.backend.intersect(ray)
+        let mut hit = [None];
+        self.primary_stream(std::slice::from_ref(ray), &mut hit);
+        hit[0]
     }
     fn shadow(&self, ray: &Ray) -> bool {
-        if let Ok(mut v) = self.shadow.lock() {
-            v.push(*ray);
-        }
+        record(&self.shadow, std::slice::from_ref(ray));
         self.backend.occluded(ray)
     }
     fn ao(&self, ray: &Ray) -> bool {
-        if let Ok(mut v) = self.ao.lock() {
-            v.push(*ray);
-        }
+        record(&self.ao, std::slice::from_ref(ray));
         self.backend.occluded(ray)
     }
+    fn primary_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
+        self.backend.intersect_stream(rays, hits);
+        if let Ok(mut v) = self.primary.lock() {
+            v.0.extend_from_slice(rays);
+            v.1.extend_from_slice(hits);
+        }
+    }
+    fn shadow_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
+        record(&self.shadow, rays);
+        self.backend.occluded_stream(rays, occluded)
+    }
+    fn ao_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
+        record(&self.ao, rays);
+        self.backend.occluded_stream(rays, occluded)
+    }
 }
+
+/// The rays a serial render casts, in the order its streams ask them.
+pub struct Recorded {
+    pub primary: Vec<Ray>,
+    /// The recording backend's answer to each primary ray.
+    pub primary_hits: Vec<Option<Hit>>,
+    pub shadow: Vec<Ray>,
+    pub ao: Vec<Ray>,
+}
+
+impl Recorded {
+    /// One diffuse bounce per primary hit, in primary order: from the hit
+    /// point (moved off the surface as the renderer moves secondary rays) in
+    /// a cosine-weighted direction about the normal on the viewer's side,
+    /// with unbounded `tmax`; deterministic for a `seed`.
+    pub fn diffuse(&self, scene: &Scene, seed: u64) -> Vec<Ray> {
+        self.primary
+            .iter()
+            .zip(&self.primary_hits)
+            .enumerate()
+            .filter_map(|(i, (ray, hit))| {
+                let hit = (*hit)?;
+                let mut n =
+                    crate::geometry::triangle_unit_normal(&scene.triangle(hit.tri as usize));
+                if n.dot(ray.dir) > 0.0 {
+                    n = -n;
+                }
+                let mut rng = crate::render::rng::Rng::for_pixel(i as u64, seed, STREAM_DIFFUSE);
+                let (u1, u2) = (rng.next_f32(), rng.next_f32());
+                let origin = crate::render::shade::ray_offset(ray.at(hit.t), n);
+                Some(Ray::new(
+                    origin,
+                    crate::render::shade::cosine_direction(n, u1, u2),
+                ))
+            })
+            .collect()
+    }
+}
+
+/// The random stream of the diffuse bounce directions.
+const STREAM_DIFFUSE: u64 = 0xD1FF;
 
 /// The primary rays of `settings` in raster order.
 pub fn primary_rays(settings: &RenderSettings) -> Vec<Ray> {
@@ -191,15 +267,16 @@ pub fn primary_rays(settings: &RenderSettings) -> Vec<Ray> {
         .collect()
 }
 
-/// The (shadow, AO) rays a serial render of `scene` with `backend` casts, in the
-/// order they are cast.
+/// The rays a serial render of `scene` with `backend` casts, in the order
+/// they are cast.
 pub fn recorded_rays(
     scene: &Scene,
     backend: &dyn Backend,
     settings: &RenderSettings,
-) -> crate::Result<(Vec<Ray>, Vec<Ray>)> {
+) -> crate::Result<Recorded> {
     let recorder = Recorder {
         backend,
+        primary: Mutex::new((Vec::new(), Vec::new())),
         shadow: Mutex::new(Vec::new()),
         ao: Mutex::new(Vec::new()),
     };
@@ -212,7 +289,13 @@ pub fn recorded_rays(
         &Progress::new(),
     )?;
     let take = |m: Mutex<Vec<Ray>>| m.into_inner().unwrap_or_default();
-    Ok((take(recorder.shadow), take(recorder.ao)))
+    let (primary, primary_hits) = recorder.primary.into_inner().unwrap_or_default();
+    Ok(Recorded {
+        primary,
+        primary_hits,
+        shadow: take(recorder.shadow),
+        ao: take(recorder.ao),
+    })
 }
 
 impl RaySet {
@@ -221,6 +304,7 @@ impl RaySet {
             RaySet::Primary => "primary",
             RaySet::Shadow => "shadow",
             RaySet::Ao => "ao",
+            RaySet::Diffuse => "diffuse",
             RaySet::Random => "random",
         }
     }
@@ -240,11 +324,19 @@ pub fn ray_sets(
 ) -> crate::Result<Vec<(RaySet, Vec<Ray>)>> {
     let needs_recording = sets
         .iter()
-        .any(|s| matches!(s, RaySet::Shadow | RaySet::Ao));
-    let (shadow, ao) = if needs_recording {
-        recorded_rays(scene, recorder, settings)?
+        .any(|s| matches!(s, RaySet::Shadow | RaySet::Ao | RaySet::Diffuse));
+    let recorded = if needs_recording {
+        Some(recorded_rays(scene, recorder, settings)?)
     } else {
-        (Vec::new(), Vec::new())
+        None
+    };
+    let (shadow, ao, diffuse) = match &recorded {
+        Some(r) => (
+            r.shadow.clone(),
+            r.ao.clone(),
+            r.diffuse(scene, settings.seed),
+        ),
+        None => (Vec::new(), Vec::new(), Vec::new()),
     };
     Ok(sets
         .iter()
@@ -254,6 +346,7 @@ pub fn ray_sets(
                 RaySet::Primary => subsample(primary_rays(settings), count),
                 RaySet::Shadow => subsample(shadow.clone(), count),
                 RaySet::Ao => subsample(ao.clone(), count),
+                RaySet::Diffuse => subsample(diffuse.clone(), count),
                 RaySet::Random => random_rays(scene.bounds(), count, settings.seed),
             };
             (set, rays)
@@ -337,12 +430,26 @@ pub fn compare(
     triangles: &[[Vec3; 3]],
 ) -> (SetReport, Vec<Agreement>) {
     use rayon::prelude::*;
+    // Asked as streams, so that a backend's packet or stream path is what is
+    // validated (chunks of neighbouring rays, as the renderer asks).
+    let answers = |backend: &dyn Backend| -> Vec<(Option<Hit>, bool)> {
+        rays.par_chunks(256)
+            .flat_map_iter(|chunk| {
+                let mut hits = vec![None; chunk.len()];
+                let mut occluded = vec![false; chunk.len()];
+                backend.intersect_stream(chunk, &mut hits);
+                backend.occluded_stream(chunk, &mut occluded);
+                hits.into_iter().zip(occluded)
+            })
+            .collect()
+    };
+    let (answers_a, answers_b) = (answers(a), answers(b));
     let per_ray: Vec<(Agreement, Option<f64>, bool, bool)> = rays
         .par_iter()
-        .map(|ray| {
-            let (ha, hb) = (a.intersect(ray), b.intersect(ray));
+        .zip(answers_a.par_iter().zip(&answers_b))
+        .map(|(ray, (&(ha, oa), &(hb, ob)))| {
             let mut agreement = classify(ray, ha, hb, triangles);
-            let occlusion_differs = a.occluded(ray) != b.occluded(ray);
+            let occlusion_differs = oa != ob;
             // An occlusion answer that contradicts agreeing closest hits is genuine;
             // one that follows an edge tie is the same tie.
             if occlusion_differs && agreement == Agreement::Same {

@@ -7,8 +7,10 @@
 pub mod bvh;
 pub mod embree;
 pub mod naive;
+pub mod query;
 pub mod spec;
 
+pub use query::Query;
 pub use spec::{build_backend, BackendKind, BackendSpec, Built};
 
 use crate::geometry::{Hit, Ray};

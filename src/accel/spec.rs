@@ -7,7 +7,9 @@ use std::time::{Duration, Instant};
 use super::bvh::{BuildParams, BvhBackend};
 use super::embree::Quality;
 use super::naive::Naive;
+use super::query::Query;
 use super::Backend;
+use crate::error::Error;
 use crate::geometry::Intersector;
 use crate::scene::MeshRef;
 
@@ -38,16 +40,20 @@ impl BackendKind {
 pub enum BackendSpec {
     /// The naive scan with its ray/triangle test.
     Naive { intersector: Intersector },
-    /// raylab's BVH: builder, width, build threads, and the ray/triangle test.
+    /// raylab's BVH: builder, width, build threads, the ray/triangle test,
+    /// and how streams are traced.
     Bvh {
         params: BuildParams,
         intersector: Intersector,
+        query: Query,
     },
-    /// Embree's scene at a build quality, optionally robust, built on `threads`.
+    /// Embree's scene at a build quality, optionally robust, built on
+    /// `threads`, and the Embree API streams are traced with.
     Embree {
         quality: Quality,
         robust: bool,
         threads: usize,
+        query: Query,
     },
 }
 
@@ -64,6 +70,7 @@ impl BackendSpec {
         BackendSpec::Bvh {
             params,
             intersector: Intersector::Mt,
+            query: Query::Single,
         }
     }
 
@@ -73,6 +80,7 @@ impl BackendSpec {
             quality: Quality::Medium,
             robust: false,
             threads,
+            query: Query::Single,
         }
     }
 
@@ -100,8 +108,17 @@ impl BackendSpec {
 
     /// The name reports use: `naive`, `bvh-<builder>` (`bvh4-`, `bvh8-` for the
     /// wide trees), `embree-<quality>` (`-robust`); raylab's backends add
-    /// `-watertight` for the watertight triangle test.
+    /// `-watertight` for the watertight triangle test; a query path other
+    /// than single rays adds its name (`-packet8`, `-stream`).
     pub fn name(&self) -> String {
+        match self.query() {
+            Query::Single => self.structure_name(),
+            q => format!("{}-{q}", self.structure_name()),
+        }
+    }
+
+    /// The name without the query path: what was built.
+    pub fn structure_name(&self) -> String {
         let with_test = |base: String, intersector: &Intersector| match intersector {
             Intersector::Mt => base,
             other => format!("{base}-{}", other.name()),
@@ -111,6 +128,7 @@ impl BackendSpec {
             BackendSpec::Bvh {
                 params,
                 intersector,
+                ..
             } => {
                 let tree = match params.width {
                     2 => "bvh".to_string(),
@@ -126,6 +144,80 @@ impl BackendSpec {
                 if *robust { "-robust" } else { "" }
             ),
         }
+    }
+
+    /// How streams are traced (the naive scan: one ray at a time).
+    pub const fn query(&self) -> Query {
+        match self {
+            BackendSpec::Naive { .. } => Query::Single,
+            BackendSpec::Bvh { query, .. } | BackendSpec::Embree { query, .. } => *query,
+        }
+    }
+
+    /// The query paths this backend has: single rays for all; raylab's
+    /// 8-ray packets for the 8-wide tree; Embree's packets of 4, 8 and 16
+    /// rays, and its stream API where the linked Embree has it (3, not 4).
+    pub fn queries(&self) -> Vec<Query> {
+        match self {
+            BackendSpec::Naive { .. } => vec![Query::Single],
+            BackendSpec::Bvh { params, .. } if params.width == 8 => {
+                vec![Query::Single, Query::Packet(8)]
+            }
+            BackendSpec::Bvh { .. } => vec![Query::Single],
+            BackendSpec::Embree { .. } => {
+                let mut all = Query::ALL.to_vec();
+                #[cfg(feature = "embree")]
+                let streams = super::embree::api::HAS_STREAMS;
+                #[cfg(not(feature = "embree"))]
+                let streams = false;
+                if !streams {
+                    all.retain(|&q| q != Query::Stream);
+                }
+                all
+            }
+        }
+    }
+
+    /// The same backend on its fastest query path, which a render uses unless
+    /// `--query` says otherwise. Measured by `raylab bench --part trace`
+    /// (docs/results.md): for raylab's 8-wide tree its own 8-ray packets, for
+    /// Embree its packets of 8 rays, its native width on AVX2.
+    pub fn with_fastest_query(self) -> Self {
+        let fastest = match self {
+            BackendSpec::Bvh { params, .. } if params.width == 8 => Query::Packet(8),
+            BackendSpec::Embree { .. } => Query::Packet(8),
+            _ => Query::Single,
+        };
+        self.with_query(fastest).unwrap_or(self)
+    }
+
+    /// The same backend tracing streams with `query`, or the error `--query`
+    /// gets when it has no such path ([`Self::queries`]).
+    pub fn with_query(mut self, query: Query) -> crate::Result<Self> {
+        let have = self.queries();
+        if !have.contains(&query) {
+            let names: Vec<String> = have.iter().map(|q| q.name()).collect();
+            return Err(Error::usage(
+                "--query",
+                format!(
+                    "{} has no {query} path (it has: {}{})",
+                    self.structure_name(),
+                    names.join(", "),
+                    match (self, query) {
+                        (BackendSpec::Bvh { .. }, Query::Packet(8)) =>
+                            "; raylab's packets traverse the 8-wide tree: --bvh-width 8",
+                        (BackendSpec::Embree { .. }, Query::Stream) =>
+                            "; Embree 4 removed the stream API",
+                        _ => "",
+                    }
+                ),
+            ));
+        }
+        match &mut self {
+            BackendSpec::Naive { .. } => {}
+            BackendSpec::Bvh { query: q, .. } | BackendSpec::Embree { query: q, .. } => *q = query,
+        }
+        Ok(self)
     }
 
     /// Threads the build runs on (the naive scan builds nothing: 1).
@@ -202,19 +294,28 @@ pub fn build_backend<'a>(spec: &BackendSpec, mesh: impl Into<MeshRef<'a>>) -> cr
         BackendSpec::Bvh {
             params,
             intersector,
-        } => Box::new(BvhBackend::new(&mesh, &params)?.with_intersector(intersector)),
+            query,
+        } => Box::new(
+            BvhBackend::new(&mesh, &params)?
+                .with_intersector(intersector)
+                .with_query(query)?,
+        ),
         #[cfg(feature = "embree")]
         BackendSpec::Embree {
             quality,
             robust,
             threads,
-        } => Box::new(super::embree::EmbreeBackend::from_mesh(
-            mesh.positions,
-            mesh.triangles,
-            quality,
-            robust,
-            threads,
-        )?),
+            query,
+        } => Box::new(
+            super::embree::EmbreeBackend::from_mesh(
+                mesh.positions,
+                mesh.triangles,
+                quality,
+                robust,
+                threads,
+            )?
+            .with_query(query)?,
+        ),
         #[cfg(not(feature = "embree"))]
         BackendSpec::Embree { .. } => return Err(super::embree::unavailable()),
     };
@@ -255,6 +356,7 @@ mod tests {
                     quality: Quality::High,
                     robust: true,
                     threads: 1,
+                    query: Query::Single,
                 },
                 "embree-high-robust",
             ),

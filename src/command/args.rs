@@ -6,7 +6,7 @@ use glam::Vec3;
 
 use crate::accel::bvh::{BuildParams, BuilderKind};
 use crate::accel::embree::Quality;
-use crate::accel::{BackendKind, BackendSpec};
+use crate::accel::{BackendKind, BackendSpec, Query};
 use crate::camera::default_view;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
@@ -160,12 +160,23 @@ pub struct BackendArgs {
     pub bvh: BvhArgs,
     #[command(flatten)]
     pub embree: EmbreeArgs,
+    /// How the renderer's streams of rays are traced: single (one ray at a
+    /// time), packet4, packet8 or packet16 (packets of neighbouring rays: Embree
+    /// has all three, raylab's 8-wide tree packet8), or stream (Embree 3's
+    /// rtcIntersect1M). The image is the same whichever path [default: the
+    /// backend's fastest, see docs/reference.md].
+    #[arg(long, value_name = "PATH")]
+    pub query: Option<Query>,
 }
 
 impl BackendArgs {
     /// The backend these flags describe, built on `threads`.
-    pub fn spec(&self, threads: usize) -> BackendSpec {
-        backend_spec(self.backend, &self.bvh, &self.embree, threads)
+    pub fn spec(&self, threads: usize) -> Result<BackendSpec> {
+        let spec = backend_spec(self.backend, &self.bvh, &self.embree, threads);
+        match self.query {
+            Some(q) => spec.with_query(q),
+            None => Ok(spec.with_fastest_query()),
+        }
     }
 }
 
@@ -184,11 +195,13 @@ fn backend_spec(
         BackendKind::Bvh => BackendSpec::Bvh {
             params,
             intersector: bvh.intersector,
+            query: Query::Single,
         },
         BackendKind::Embree => BackendSpec::Embree {
             quality: embree.embree_quality,
             robust: embree.embree_robust,
             threads: params.threads,
+            query: Query::Single,
         },
     }
 }

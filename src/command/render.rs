@@ -132,7 +132,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         ms(load_time)
     ));
 
-    let backend = build_backend(&args.accel.spec(threads), &scene)?;
+    let backend = build_backend(&args.accel.spec(threads)?, &scene)?;
     say(format!(
         "backend {}: built in {:.1} ms",
         backend.name(),

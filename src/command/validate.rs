@@ -27,7 +27,7 @@ pub struct ValidateArgs {
     #[arg(long, value_enum, default_value_t = if crate::accel::embree::AVAILABLE { BackendKind::Embree } else { BackendKind::Naive })]
     against: BackendKind,
     /// Ray sets to compare.
-    #[arg(long, value_name = "SET", default_value = "all", value_parser = ["primary", "shadow", "ao", "random", "all"])]
+    #[arg(long, value_name = "SET", default_value = "all", value_parser = ["primary", "shadow", "ao", "diffuse", "random", "all"])]
     rays: String,
     /// At most this many rays per set (evenly subsampled).
     #[arg(long, value_name = "N", default_value_t = 100_000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
@@ -101,11 +101,12 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
         "primary" => vec![RaySet::Primary],
         "shadow" => vec![RaySet::Shadow],
         "ao" => vec![RaySet::Ao],
+        "diffuse" => vec![RaySet::Diffuse],
         "random" => vec![RaySet::Random],
         _ => RaySet::ALL.to_vec(),
     };
     let count = args.count as usize;
-    let spec = args.accel.spec(threads);
+    let spec = args.accel.spec(threads)?;
     // The reference with its defaults (Embree MEDIUM, SAH BVH, MT) on `threads`.
     let reference_spec = BackendSpec::default_for(args.against, threads);
     let mut reports = Vec::new();

@@ -63,6 +63,15 @@ pub fn paper_ao_directions() -> [Vec3; 14] {
     dirs
 }
 
+/// A cosine-weighted direction about unit `n` from two uniform numbers in
+/// [0, 1) (Malley's method: a uniform point on the disc, lifted).
+pub fn cosine_direction(n: Vec3, u1: f32, u2: f32) -> Vec3 {
+    let (t, b) = basis(n);
+    let r = u1.sqrt();
+    let phi = 2.0 * PI * u2;
+    t * (r * phi.cos()) + b * (r * phi.sin()) + n * (1.0 - u1).max(0.0).sqrt()
+}
+
 /// An orthonormal basis around unit `n` (Duff et al. 2017, branchless).
 #[inline]
 fn basis(n: Vec3) -> (Vec3, Vec3) {

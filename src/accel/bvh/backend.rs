@@ -4,15 +4,21 @@
 use super::builder::build;
 use super::params::BuildParams;
 use super::prim::Triangles;
+use super::simd_packet::PACKET;
 use super::traverse::Traversal;
 use super::tree::Tree;
-use crate::accel::Backend;
+use crate::accel::{Backend, Query};
+use crate::error::Error;
 use crate::geometry::{Hit, Intersector, Ray};
+use crate::geometry::{MollerTrumbore, Watertight};
 
 /// The BVH as a render [`Backend`].
 pub struct BvhBackend {
     pub tree: Tree,
     intersector: Intersector,
+    /// How streams are traced: single rays, or packets of [`PACKET`] rays
+    /// (8-wide trees only).
+    query: Query,
 }
 
 impl BvhBackend {
@@ -23,7 +29,28 @@ impl BvhBackend {
         Ok(BvhBackend {
             tree: build(triangles, params)?,
             intersector: Intersector::Mt,
+            query: Query::Single,
         })
+    }
+
+    /// Traces streams with `query`: single rays, or (8-wide trees) packets of
+    /// [`PACKET`] rays.
+    pub fn with_query(mut self, query: Query) -> crate::Result<Self> {
+        match (query, &self.tree) {
+            (Query::Single, _) => {}
+            (Query::Packet(PACKET), Tree::Wide8(_)) => {}
+            _ => {
+                return Err(Error::usage(
+                    "--query",
+                    format!(
+                        "raylab's {}-wide tree has no {query} path (single, or packet8 with --bvh-width 8)",
+                        self.tree.width()
+                    ),
+                ))
+            }
+        }
+        self.query = query;
+        Ok(self)
     }
 
     /// Uses `intersector` for the triangle tests.
@@ -46,5 +73,41 @@ impl Backend for BvhBackend {
     #[inline]
     fn occluded(&self, ray: &Ray) -> bool {
         self.tree.occluded_using(ray, self.intersector)
+    }
+
+    fn intersect_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
+        match (&self.tree, self.query) {
+            (Tree::Wide8(t), Query::Packet(_)) => {
+                for (rays, hits) in rays.chunks(PACKET).zip(hits.chunks_mut(PACKET)) {
+                    match self.intersector {
+                        Intersector::Mt => t.closest_packet_with::<MollerTrumbore>(rays, hits),
+                        Intersector::Watertight => t.closest_packet_with::<Watertight>(rays, hits),
+                    }
+                }
+            }
+            _ => {
+                for (ray, hit) in rays.iter().zip(hits) {
+                    *hit = self.intersect(ray);
+                }
+            }
+        }
+    }
+
+    fn occluded_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
+        match (&self.tree, self.query) {
+            (Tree::Wide8(t), Query::Packet(_)) => {
+                for (rays, out) in rays.chunks(PACKET).zip(occluded.chunks_mut(PACKET)) {
+                    match self.intersector {
+                        Intersector::Mt => t.any_packet_with::<MollerTrumbore>(rays, out),
+                        Intersector::Watertight => t.any_packet_with::<Watertight>(rays, out),
+                    }
+                }
+            }
+            _ => {
+                for (ray, o) in rays.iter().zip(occluded) {
+                    *o = self.occluded(ray);
+                }
+            }
+        }
     }
 }

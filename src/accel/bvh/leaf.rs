@@ -174,12 +174,18 @@ pub fn intersect4(ray4: &Ray4, tmin: f32, tmax: f32, block: &Tri4) -> Hits4 {
 /// A ray/triangle test applied to a whole block: SIMD for Moller-Trumbore,
 /// lane by lane for the watertight test.
 pub trait BlockTest: TriangleTest {
+    /// Whether this is Moller-Trumbore, which the AVX2 packet kernel
+    /// computes for eight rays at once (`simd_packet::Avx2Packet`).
+    const IS_MOLLER_TRUMBORE: bool = false;
+
     /// The hits of `ray` (broadcast as `ray4`) on the lanes of `block` within
     /// `(ray.tmin, ray.tmax)`, each as [`TriangleTest::test`] reports it.
     fn test4(prepared: &Self::Prepared, ray4: &Ray4, ray: &Ray, block: &Tri4) -> Hits4;
 }
 
 impl BlockTest for MollerTrumbore {
+    const IS_MOLLER_TRUMBORE: bool = true;
+
     #[inline(always)]
     fn test4(_: &(), ray4: &Ray4, ray: &Ray, block: &Tri4) -> Hits4 {
         intersect4(ray4, ray.tmin, ray.tmax, block)

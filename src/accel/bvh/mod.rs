@@ -8,7 +8,8 @@
 //!   their collapse from a binary tree, their traversal), [`leaf`] (blocks of
 //!   four triangles), [`tree`] (whichever of them is traversed);
 //! - [`traverse`] (the binary traversal and the [`Traversal`] interface),
-//!   [`simd`] (the wide trees' node kernels);
+//!   [`simd`] (the wide trees' node kernels), [`simd_packet`] (the packet
+//!   kernels of the 8-wide tree's packet traversal);
 //! - [`backend`]: the tree as a render backend; [`quality`]: the metrics that
 //!   explain a tree's speed.
 
@@ -20,6 +21,7 @@ pub mod params;
 pub mod prim;
 pub mod quality;
 pub mod simd;
+pub mod simd_packet;
 pub mod traverse;
 pub mod tree;
 pub mod wide;

@@ -220,3 +220,9 @@ pub const SLAB_SLACK: f32 = 1e-6;
 /// by more than 1e-5 relative (measured on the adversarial rays of the tests),
 /// and a tighter cut makes the answer depend on the order boxes are visited in.
 pub const CULL_SLACK: f32 = 1e-4;
+
+/// A packet entry with fewer active rays than this finishes its subtree ray
+/// by ray with the single-ray traversal (`wide::packet`): below it the shared
+/// stack and per-child masks cost more than they save (measured with
+/// `raylab bench --part trace`, docs/results.md).
+pub const PACKET_MIN_RAYS: u32 = 2;

@@ -9,7 +9,7 @@ use std::sync::{Arc, Mutex};
 use glam::Vec3;
 
 use super::{api, ffi, Quality};
-use crate::accel::Backend;
+use crate::accel::{Backend, Query};
 use crate::error::{Error, Result};
 use crate::geometry::{Hit, Ray};
 use crate::scene::Scene;
@@ -112,6 +112,30 @@ impl Device {
 
     pub(super) fn raw(&self) -> ffi::RTCDevice {
         self.raw
+    }
+
+    /// Packet widths (of 4, 8, 16) this device traces natively, as its
+    /// `NATIVE_RAY{N}_SUPPORTED` properties say; other widths Embree emulates.
+    pub fn native_packets(&self) -> Vec<usize> {
+        [
+            (
+                4,
+                ffi::RTCDeviceProperty_RTC_DEVICE_PROPERTY_NATIVE_RAY4_SUPPORTED,
+            ),
+            (
+                8,
+                ffi::RTCDeviceProperty_RTC_DEVICE_PROPERTY_NATIVE_RAY8_SUPPORTED,
+            ),
+            (
+                16,
+                ffi::RTCDeviceProperty_RTC_DEVICE_PROPERTY_NATIVE_RAY16_SUPPORTED,
+            ),
+        ]
+        .into_iter()
+        // SAFETY: a live device and valid property ids.
+        .filter(|&(_, p)| unsafe { ffi::rtcGetDeviceProperty(self.raw, p) } != 0)
+        .map(|(n, _)| n)
+        .collect()
     }
 }
 
@@ -308,6 +332,153 @@ impl EmbreeScene {
     }
 }
 
+/// A packet's valid mask (-1: trace the lane, 0: leave it), aligned as
+/// Embree's packets of up to 16 lanes ask.
+#[repr(C, align(64))]
+struct Valid<const N: usize>([i32; N]);
+
+/// The closest-hit and any-hit queries over a stream in packets of one width:
+/// consecutive rays fill a packet's lanes, the last packet partly; invalid
+/// rays ([`Ray::is_valid`]) are left out of the valid mask and answer a miss,
+/// as the single-ray queries do.
+macro_rules! packet_queries {
+    ($intersect:ident, $occluded:ident, $n:literal, $ray_hit:ident, $ray:ident, $api_intersect:ident, $api_occluded:ident) => {
+        impl EmbreeScene {
+            fn $intersect(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
+                for (rays, hits) in rays.chunks($n).zip(hits.chunks_mut($n)) {
+                    let mut valid = Valid([0i32; $n]);
+                    // SAFETY: the packet is plain f32 and u32 arrays, for which
+                    // all-zero bits are valid values (fields of newer Embree
+                    // versions included).
+                    let mut p: ffi::$ray_hit = unsafe { std::mem::zeroed() };
+                    p.hit.geomID = [api::INVALID_ID; $n];
+                    p.hit.primID = [api::INVALID_ID; $n];
+                    for (lane, ray) in rays.iter().enumerate() {
+                        if ray.is_valid() {
+                            valid.0[lane] = -1;
+                            set_lane!(p.ray, lane, ray);
+                        }
+                    }
+                    // SAFETY: `self.raw` is a committed scene kept alive by
+                    // `self`; `valid` has one aligned i32 per lane.
+                    unsafe { api::$api_intersect(valid.0.as_ptr(), self.raw, &mut p) };
+                    for (lane, hit) in hits.iter_mut().enumerate() {
+                        *hit = (valid.0[lane] != 0 && p.hit.geomID[lane] != api::INVALID_ID).then(
+                            || Hit {
+                                t: p.ray.tfar[lane],
+                                u: p.hit.u[lane],
+                                v: p.hit.v[lane],
+                                tri: p.hit.primID[lane],
+                            },
+                        );
+                    }
+                }
+            }
+
+            fn $occluded(&self, rays: &[Ray], occluded: &mut [bool]) {
+                for (rays, occluded) in rays.chunks($n).zip(occluded.chunks_mut($n)) {
+                    let mut valid = Valid([0i32; $n]);
+                    // SAFETY: as above.
+                    let mut p: ffi::$ray = unsafe { std::mem::zeroed() };
+                    for (lane, ray) in rays.iter().enumerate() {
+                        if ray.is_valid() {
+                            valid.0[lane] = -1;
+                            set_lane!(p, lane, ray);
+                        }
+                    }
+                    // SAFETY: as above.
+                    unsafe { api::$api_occluded(valid.0.as_ptr(), self.raw, &mut p) };
+                    for (lane, o) in occluded.iter_mut().enumerate() {
+                        *o = valid.0[lane] != 0 && p.tfar[lane] == f32::NEG_INFINITY;
+                    }
+                }
+            }
+        }
+    };
+}
+
+/// Writes `ray` into lane `lane` of a packet's rays, as [`embree_ray`] does
+/// for one ray.
+macro_rules! set_lane {
+    ($p:expr, $lane:expr, $ray:expr) => {{
+        let (p, lane, ray) = (&mut $p, $lane, $ray);
+        p.org_x[lane] = ray.origin.x;
+        p.org_y[lane] = ray.origin.y;
+        p.org_z[lane] = ray.origin.z;
+        p.tnear[lane] = ray.tmin;
+        p.dir_x[lane] = ray.dir.x;
+        p.dir_y[lane] = ray.dir.y;
+        p.dir_z[lane] = ray.dir.z;
+        p.tfar[lane] = ray.tmax;
+        p.mask[lane] = u32::MAX;
+    }};
+}
+
+packet_queries!(intersect4, occluded4, 4, RTCRayHit4, RTCRay4, intersect4, occluded4);
+packet_queries!(intersect8, occluded8, 8, RTCRayHit8, RTCRay8, intersect8, occluded8);
+packet_queries!(
+    intersect16,
+    occluded16,
+    16,
+    RTCRayHit16,
+    RTCRay16,
+    intersect16,
+    occluded16
+);
+
+#[cfg(embree3)]
+impl EmbreeScene {
+    /// The stream API over `rays` (invalid rays answer a miss).
+    fn intersect_1m(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
+        let mut records: Vec<ffi::RTCRayHit> = rays
+            .iter()
+            .map(|ray| {
+                let mut r = embree_ray(ray);
+                if !ray.is_valid() {
+                    r.tfar = f32::NEG_INFINITY; // Embree skips rays with tfar < tnear
+                }
+                ffi::RTCRayHit {
+                    ray: r,
+                    hit: ffi::RTCHit {
+                        geomID: api::INVALID_ID,
+                        primID: api::INVALID_ID,
+                        ..Default::default()
+                    },
+                }
+            })
+            .collect();
+        // SAFETY: `self.raw` is a committed scene kept alive by `self`.
+        unsafe { api::intersect_stream(self.raw, &mut records) };
+        for ((hit, rh), ray) in hits.iter_mut().zip(&records).zip(rays) {
+            *hit = (ray.is_valid() && rh.hit.geomID != api::INVALID_ID).then_some(Hit {
+                t: rh.ray.tfar,
+                u: rh.hit.u,
+                v: rh.hit.v,
+                tri: rh.hit.primID,
+            });
+        }
+    }
+
+    fn occluded_1m(&self, rays: &[Ray], occluded: &mut [bool]) {
+        let mut records: Vec<ffi::RTCRay> = rays
+            .iter()
+            .map(|ray| {
+                let mut r = embree_ray(ray);
+                if !ray.is_valid() {
+                    r.tfar = f32::NEG_INFINITY;
+                    r.tnear = 0.0;
+                }
+                r
+            })
+            .collect();
+        // SAFETY: as above.
+        unsafe { api::occluded_stream(self.raw, &mut records) };
+        for ((o, r), ray) in occluded.iter_mut().zip(&records).zip(rays) {
+            *o = ray.is_valid() && r.tfar == f32::NEG_INFINITY;
+        }
+    }
+}
+
 impl Drop for EmbreeScene {
     fn drop(&mut self) {
         // SAFETY: releases our reference to a scene we created.
@@ -338,9 +509,35 @@ fn embree_ray(ray: &Ray) -> ffi::RTCRay {
 /// Embree as a render backend.
 pub struct EmbreeBackend {
     scene: EmbreeScene,
+    /// The API streams are traced with.
+    query: Query,
+    /// Packet widths the device traces natively.
+    native: Vec<usize>,
 }
 
 impl EmbreeBackend {
+    /// Traces streams with `query`: single rays, packets of 4, 8 or 16, or
+    /// (Embree 3) the stream API.
+    pub fn with_query(mut self, query: Query) -> Result<Self> {
+        match query {
+            Query::Single | Query::Packet(4 | 8 | 16) => {}
+            Query::Stream if api::HAS_STREAMS => {}
+            _ => {
+                return Err(Error::usage(
+                    "--query",
+                    format!("Embree {} has no {query} path", api::MAJOR),
+                ))
+            }
+        }
+        self.query = query;
+        Ok(self)
+    }
+
+    /// Packet widths the device traces natively (others it emulates).
+    pub fn native_packets(&self) -> &[usize] {
+        &self.native
+    }
+
     /// Bytes of Embree's acceleration structure ([`EmbreeScene::bvh_bytes`]).
     pub fn memory_bytes(&self) -> usize {
         self.scene.bvh_bytes()
@@ -362,7 +559,11 @@ impl EmbreeBackend {
     ) -> Result<Self> {
         let device = Device::new(&format!("threads={threads}"))?;
         let embree = EmbreeScene::new(&device, positions, triangles, quality, robust)?;
-        Ok(EmbreeBackend { scene: embree })
+        Ok(EmbreeBackend {
+            scene: embree,
+            query: Query::Single,
+            native: device.native_packets(),
+        })
     }
 }
 
@@ -379,6 +580,38 @@ impl Backend for EmbreeBackend {
     #[inline]
     fn occluded(&self, ray: &Ray) -> bool {
         self.scene.occluded(ray)
+    }
+
+    fn intersect_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
+        let s = &self.scene;
+        match self.query {
+            Query::Packet(4) => s.intersect4(rays, hits),
+            Query::Packet(8) => s.intersect8(rays, hits),
+            Query::Packet(16) => s.intersect16(rays, hits),
+            #[cfg(embree3)]
+            Query::Stream => s.intersect_1m(rays, hits),
+            _ => {
+                for (ray, hit) in rays.iter().zip(hits) {
+                    *hit = s.intersect(ray);
+                }
+            }
+        }
+    }
+
+    fn occluded_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
+        let s = &self.scene;
+        match self.query {
+            Query::Packet(4) => s.occluded4(rays, occluded),
+            Query::Packet(8) => s.occluded8(rays, occluded),
+            Query::Packet(16) => s.occluded16(rays, occluded),
+            #[cfg(embree3)]
+            Query::Stream => s.occluded_1m(rays, occluded),
+            _ => {
+                for (ray, o) in rays.iter().zip(occluded) {
+                    *o = s.occluded(ray);
+                }
+            }
+        }
     }
 
     fn flushes_denormals(&self) -> bool {

@@ -1,7 +1,9 @@
 //! Query throughput without shading: the rays one render casts (primary,
-//! shadow and AO), recorded once per scene, traced by every backend on each
+//! shadow and AO, in the order its streams ask them) and one diffuse bounce
+//! per primary hit (incoherent), recorded once per scene, traced by every
+//! backend on every query path it has (single rays, packets, streams) on each
 //! thread count, repetitions interleaved across backends so that a noisy
-//! machine slows them alike.
+//! machine slows them alike. Every path is asked in streams of [`CHUNK`] rays.
 //!
 //! A speed figure is only quoted for right answers (tinybvh's habit): before
 //! timing, every backend answers every ray once; raylab's own backends must
@@ -37,7 +39,7 @@ use crate::table::{
     Align::{Left, Right},
     Table,
 };
-use crate::validate::{ray_sets, RaySet};
+use crate::validate::{recorded_rays, RaySet};
 
 /// Rays handed to a thread at a time: small enough to balance two threads,
 /// large enough that the shared counter is touched rarely.
@@ -63,9 +65,12 @@ pub fn steps(cfg: &BenchConfig, scenes: &[Scene]) -> u64 {
     if trace_specs(&cfg.variants, cfg.threads).is_empty() {
         0
     } else {
-        3 * scenes.len() as u64
+        KINDS.len() as u64 * scenes.len() as u64
     }
 }
+
+/// The ray kinds measured.
+const KINDS: [RaySet; 4] = [RaySet::Primary, RaySet::Shadow, RaySet::Ao, RaySet::Diffuse];
 
 /// Throughput of every backend of the bench's variants on each of `scenes`
 /// (the rays of one render from its first view, paper AO).
@@ -97,10 +102,16 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Tra
 pub struct TracePoint {
     pub scene: String,
     pub triangles: usize,
+    /// The backend with its query path ([`BackendSpec::name`]).
     pub backend: String,
+    /// What was built ([`BackendSpec::structure_name`]): the query paths of
+    /// one structure share its build.
+    pub structure: String,
+    /// The query path: `single`, `packet8`, `stream`.
+    pub query: String,
     /// Embree's (the reference the own backends' times are divided by).
     pub embree: bool,
-    /// `primary` (closest hit), `shadow` or `ao` (any hit).
+    /// `primary` or `diffuse` (closest hit), `shadow` or `ao` (any hit).
     pub kind: String,
     pub threads: usize,
     pub rays: usize,
@@ -125,14 +136,21 @@ pub enum Answer {
     Any(bool),
 }
 
-/// Answers `ray` as the ray kind `kind` asks.
-#[inline]
-fn answer(backend: &dyn Backend, kind: RaySet, ray: &Ray) -> Answer {
-    match kind {
-        RaySet::Primary | RaySet::Random => {
-            Answer::Closest(backend.intersect(ray).map(|h| (h.tri, h.t.to_bits())))
-        }
-        RaySet::Shadow | RaySet::Ao => Answer::Any(backend.occluded(ray)),
+/// Answers each ray of `rays` as the ray kind asks (closest or any hit),
+/// through the backend's stream queries (its query path).
+fn answers(backend: &dyn Backend, closest: bool, rays: &[Ray], out: &mut Vec<Answer>) {
+    out.clear();
+    if closest {
+        let mut hits = vec![None; rays.len()];
+        backend.intersect_stream(rays, &mut hits);
+        out.extend(
+            hits.iter()
+                .map(|h| Answer::Closest(h.map(|h| (h.tri, h.t.to_bits())))),
+        );
+    } else {
+        let mut occluded = vec![false; rays.len()];
+        backend.occluded_stream(rays, &mut occluded);
+        out.extend(occluded.iter().map(|&o| Answer::Any(o)));
     }
 }
 
@@ -146,20 +164,31 @@ fn digest(a: Answer) -> u64 {
     }
 }
 
-/// Traces `rays` on `threads` threads (chunks taken from a shared counter) and
-/// returns the wall time in seconds and the sum of the answers' digests.
-pub fn trace(backend: &dyn Backend, kind: RaySet, rays: &[Ray], threads: usize) -> (f64, u64) {
+/// Traces `rays` on `threads` threads, streams of [`CHUNK`] rays taken from a
+/// shared counter, and returns the wall time in seconds and the sum of the
+/// answers' digests.
+pub fn trace(backend: &dyn Backend, closest: bool, rays: &[Ray], threads: usize) -> (f64, u64) {
     let next = AtomicUsize::new(0);
     let work = || {
         let _ftz = backend.flushes_denormals().then(FlushDenormals::enable);
         let mut sum = 0u64;
+        let mut hits = vec![None; CHUNK];
+        let mut occluded = vec![false; CHUNK];
         loop {
             let start = next.fetch_add(CHUNK, Ordering::Relaxed);
             if start >= rays.len() {
                 break sum;
             }
-            for ray in &rays[start..(start + CHUNK).min(rays.len())] {
-                sum = sum.wrapping_add(digest(answer(backend, kind, ray)));
+            let chunk = &rays[start..(start + CHUNK).min(rays.len())];
+            let n = chunk.len();
+            if closest {
+                backend.intersect_stream(chunk, &mut hits[..n]);
+                for h in &hits[..n] {
+                    sum = sum.wrapping_add(digest(Answer::Closest(h.map(|h| (h.tri, 0)))));
+                }
+            } else {
+                backend.occluded_stream(chunk, &mut occluded[..n]);
+                sum = sum.wrapping_add(occluded[..n].iter().filter(|&&o| o).count() as u64);
             }
         }
     };
@@ -232,11 +261,28 @@ pub fn trace_throughput(
             }
         }
     }
-    let backends: Vec<(Built, Vec<f64>)> = kept
-        .into_iter()
-        .zip(builds)
-        .filter_map(|(b, runs)| Some((b?, runs.iter().map(|r| Stat::of(r).median).collect())))
-        .collect();
+    let mut backends: Vec<(Built, Vec<f64>)> = Vec::new();
+    for (built, runs) in kept.into_iter().zip(builds) {
+        let Some(built) = built else { continue };
+        let build_ms: Vec<f64> = runs.iter().map(|r| Stat::of(r).median).collect();
+        // Every other query path of the same structure, built once more
+        // (untimed: the same build) to be traced beside it.
+        let spec = built.spec;
+        backends.push((built, build_ms.clone()));
+        for query in spec.queries() {
+            if query != spec.query() {
+                bar.set_message(format!(
+                    "trace: {} on {}",
+                    spec.with_query(query)?.name(),
+                    scene.name
+                ));
+                backends.push((
+                    build_backend(&spec.with_query(query)?, scene)?,
+                    build_ms.clone(),
+                ));
+            }
+        }
+    }
     trace_backends(scene, settings, &backends, thread_counts, reps, bar)
 }
 
@@ -258,25 +304,27 @@ pub fn trace_backends(
         .position(|(b, _)| !b.spec.is_embree())
         .unwrap_or(0);
     bar.set_message(format!("trace: recording the rays of {}", scene.name));
-    let kinds = [RaySet::Primary, RaySet::Shadow, RaySet::Ao];
-    let sets = ray_sets(
-        scene,
-        backends[reference].0.as_ref(),
-        settings,
-        &kinds,
-        usize::MAX,
-        true,
-    )?;
+    let recorded = recorded_rays(scene, backends[reference].0.as_ref(), settings)?;
+    let diffuse = recorded.diffuse(scene, settings.seed);
+    let sets = KINDS.map(|kind| {
+        let rays = match kind {
+            RaySet::Primary => &recorded.primary,
+            RaySet::Shadow => &recorded.shadow,
+            RaySet::Ao => &recorded.ao,
+            _ => &diffuse,
+        };
+        (kind, rays)
+    });
     let mut out = Vec::new();
-    for (kind, rays) in &sets {
+    let mut got = Vec::new();
+    for (kind, rays) in sets {
         if rays.is_empty() {
             continue;
         }
+        let closest = kind.closest();
         // Answers first: a speed is only reported for right answers.
-        let want: Vec<Answer> = rays
-            .iter()
-            .map(|r| answer(backends[reference].0.as_ref(), *kind, r))
-            .collect();
+        let mut want = Vec::new();
+        answers(backends[reference].0.as_ref(), closest, rays, &mut want);
         let mut differing = Vec::with_capacity(backends.len());
         for (b, _) in backends {
             // Embree computes t with its own arithmetic: only the triangle hit
@@ -288,10 +336,11 @@ pub fn trace_backends(
                 }
                 _ => a == w,
             };
-            let n = rays
+            answers(b.as_ref(), closest, rays, &mut got);
+            let n = got
                 .iter()
                 .zip(&want)
-                .filter(|(r, w)| !same(answer(b.as_ref(), *kind, r), **w))
+                .filter(|(a, w)| !same(**a, **w))
                 .count();
             if n > 0 && exact {
                 return Err(Error::Other(format!(
@@ -305,7 +354,13 @@ pub fn trace_backends(
             }
             differing.push(n);
         }
-        let expected: u64 = want.iter().map(|&a| digest(a)).fold(0, u64::wrapping_add);
+        let expected: u64 = want
+            .iter()
+            .map(|&a| match a {
+                Answer::Closest(h) => digest(Answer::Closest(h.map(|h| (h.0, 0)))),
+                a => digest(a),
+            })
+            .fold(0, u64::wrapping_add);
         let mut rates = vec![vec![Vec::new(); thread_counts.len()]; backends.len()];
         for rep in 0..reps.max(1) + 1 {
             bar.set_message(format!(
@@ -317,7 +372,7 @@ pub fn trace_backends(
             ));
             for (ti, &threads) in thread_counts.iter().enumerate() {
                 for (bi, (b, _)) in backends.iter().enumerate() {
-                    let (seconds, sum) = trace(b.as_ref(), *kind, rays, threads);
+                    let (seconds, sum) = trace(b.as_ref(), closest, rays, threads);
                     if differing[bi] == 0 && sum != expected {
                         return Err(Error::Other(format!(
                             "trace: {} answered differently on {threads} threads",
@@ -339,6 +394,8 @@ pub fn trace_backends(
                     scene: scene.name.clone(),
                     triangles: scene.triangle_count(),
                     backend: b.name(),
+                    structure: b.spec.structure_name(),
+                    query: b.spec.query().name(),
                     embree: b.spec.is_embree(),
                     kind: kind.name().to_string(),
                     threads,
@@ -370,13 +427,14 @@ fn build_markdown(points: &[TracePoint]) -> String {
         }
     }
     table.column("bytes/triangle", Right);
+    // One row per structure: its query paths share the build.
     let mut seen: Vec<(&str, &str)> = Vec::new();
     for p in points {
-        if seen.contains(&(p.scene.as_str(), p.backend.as_str())) {
+        if seen.contains(&(p.scene.as_str(), p.structure.as_str())) {
             continue;
         }
-        seen.push((&p.scene, &p.backend));
-        let mut row = vec![p.scene.clone(), p.backend.clone()];
+        seen.push((&p.scene, &p.structure));
+        let mut row = vec![p.scene.clone(), p.structure.clone()];
         for &t in &counts {
             let build = |which: &dyn Fn(&TracePoint) -> bool| {
                 points
@@ -384,7 +442,7 @@ fn build_markdown(points: &[TracePoint]) -> String {
                     .find(|q| q.scene == p.scene && q.threads == t && which(q))
                     .map(|q| q.build_ms)
             };
-            let own = build(&|q| q.backend == p.backend);
+            let own = build(&|q| q.structure == p.structure);
             row.push(match own {
                 Some(ms) if ms.is_finite() => crate::table::fmt_ms(ms),
                 _ => "-".to_string(),
@@ -411,8 +469,8 @@ fn build_markdown(points: &[TracePoint]) -> String {
 }
 
 /// The trace table: one row per scene, ray kind and thread count, Mrays/s per
-/// backend, and the best own backend's time over Embree's (at most 1 means as
-/// fast as Embree or faster).
+/// backend and query path, and the best own path's time over the best Embree
+/// path's (at most 1 means as fast as Embree at its best, or faster).
 pub fn markdown(points: &[TracePoint]) -> String {
     let mut backends: Vec<&str> = Vec::new();
     for p in points {
@@ -432,6 +490,7 @@ pub fn markdown(points: &[TracePoint]) -> String {
     }
     if has_embree {
         table.column("best own", Right);
+        table.column("best Embree", Right);
         table.column("own/Embree time", Right);
     }
     let mut rows: Vec<(&str, &str, usize)> = Vec::new();
@@ -467,13 +526,17 @@ pub fn markdown(points: &[TracePoint]) -> String {
                 .iter()
                 .filter(|p| !p.embree)
                 .max_by(|a, b| a.mrays.median.total_cmp(&b.mrays.median));
-            let embree = cell.iter().find(|p| p.embree);
+            let embree = cell
+                .iter()
+                .filter(|p| p.embree)
+                .max_by(|a, b| a.mrays.median.total_cmp(&b.mrays.median));
             match (best, embree) {
                 (Some(b), Some(e)) => {
                     row.push(b.backend.clone());
+                    row.push(e.backend.clone());
                     row.push(format!("{:.2}", e.mrays.median / b.mrays.median.max(1e-12)));
                 }
-                _ => row.extend([String::new(), String::new()]),
+                _ => row.extend([String::new(), String::new(), String::new()]),
             }
         }
         table.row(row);

@@ -9,6 +9,7 @@
 
 mod collapse;
 pub mod node;
+mod packet;
 mod traverse;
 
 pub use node::{Bvh4, Bvh8, WideBvh, WideNode, EMPTY, MAX_LEAF, MAX_SLOTS};

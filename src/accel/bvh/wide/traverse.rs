@@ -9,6 +9,9 @@ use arrayvec::ArrayVec;
 use super::super::leaf::{BlockTest, Ray4, LANES};
 use super::super::params::{CULL_SLACK, DEEP_STACK, SLAB_SLACK, STACK};
 use super::super::simd::{prefetch, Avx2, Kernel, NodeKernel, Portable, WideRay};
+#[cfg(target_arch = "x86_64")]
+use super::super::simd_packet::Avx2Packet;
+use super::super::simd_packet::PerRay;
 use super::super::traverse::{Counter, Traversal};
 use super::node::{for_leaf_blocks, leaf_slots, WideBvh, LEAF};
 use crate::geometry::{safe_reciprocal, Hit, Ray};
@@ -16,7 +19,7 @@ use crate::geometry::{safe_reciprocal, Hit, Ray};
 impl<const N: usize> WideBvh<N> {
     /// Starts loading what `child` refers to: a node, or a leaf's first block.
     #[inline(always)]
-    fn prefetch_child(&self, child: u32) {
+    pub(super) fn prefetch_child(&self, child: u32) {
         if child & LEAF == 0 {
             if let Some(node) = self.nodes.get(child as usize) {
                 prefetch(node);
@@ -38,19 +41,37 @@ impl<const N: usize> WideBvh<N> {
         if self.nodes.is_empty() || !ray.is_valid() {
             return None;
         }
+        self.closest_from::<K, T, C, S>(kernel, ray, 0, None, counter)
+    }
+
+    /// The closest of `best` and the hits in the subtree `start` refers to (a
+    /// node or a leaf), for a valid ray in a non-empty tree: the single-ray
+    /// traversal, which the packet traversal also hands its last active ray.
+    #[inline(always)]
+    pub(crate) fn closest_from<K: NodeKernel<N>, T: BlockTest, C: Counter, const S: usize>(
+        &self,
+        kernel: K,
+        ray: &Ray,
+        start: u32,
+        mut best: Option<Hit>,
+        counter: &mut C,
+    ) -> Option<Hit> {
         let prepared = T::prepare(ray);
         let ray4 = Ray4::new(ray);
         let wray = WideRay::new(ray, safe_reciprocal(ray.dir));
         let tmin = ray.tmin * (1.0 - SLAB_SLACK);
-        let mut best: Option<Hit> = None;
         // Triangles are tested with `tmax` just above the best t, so that a hit
         // at the same t with a lower index is still found; `is_closer_than`
         // decides. Boxes are culled only beyond the best t by CULL_SLACK.
         let mut test_ray = *ray;
         let mut cut = ray.tmax * (1.0 + CULL_SLACK);
+        if let Some(hit) = best {
+            test_ray.tmax = hit.t.next_up();
+            cut = hit.t * (1.0 + CULL_SLACK);
+        }
         // Not zero-filled: a cleared 64-entry stack per ray was 8% of the time.
         let mut stack: ArrayVec<(u32, f32), S> = ArrayVec::new();
-        let mut current = 0u32;
+        let mut current = start;
         loop {
             if current & LEAF != 0 {
                 for_leaf_blocks(current, |b, lanes| {
@@ -126,12 +147,25 @@ impl<const N: usize> WideBvh<N> {
         if self.nodes.is_empty() || !ray.is_valid() {
             return false;
         }
+        self.any_from::<K, T, C, S>(kernel, ray, 0, counter)
+    }
+
+    /// Whether anything in the subtree `start` refers to is hit within the
+    /// segment, for a valid ray in a non-empty tree (as [`Self::closest_from`]).
+    #[inline(always)]
+    pub(crate) fn any_from<K: NodeKernel<N>, T: BlockTest, C: Counter, const S: usize>(
+        &self,
+        kernel: K,
+        ray: &Ray,
+        start: u32,
+        counter: &mut C,
+    ) -> bool {
         let prepared = T::prepare(ray);
         let ray4 = Ray4::new(ray);
         let wray = WideRay::new(ray, safe_reciprocal(ray.dir));
         let (tmin, tmax) = (ray.tmin * (1.0 - SLAB_SLACK), ray.tmax * (1.0 + SLAB_SLACK));
         let mut stack: ArrayVec<u32, S> = ArrayVec::new();
-        let mut current = 0u32;
+        let mut current = start;
         loop {
             if current & LEAF != 0 {
                 let hit = for_leaf_blocks(current, |b, lanes| {
@@ -212,6 +246,51 @@ impl Traversal for WideBvh<8> {
     }
 }
 
+impl WideBvh<8> {
+    /// The closest hits of a packet of up to [`PACKET`](super::super::simd_packet::PACKET) rays (see
+    /// `super::packet`): with AVX2 and Moller-Trumbore the rays in AVX lanes,
+    /// else each ray with the tree's single-ray kernels.
+    pub fn closest_packet_with<T: BlockTest>(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
+        match (self.kernel, self.stack_need <= STACK) {
+            (Kernel::Avx2(k), true) => k.closest_packet::<T, STACK>(self, rays, hits),
+            (Kernel::Avx2(k), false) => k.closest_packet::<T, DEEP_STACK>(self, rays, hits),
+            (Kernel::Portable, true) => self.closest_packet::<Portable, T, _, STACK>(
+                Portable,
+                PerRay::<_, T>::new(Portable),
+                rays,
+                hits,
+            ),
+            (Kernel::Portable, false) => self.closest_packet::<Portable, T, _, DEEP_STACK>(
+                Portable,
+                PerRay::<_, T>::new(Portable),
+                rays,
+                hits,
+            ),
+        }
+    }
+
+    /// Whether each ray of a packet of up to [`PACKET`](super::super::simd_packet::PACKET) is occluded, as
+    /// [`Self::closest_packet_with`] chooses its kernels.
+    pub fn any_packet_with<T: BlockTest>(&self, rays: &[Ray], occluded: &mut [bool]) {
+        match (self.kernel, self.stack_need <= STACK) {
+            (Kernel::Avx2(k), true) => k.any_packet::<T, STACK>(self, rays, occluded),
+            (Kernel::Avx2(k), false) => k.any_packet::<T, DEEP_STACK>(self, rays, occluded),
+            (Kernel::Portable, true) => self.any_packet::<Portable, T, _, STACK>(
+                Portable,
+                PerRay::<_, T>::new(Portable),
+                rays,
+                occluded,
+            ),
+            (Kernel::Portable, false) => self.any_packet::<Portable, T, _, DEEP_STACK>(
+                Portable,
+                PerRay::<_, T>::new(Portable),
+                rays,
+                occluded,
+            ),
+        }
+    }
+}
+
 /// The wide trees' queries compiled with AVX2 enabled: the generic traversal
 /// is `#[inline(always)]`, so it is compiled into these functions and every
 /// operation in it (node tests, triangle tests, bit scans) uses AVX2 and VEX
@@ -247,6 +326,70 @@ impl Avx2 {
         }
         #[cfg(not(target_arch = "x86_64"))]
         bvh.any_with::<Portable, T, C, S>(Portable, ray, counter)
+    }
+}
+
+impl Avx2 {
+    #[inline(always)]
+    pub fn closest_packet<T: BlockTest, const S: usize>(
+        self,
+        bvh: &WideBvh<8>,
+        rays: &[Ray],
+        hits: &mut [Option<Hit>],
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            // SAFETY: as in `closest`.
+            unsafe { closest_packet_avx2::<T, S>(self, bvh, rays, hits) }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        bvh.closest_packet::<Portable, T, _, S>(Portable, PerRay::<_, T>::new(Portable), rays, hits)
+    }
+
+    #[inline(always)]
+    pub fn any_packet<T: BlockTest, const S: usize>(
+        self,
+        bvh: &WideBvh<8>,
+        rays: &[Ray],
+        occluded: &mut [bool],
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            // SAFETY: as in `closest`.
+            unsafe { any_packet_avx2::<T, S>(self, bvh, rays, occluded) }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        bvh.any_packet::<Portable, T, _, S>(Portable, PerRay::<_, T>::new(Portable), rays, occluded)
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,popcnt")]
+fn closest_packet_avx2<T: BlockTest, const S: usize>(
+    kernel: Avx2,
+    bvh: &WideBvh<8>,
+    rays: &[Ray],
+    hits: &mut [Option<Hit>],
+) {
+    if T::IS_MOLLER_TRUMBORE {
+        bvh.closest_packet::<Avx2, T, _, S>(kernel, Avx2Packet(kernel), rays, hits)
+    } else {
+        bvh.closest_packet::<Avx2, T, _, S>(kernel, PerRay::<_, T>::new(kernel), rays, hits)
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,popcnt")]
+fn any_packet_avx2<T: BlockTest, const S: usize>(
+    kernel: Avx2,
+    bvh: &WideBvh<8>,
+    rays: &[Ray],
+    occluded: &mut [bool],
+) {
+    if T::IS_MOLLER_TRUMBORE {
+        bvh.any_packet::<Avx2, T, _, S>(kernel, Avx2Packet(kernel), rays, occluded)
+    } else {
+        bvh.any_packet::<Avx2, T, _, S>(kernel, PerRay::<_, T>::new(kernel), rays, occluded)
     }
 }
 

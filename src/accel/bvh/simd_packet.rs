@@ -1,0 +1,523 @@
+//! The packet kernels of the 8-wide tree's packet traversal
+//! (`wide::packet`): how up to [`PACKET`] rays are tested against a node's
+//! eight child boxes and against a leaf block's triangles.
+//!
+//! - [`PerRay`]: each ray with the single-ray kernels (any node kernel, any
+//!   triangle test), lane by lane; the portable path.
+//! - [`Avx2Packet`]: the eight rays in the eight lanes of AVX registers, one
+//!   child box or one triangle at a time (Moller-Trumbore). Every lane runs
+//!   the single-ray kernels' operations in the same order (the slab test of
+//!   [`super::simd`] with the near plane chosen by the ray's sign, the
+//!   Moller-Trumbore of [`super::leaf::intersect4`]), no fused multiply-add,
+//!   so each ray gets the single-ray results bit for bit (tested).
+//!
+//! `unsafe` here is the AVX2 intrinsics, behind the [`Avx2`] proof as in
+//! [`super::simd`].
+
+use std::marker::PhantomData;
+
+use arrayvec::ArrayVec;
+
+use super::leaf::{BlockTest, Ray4, Tri4, EMPTY_ID};
+use super::params::SLAB_SLACK;
+use super::simd::{Avx2, NodeKernel, WideRay};
+use super::wide::{WideNode, EMPTY};
+use crate::geometry::{safe_reciprocal, Hit, Ray};
+
+/// Rays per packet.
+pub const PACKET: usize = 8;
+
+/// The bits of `mask`, lowest first.
+#[inline(always)]
+pub fn bits(mut mask: u32) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (mask != 0).then(|| {
+            let bit = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            bit
+        })
+    })
+}
+
+/// What a node test reports for a packet: per child lane, the rays whose
+/// box test hit it and their least entry distance; and the hit lanes.
+pub struct NodeHits {
+    pub rays: [u32; 8],
+    pub near: [f32; 8],
+    pub lanes: u32,
+}
+
+/// Tests of a packet against nodes and leaf blocks.
+pub trait PacketKernel: Copy {
+    /// The packet prepared for the tests.
+    type Rays;
+    fn prepare(self, rays: &[Ray]) -> Self::Rays;
+    /// The box test of every ray of `active` against every child of `node`,
+    /// ray `r` within `(its tmin, tmax[r])`.
+    fn node(self, node: &WideNode<8>, rays: &Self::Rays, active: u32, tmax: &[f32; 8]) -> NodeHits;
+    /// Closest-hit test of the rays of `active` against the lanes `in_leaf` of
+    /// `block`: a ray whose hit beats `hits[r]` (by [`Hit::is_closer_than`],
+    /// hits with `t` below `tmax[r]` only) gets it. Returns the rays whose
+    /// hit changed.
+    fn leaf_closest(
+        self,
+        block: &Tri4,
+        in_leaf: u32,
+        rays: &Self::Rays,
+        active: u32,
+        tmax: &[f32; 8],
+        hits: &mut [Option<Hit>],
+    ) -> u32;
+    /// The rays of `active` that hit a lane `in_leaf` of `block` within their
+    /// segment.
+    fn leaf_any(self, block: &Tri4, in_leaf: u32, rays: &Self::Rays, active: u32) -> u32;
+}
+
+/// Each ray with the single-ray node kernel `K` and block test `T`.
+pub struct PerRay<K, T> {
+    kernel: K,
+    _test: PhantomData<T>,
+}
+
+impl<K: Copy, T> Clone for PerRay<K, T> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+impl<K: Copy, T> Copy for PerRay<K, T> {}
+
+impl<K, T> PerRay<K, T> {
+    pub fn new(kernel: K) -> Self {
+        PerRay {
+            kernel,
+            _test: PhantomData,
+        }
+    }
+}
+
+/// One ray of a [`PerRay`] packet, prepared for the single-ray tests.
+pub struct Lane<P> {
+    ray: Ray,
+    prepared: P,
+    ray4: Ray4,
+    wray: WideRay,
+    /// The node kernel's `tmin` (the ray's, widened by [`SLAB_SLACK`]).
+    tmin: f32,
+}
+
+impl<K: NodeKernel<8>, T: BlockTest> PacketKernel for PerRay<K, T> {
+    type Rays = ArrayVec<Lane<T::Prepared>, PACKET>;
+
+    #[inline(always)]
+    fn prepare(self, rays: &[Ray]) -> Self::Rays {
+        rays.iter()
+            .map(|ray| Lane {
+                ray: *ray,
+                prepared: T::prepare(ray),
+                ray4: Ray4::new(ray),
+                wray: WideRay::new(ray, safe_reciprocal(ray.dir)),
+                tmin: ray.tmin * (1.0 - SLAB_SLACK),
+            })
+            .collect()
+    }
+
+    #[inline(always)]
+    fn node(
+        self,
+        node: &WideNode<8>,
+        lanes: &Self::Rays,
+        active: u32,
+        tmax: &[f32; 8],
+    ) -> NodeHits {
+        let mut out = NodeHits {
+            rays: [0; 8],
+            near: [f32::INFINITY; 8],
+            lanes: 0,
+        };
+        for r in bits(active) {
+            let lane = &lanes[r];
+            let (hit, entry) = self.kernel.intersect(node, &lane.wray, lane.tmin, tmax[r]);
+            out.lanes |= hit;
+            for c in bits(hit) {
+                out.rays[c] |= 1 << r;
+                out.near[c] = out.near[c].min(entry[c]);
+            }
+        }
+        out
+    }
+
+    #[inline(always)]
+    fn leaf_closest(
+        self,
+        block: &Tri4,
+        in_leaf: u32,
+        lanes: &Self::Rays,
+        active: u32,
+        tmax: &[f32; 8],
+        hits: &mut [Option<Hit>],
+    ) -> u32 {
+        let mut changed = 0;
+        for r in bits(active) {
+            let lane = &lanes[r];
+            let test_ray = Ray {
+                tmax: tmax[r],
+                ..lane.ray
+            };
+            let mut found = T::test4(&lane.prepared, &lane.ray4, &test_ray, block);
+            found.mask &= in_leaf;
+            if let Some(hit) = found.closest(&block.ids) {
+                if hits[r].is_none_or(|b| hit.is_closer_than(&b)) {
+                    hits[r] = Some(hit);
+                    changed |= 1 << r;
+                }
+            }
+        }
+        changed
+    }
+
+    #[inline(always)]
+    fn leaf_any(self, block: &Tri4, in_leaf: u32, lanes: &Self::Rays, active: u32) -> u32 {
+        bits(active)
+            .filter(|&r| {
+                let lane = &lanes[r];
+                T::test4(&lane.prepared, &lane.ray4, &lane.ray, block).mask & in_leaf != 0
+            })
+            .fold(0, |m, r| m | 1 << r)
+    }
+}
+
+/// Eight rays in the lanes of AVX registers, Moller-Trumbore at the leaves.
+#[derive(Clone, Copy, Debug)]
+pub struct Avx2Packet(pub Avx2);
+
+/// A packet by lanes, for [`Avx2Packet`]; unused lanes hold zeros (never
+/// read: every result is masked by the active rays).
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C, align(32))]
+pub struct RaysSoa {
+    origin: [[f32; 8]; 3],
+    dir: [[f32; 8]; 3],
+    inv_dir: [[f32; 8]; 3],
+    /// Per axis: all bits set in lanes whose reciprocal direction is >= 0
+    /// (the near plane is the box's minimum, as [`WideRay`] chooses it).
+    positive: [[u32; 8]; 3],
+    /// The near plane's row per axis ([`WideRay::near`]) when every ray of
+    /// the packet has the same signs (the usual case for neighbouring rays).
+    rows: Option<[usize; 3]>,
+    /// The node kernel's `tmin` (widened by [`SLAB_SLACK`]) and the
+    /// triangle test's.
+    node_tmin: [f32; 8],
+    tmin: [f32; 8],
+    tmax: [f32; 8],
+}
+
+#[cfg(target_arch = "x86_64")]
+impl PacketKernel for Avx2Packet {
+    type Rays = RaysSoa;
+
+    #[inline(always)]
+    fn prepare(self, rays: &[Ray]) -> RaysSoa {
+        let mut p = RaysSoa::default();
+        for (r, ray) in rays.iter().enumerate() {
+            let inv = safe_reciprocal(ray.dir);
+            for a in 0..3 {
+                p.origin[a][r] = ray.origin[a];
+                p.dir[a][r] = ray.dir[a];
+                p.inv_dir[a][r] = inv[a];
+                p.positive[a][r] = if inv[a] >= 0.0 { u32::MAX } else { 0 };
+            }
+            p.node_tmin[r] = ray.tmin * (1.0 - SLAB_SLACK);
+            p.tmin[r] = ray.tmin;
+            p.tmax[r] = ray.tmax;
+        }
+        // Sign bits per ray: bit a set when axis a is negative.
+        let mut signs = [0u32; PACKET];
+        for (r, sign) in signs.iter_mut().enumerate().take(rays.len()) {
+            *sign = (p.positive[0][r] == 0) as u32
+                | ((p.positive[1][r] == 0) as u32) << 1
+                | ((p.positive[2][r] == 0) as u32) << 2;
+        }
+        let first = signs[0] as usize;
+        p.rows = signs[..rays.len()]
+            .iter()
+            .all(|&s| s == signs[0])
+            .then_some([first & 1, 2 + (first >> 1 & 1), 4 + (first >> 2 & 1)]);
+        p
+    }
+
+    #[inline(always)]
+    fn node(self, node: &WideNode<8>, p: &RaysSoa, active: u32, tmax: &[f32; 8]) -> NodeHits {
+        use crate::geometry::SLAB_GROW;
+        use std::arch::x86_64::*;
+        let mut out = NodeHits {
+            rays: [0; 8],
+            near: [f32::INFINITY; 8],
+            lanes: 0,
+        };
+        // SAFETY: `self.0` proves the CPU has AVX2 (see `Avx2::detect`); every
+        // load reads eight f32 or u32 from a 32-byte aligned row of `p`
+        // (RaysSoa is aligned to 32) or from `tmax` (an unaligned load).
+        // No closures: a closure is a function of its own, compiled without
+        // AVX, into which the intrinsics would not be inlined.
+        unsafe {
+            macro_rules! row {
+                ($row:expr) => {
+                    _mm256_load_ps($row.as_ptr() as *const f32)
+                };
+            }
+            let o = [row!(p.origin[0]), row!(p.origin[1]), row!(p.origin[2])];
+            let inv = [row!(p.inv_dir[0]), row!(p.inv_dir[1]), row!(p.inv_dir[2])];
+            let pos = [
+                row!(p.positive[0]),
+                row!(p.positive[1]),
+                row!(p.positive[2]),
+            ];
+            let tmin = row!(p.node_tmin);
+            let tmax = _mm256_loadu_ps(tmax.as_ptr());
+            let grow = _mm256_set1_ps(SLAB_GROW);
+            let inf = _mm256_set1_ps(f32::INFINITY);
+            let lane_bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+            let live = _mm256_castsi256_ps(_mm256_cmpgt_epi32(
+                _mm256_and_si256(_mm256_set1_epi32(active as i32), lane_bits),
+                _mm256_setzero_si256(),
+            ));
+            let b = &node.bounds;
+            // Per axis the single-ray kernel's (plane - origin) * inv with the
+            // plane the ray's sign makes near, and the far one: the same row
+            // for all rays when they agree in sign (`p.rows`), else both
+            // planes computed and each ray's chosen by a blend.
+            macro_rules! plane {
+                ($row:expr, $a:expr, $c:expr) => {
+                    _mm256_mul_ps(_mm256_sub_ps(_mm256_set1_ps(b[$row][$c]), o[$a]), inv[$a])
+                };
+            }
+            // One child: its rays' entry and exit distances from the slab
+            // distances of each axis, the box test, the least entry distance.
+            macro_rules! child {
+                ($c:expr, ($nx:expr, $fx:expr), ($ny:expr, $fy:expr), ($nz:expr, $fz:expr)) => {{
+                    let c = $c;
+                    let near = _mm256_max_ps(_mm256_max_ps(_mm256_max_ps($nx, $ny), $nz), tmin);
+                    let far = _mm256_min_ps(
+                        _mm256_mul_ps(_mm256_min_ps(_mm256_min_ps($fx, $fy), $fz), grow),
+                        tmax,
+                    );
+                    let hit = _mm256_and_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(near, far), live);
+                    let rays = _mm256_movemask_ps(hit) as u32;
+                    if rays != 0 {
+                        out.lanes |= 1 << c;
+                        out.rays[c] = rays;
+                        let m = _mm256_blendv_ps(inf, near, hit);
+                        let m =
+                            _mm_min_ps(_mm256_castps256_ps128(m), _mm256_extractf128_ps::<1>(m));
+                        let m = _mm_min_ps(m, _mm_movehl_ps(m, m));
+                        let m = _mm_min_ss(m, _mm_shuffle_ps::<0b01>(m, m));
+                        out.near[c] = _mm_cvtss_f32(m);
+                    }
+                }};
+            }
+            match p.rows {
+                Some([rx, ry, rz]) => {
+                    for c in 0..8 {
+                        if node.child[c] == EMPTY {
+                            continue;
+                        }
+                        child!(
+                            c,
+                            (plane!(rx, 0, c), plane!(rx ^ 1, 0, c)),
+                            (plane!(ry, 1, c), plane!(ry ^ 1, 1, c)),
+                            (plane!(rz, 2, c), plane!(rz ^ 1, 2, c))
+                        );
+                    }
+                }
+                None => {
+                    macro_rules! blended {
+                        ($a:expr, $c:expr) => {{
+                            let lo = plane!(2 * $a, $a, $c);
+                            let hi = plane!(2 * $a + 1, $a, $c);
+                            (
+                                _mm256_blendv_ps(hi, lo, pos[$a]),
+                                _mm256_blendv_ps(lo, hi, pos[$a]),
+                            )
+                        }};
+                    }
+                    for c in 0..8 {
+                        if node.child[c] == EMPTY {
+                            continue;
+                        }
+                        let ((nx, fx), (ny, fy), (nz, fz)) =
+                            (blended!(0, c), blended!(1, c), blended!(2, c));
+                        child!(c, (nx, fx), (ny, fy), (nz, fz));
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    #[inline(always)]
+    fn leaf_closest(
+        self,
+        block: &Tri4,
+        in_leaf: u32,
+        p: &RaysSoa,
+        active: u32,
+        tmax: &[f32; 8],
+        hits: &mut [Option<Hit>],
+    ) -> u32 {
+        let mut changed = 0;
+        let mut tmax = *tmax;
+        for i in bits(in_leaf) {
+            if block.ids[i] == EMPTY_ID {
+                continue;
+            }
+            let (mut found, t, u, v) = self.triangle(block, i, p, &tmax);
+            found &= active;
+            for r in bits(found) {
+                let hit = Hit {
+                    t: t[r],
+                    u: u[r],
+                    v: v[r],
+                    tri: block.ids[i],
+                };
+                if hits[r].is_none_or(|b| hit.is_closer_than(&b)) {
+                    hits[r] = Some(hit);
+                    tmax[r] = hit.t.next_up();
+                    changed |= 1 << r;
+                }
+            }
+        }
+        changed
+    }
+
+    #[inline(always)]
+    fn leaf_any(self, block: &Tri4, in_leaf: u32, p: &RaysSoa, active: u32) -> u32 {
+        let mut hit = 0;
+        for i in bits(in_leaf) {
+            if block.ids[i] == EMPTY_ID {
+                continue;
+            }
+            hit |= self.triangle(block, i, p, &p.tmax).0 & active & !hit;
+            if hit == active {
+                break;
+            }
+        }
+        hit
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Avx2Packet {
+    /// Moller-Trumbore of the eight rays against lane `i` of `block`, the
+    /// operations of [`super::leaf::intersect4`] in the same order: the rays
+    /// hit within `(tmin, tmax[r])`, and each lane's t, u and v.
+    #[inline(always)]
+    #[allow(clippy::type_complexity)]
+    fn triangle(
+        self,
+        block: &Tri4,
+        i: usize,
+        p: &RaysSoa,
+        tmax: &[f32; 8],
+    ) -> (u32, [f32; 8], [f32; 8], [f32; 8]) {
+        use std::arch::x86_64::*;
+        let [v0, v1, v2] = &block.v;
+        // The edges as the SIMD lanes of `intersect4` compute them.
+        let e1 = [
+            v1[0][i] - v0[0][i],
+            v1[1][i] - v0[1][i],
+            v1[2][i] - v0[2][i],
+        ];
+        let e2 = [
+            v2[0][i] - v0[0][i],
+            v2[1][i] - v0[1][i],
+            v2[2][i] - v0[2][i],
+        ];
+        // SAFETY: `self.0` proves AVX2; loads read 32-byte aligned rows of `p`
+        // (RaysSoa is aligned to 32) or eight f32 of `tmax` (unaligned load);
+        // stores write eight f32 to local arrays. No closures (see `node`).
+        unsafe {
+            macro_rules! s {
+                ($x:expr) => {
+                    _mm256_set1_ps($x)
+                };
+            }
+            macro_rules! add {
+                ($a:expr, $b:expr) => {
+                    _mm256_add_ps($a, $b)
+                };
+            }
+            macro_rules! sub {
+                ($a:expr, $b:expr) => {
+                    _mm256_sub_ps($a, $b)
+                };
+            }
+            macro_rules! mul {
+                ($a:expr, $b:expr) => {
+                    _mm256_mul_ps($a, $b)
+                };
+            }
+            macro_rules! row {
+                ($row:expr) => {
+                    _mm256_load_ps($row.as_ptr())
+                };
+            }
+            let (ox, oy, oz) = (row!(p.origin[0]), row!(p.origin[1]), row!(p.origin[2]));
+            let (dx, dy, dz) = (row!(p.dir[0]), row!(p.dir[1]), row!(p.dir[2]));
+            let (e1x, e1y, e1z) = (s!(e1[0]), s!(e1[1]), s!(e1[2]));
+            let (e2x, e2y, e2z) = (s!(e2[0]), s!(e2[1]), s!(e2[2]));
+            let px = sub!(mul!(dy, e2z), mul!(e2y, dz));
+            let py = sub!(mul!(dz, e2x), mul!(e2z, dx));
+            let pz = sub!(mul!(dx, e2y), mul!(e2x, dy));
+            let det = add!(add!(mul!(e1x, px), mul!(e1y, py)), mul!(e1z, pz));
+            let inv_det = _mm256_div_ps(s!(1.0), det);
+            let (sx, sy, sz) = (
+                sub!(ox, s!(v0[0][i])),
+                sub!(oy, s!(v0[1][i])),
+                sub!(oz, s!(v0[2][i])),
+            );
+            let u = mul!(
+                add!(add!(mul!(sx, px), mul!(sy, py)), mul!(sz, pz)),
+                inv_det
+            );
+            let qx = sub!(mul!(sy, e1z), mul!(e1y, sz));
+            let qy = sub!(mul!(sz, e1x), mul!(e1z, sx));
+            let qz = sub!(mul!(sx, e1y), mul!(e1x, sy));
+            let v = mul!(
+                add!(add!(mul!(dx, qx), mul!(dy, qy)), mul!(dz, qz)),
+                inv_det
+            );
+            let t = mul!(
+                add!(add!(mul!(e2x, qx), mul!(e2y, qy)), mul!(e2z, qz)),
+                inv_det
+            );
+            let abs_det = _mm256_andnot_ps(s!(-0.0), det);
+            let ok = _mm256_and_ps(
+                _mm256_and_ps(
+                    _mm256_and_ps(
+                        _mm256_cmp_ps::<_CMP_GE_OQ>(abs_det, s!(f32::MIN_POSITIVE)),
+                        _mm256_cmp_ps::<_CMP_GE_OQ>(u, s!(0.0)),
+                    ),
+                    _mm256_and_ps(
+                        _mm256_cmp_ps::<_CMP_LE_OQ>(u, s!(1.0)),
+                        _mm256_cmp_ps::<_CMP_GE_OQ>(v, s!(0.0)),
+                    ),
+                ),
+                _mm256_and_ps(
+                    _mm256_and_ps(
+                        _mm256_cmp_ps::<_CMP_LE_OQ>(add!(u, v), s!(1.0)),
+                        _mm256_cmp_ps::<_CMP_GT_OQ>(t, row!(p.tmin)),
+                    ),
+                    _mm256_cmp_ps::<_CMP_LT_OQ>(t, _mm256_loadu_ps(tmax.as_ptr())),
+                ),
+            );
+            let mask = _mm256_movemask_ps(ok) as u32;
+            let (mut ts, mut us, mut vs) = ([0f32; 8], [0f32; 8], [0f32; 8]);
+            if mask != 0 {
+                _mm256_storeu_ps(ts.as_mut_ptr(), t);
+                _mm256_storeu_ps(us.as_mut_ptr(), u);
+                _mm256_storeu_ps(vs.as_mut_ptr(), v);
+            }
+            (mask, ts, us, vs)
+        }
+    }
+}
