@@ -35,7 +35,7 @@ fn ao_rays(scene: &raylab::scene::Scene) -> Vec<Ray> {
     let bvh = raylab::accel::bvh::BvhBackend::new(&scene.mesh(), &BuildParams::sah()).unwrap();
     raylab::validate::recorded_rays(scene, &bvh, &settings)
         .unwrap()
-        .1
+        .ao
 }
 
 fn ray_box(c: &mut Criterion) {

@@ -180,12 +180,18 @@ pub const GAMMA3: f32 = 3.0 * (f32::EPSILON * 0.5) / (1.0 - 3.0 * (f32::EPSILON 
 /// 2013): [`Aabb::intersect`] and the wide trees' node kernels use it.
 pub const SLAB_GROW: f32 = 1.0 + 2.0 * GAMMA3;
 
+/// The magnitude [`safe_reciprocal`] clamps to. For every non-NaN `c` its
+/// result equals `(1 / c).clamp(-RECIPROCAL_MAX, RECIPROCAL_MAX)` (a zero's
+/// infinite reciprocal clamps to the same signed value), which is how the
+/// packet kernels compute it eight rays at a time.
+pub const RECIPROCAL_MAX: f32 = 1e30;
+
 /// `1 / d` per component, with zero components mapped to a huge finite value of the
 /// same sign instead of infinity, so the slab test never computes `0 * inf = NaN`
 /// for rays that lie in a slab's boundary plane.
 #[inline]
 pub fn safe_reciprocal(d: Vec3) -> Vec3 {
-    const BIG: f32 = 1e30;
+    const BIG: f32 = RECIPROCAL_MAX;
     let r = |c: f32| {
         if c == 0.0 {
             if c.is_sign_negative() {
@@ -343,12 +349,19 @@ impl TriangleTest for Watertight {
         }
         let z = [p[0].z * w.sz, p[1].z * w.sz, p[2].z * w.sz];
         let t_scaled = e0 * z[0] + e1 * z[1] + e2 * z[2];
-        // Range test without dividing: t in (tmin, tmax) with det's sign.
+        // Range pre-test without dividing: t in (tmin, tmax) with det's sign,
+        // widened by a few ulps so that it never rejects a t that the exact
+        // test below accepts (tmax * det and t_scaled / det each round). A
+        // traversal tests with tmax just above its best t to find a tie at
+        // the same t with a lower index; unwidened, rounding here rejected
+        // some of those, and which of two triangles meeting on an edge won
+        // depended on the order they were visited in.
         let (lo, hi) = (ray.tmin * det, ray.tmax * det);
+        let pad = 4.0 * f32::EPSILON;
         let inside = if det < 0.0 {
-            t_scaled < lo && t_scaled > hi
+            t_scaled < lo + lo.abs() * pad && t_scaled > hi - hi.abs() * pad
         } else {
-            t_scaled > lo && t_scaled < hi
+            t_scaled > lo - lo.abs() * pad && t_scaled < hi + hi.abs() * pad
         };
         if !inside {
             return None;

@@ -157,11 +157,18 @@ fn quick_bench_runs_every_experiment() {
         assert!(rmse("cosine:4") > rmse("cosine:16"));
         assert!(rmse("paper") > 0.0);
     }
-    // Trace: 4 scenes x 3 ray kinds x thread counts (1 and N) x the distinct
-    // non-naive backends (median, sah, sah 4-wide, sah 8-wide, Embree).
+    // Trace: 4 scenes x 4 ray kinds x thread counts (1 and N) x the distinct
+    // non-naive structures (median, sah, sah 4-wide, sah 8-wide, Embree) on
+    // every query path each has (8-wide: single and packets; Embree: single,
+    // packets of 4, 8 and 16, and the stream API where it exists).
     let trace_threads = if threads > 1 { 2 } else { 1 };
-    let backends = if embree() { 5 } else { 4 };
-    assert_eq!(len("trace"), 4 * 3 * trace_threads * backends);
+    let embree_paths = if embree() {
+        raylab::accel::BackendSpec::embree(1).queries().len()
+    } else {
+        0
+    };
+    let backends = 4 + 1 + embree_paths;
+    assert_eq!(len("trace"), 4 * 4 * trace_threads * backends);
     for p in json["trace"].as_array().unwrap() {
         assert!(p["mrays"]["median"].as_f64().unwrap() > 0.0, "{p}");
         // Builds are timed on each thread count of the trace.

@@ -96,8 +96,9 @@ fn json_report_has_the_stable_keys_and_matches_the_png() {
         assert!(v.get(key).is_some(), "missing key {key} in {v}");
     }
     assert_eq!(v["triangles"], 36);
-    // The default backend is raylab's fastest own one, not the naive scan.
-    assert_eq!(v["backend"], "bvh8-sah");
+    // The default backend is raylab's fastest own one, not the naive scan,
+    // on its fastest query path (8-ray packets).
+    assert_eq!(v["backend"], "bvh8-sah-packet8");
     assert_eq!(v["schedule"], "rayon");
     assert_eq!(v["width"], 40);
     assert_eq!(v["rays"]["primary"], 1200);
@@ -193,8 +194,8 @@ fn intersector_flag_selects_the_watertight_test() {
     ]);
     assert_success(&out);
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    // The default tree is the 8-wide one, the fastest.
-    assert_eq!(v["backend"], "bvh8-sah-watertight");
+    // The default tree is the 8-wide one, the fastest, in packets.
+    assert_eq!(v["backend"], "bvh8-sah-watertight-packet8");
     std::fs::remove_dir_all(&d).ok();
 }
 
@@ -426,6 +427,12 @@ fn flags_the_chosen_backend_would_ignore_are_refused() {
             &["--backend", "embree", "--leaf-size", "2"][..],
             "--leaf-size",
         ),
+        // Query paths a backend does not have.
+        (&["--backend", "naive", "--query", "packet8"][..], "--query"),
+        (&["--bvh-width", "4", "--query", "packet8"][..], "--query"),
+        (&["--query", "packet16"][..], "--query"),
+        (&["--query", "stream"][..], "--query"),
+        (&["--query", "sideways"][..], "--query"),
     ] {
         let mut a = vec!["render", "cornell-empty", "--size", "8x6", "-o", o];
         a.extend(args);
@@ -610,5 +617,56 @@ fn a_light_from_the_command_line_replaces_the_default_one() {
         &["render", obj.to_str().unwrap(), "--light", "spot:0,1,0"],
         "--light",
     );
+    std::fs::remove_dir_all(&d).ok();
+}
+
+/// raylab's query paths render the image its single-ray path renders, and
+/// the report names the path.
+#[test]
+fn query_paths_render_the_same_image_and_are_named() {
+    let d = temp_dir("query");
+    let o = d.join("x.png");
+    let o = o.to_str().unwrap();
+    let render = |args: &[&str]| {
+        let mut a = vec![
+            "render",
+            "cornell-sphere",
+            "--size",
+            "48x36",
+            "--ao",
+            "cosine:3",
+            "--json",
+            "-q",
+            "-o",
+            o,
+        ];
+        a.extend(args);
+        let out = raylab(&a);
+        assert_success(&out);
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        (
+            v["backend"].as_str().unwrap().to_string(),
+            v["image_hash"].clone(),
+        )
+    };
+    let (name, single) = render(&["--query", "single"]);
+    assert_eq!(name, "bvh8-sah");
+    let (name, packet) = render(&["--query", "packet8"]);
+    assert_eq!(name, "bvh8-sah-packet8");
+    assert_eq!(packet, single);
+    let (name, binary) = render(&["--bvh-width", "2"]);
+    assert_eq!(
+        name, "bvh-sah",
+        "the binary tree's default path is single rays"
+    );
+    assert_eq!(binary, single);
+    // Embree's packet kernels break shared-edge ties differently from its
+    // single-ray kernel, so only the names are checked for Embree.
+    if raylab::accel::embree::AVAILABLE {
+        for q in ["packet4", "packet8", "packet16"] {
+            let (name, _) = render(&["--backend", "embree", "--query", q]);
+            assert_eq!(name, format!("embree-medium-{q}"));
+        }
+    }
     std::fs::remove_dir_all(&d).ok();
 }

@@ -46,6 +46,10 @@ pub struct Machine {
     pub bench_threads: usize,
     pub os: String,
     pub embree_version: String,
+    /// Packet widths Embree traces natively here (its other widths it emulates).
+    pub embree_native_packets: Vec<usize>,
+    /// raylab's node kernel on this CPU (`avx2` or `portable`).
+    pub simd: String,
     pub raylab_version: String,
 }
 
@@ -74,6 +78,8 @@ impl Machine {
             bench_threads,
             os,
             embree_version: crate::accel::embree::version_or_none(),
+            embree_native_packets: crate::accel::embree::native_packets_or_none(),
+            simd: crate::accel::bvh::simd::Kernel::detect().name().to_string(),
             raylab_version: env!("CARGO_PKG_VERSION").to_string(),
         }
     }
@@ -325,13 +331,21 @@ fn write_charts(dir: &Path, r: &BenchReport) -> Result<Vec<String>> {
 pub fn markdown(r: &BenchReport) -> String {
     let m = &r.machine;
     let mut out = format!(
-        "## raylab bench\n\nMachine: {} ({} hardware threads{}), {} bench threads; {}; Embree {}. Image {}x{}, {} rep(s) {} (slow variants capped at {} s per cell), views {}.\n\n",
+        "## raylab bench\n\nMachine: {} ({} hardware threads{}), {} bench threads; {}; raylab's kernels {}; Embree {}{}. Image {}x{}, {} rep(s) {} (slow variants capped at {} s per cell), views {}.\n\n",
         m.cpu,
         m.hardware_threads,
         m.physical_cores.map_or(String::new(), |c| format!(", {c} cores")),
         m.bench_threads,
         m.os,
+        m.simd,
         m.embree_version,
+        match m.embree_native_packets.as_slice() {
+            [] => String::new(),
+            widths => format!(
+                " (native packets of {} rays)",
+                widths.iter().map(|w| w.to_string()).collect::<Vec<_>>().join(", ")
+            ),
+        },
         r.size.0,
         r.size.1,
         r.reps,

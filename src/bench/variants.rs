@@ -7,7 +7,7 @@
 //! all bench threads whenever they render in parallel, as a modern renderer would.
 
 use crate::accel::bvh::{BuildParams, BuilderKind};
-use crate::accel::{BackendKind, BackendSpec};
+use crate::accel::{BackendKind, BackendSpec, Query};
 use crate::error::{Error, Result};
 use crate::render::Schedule;
 
@@ -23,6 +23,8 @@ pub struct Variant {
     pub parallel_build: bool,
     /// Children per node traversed: 2 (the binary tree), 4 or 8 (SIMD nodes).
     pub width: usize,
+    /// How the renderer's streams are traced: single rays, or packets.
+    pub query: Query,
 }
 
 const fn v(
@@ -39,6 +41,7 @@ const fn v(
         schedule,
         parallel_build,
         width: 2,
+        query: Query::Single,
     }
 }
 
@@ -46,12 +49,21 @@ const fn wide(v: Variant, width: usize) -> Variant {
     Variant { width, ..v }
 }
 
+/// The variant tracing its streams in packets of 8 rays (raylab's own 8-ray
+/// packets for the 8-wide tree, rtcIntersect8/rtcOccluded8 for Embree).
+const fn packets(v: Variant) -> Variant {
+    Variant {
+        query: Query::Packet(8),
+        ..v
+    }
+}
+
 use BackendKind::{Bvh, Embree, Naive};
 use BuilderKind::{Median, Sah};
 use Schedule::{Rayon, Rows, Serial, Tiles};
 
 /// Every variant, in the order tables list them. `naive-serial` is the baseline.
-pub const VARIANTS: [Variant; 21] = [
+pub const VARIANTS: [Variant; 25] = [
     v("naive-serial", Naive, Sah, Serial, false),
     v("naive-rows", Naive, Sah, Rows, false),
     v("naive-tiles", Naive, Sah, Tiles, false),
@@ -70,9 +82,16 @@ pub const VARIANTS: [Variant; 21] = [
     wide(v("bvh8-sah-serial", Bvh, Sah, Serial, false), 8),
     wide(v("bvh8-sah-tiles", Bvh, Sah, Tiles, true), 8),
     wide(v("bvh8-sah-rayon", Bvh, Sah, Rayon, true), 8),
+    packets(wide(
+        v("bvh8-sah-packet8-serial", Bvh, Sah, Serial, false),
+        8,
+    )),
+    packets(wide(v("bvh8-sah-packet8-tiles", Bvh, Sah, Tiles, true), 8)),
     v("embree-serial", Embree, Sah, Serial, false),
     v("embree-tiles", Embree, Sah, Tiles, true),
     v("embree-rayon", Embree, Sah, Rayon, true),
+    packets(v("embree-packet8-serial", Embree, Sah, Serial, false)),
+    packets(v("embree-packet8-tiles", Embree, Sah, Tiles, true)),
 ];
 
 /// The study's own combinations (naive, median BVH, rows, tiles, parallel build).
@@ -108,7 +127,7 @@ impl Variant {
     /// How to build this variant's backend with `threads` bench threads.
     pub fn spec(&self, threads: usize) -> BackendSpec {
         let threads = self.build_threads(threads);
-        match self.kind {
+        let spec = match self.kind {
             Naive => BackendSpec::naive(),
             Bvh => BackendSpec::bvh(
                 BuildParams::for_builder(self.builder)
@@ -116,7 +135,9 @@ impl Variant {
                     .with_width(self.width),
             ),
             Embree => BackendSpec::embree(threads),
-        }
+        };
+        // Every variant's query path is one its backend has (a test checks).
+        spec.with_query(self.query).unwrap_or(spec)
     }
 
     /// A one-line description for reports.
@@ -129,7 +150,14 @@ impl Variant {
                 self.width
             ),
             Bvh => format!("{} BVH", self.builder.name()),
+            Embree if self.query == Query::Packet(8) => {
+                "Embree MEDIUM, rtcIntersect8/rtcOccluded8".to_string()
+            }
             Embree => "Embree MEDIUM, rtcIntersect1/rtcOccluded1".to_string(),
+        };
+        let backend = match (self.kind, self.query) {
+            (Bvh, Query::Packet(n)) => format!("{backend}, {n}-ray packets"),
+            _ => backend,
         };
         let build = match (self.kind, self.parallel_build) {
             (Naive, _) => String::new(),
@@ -223,6 +251,17 @@ mod tests {
         assert_eq!(params.max_leaf_size, 1);
         let v = Variant::named("embree-tiles").unwrap();
         assert_eq!(v.spec(8), BackendSpec::embree(8));
+        // Each variant's query path is its backend's.
+        for v in VARIANTS {
+            assert_eq!(v.spec(2).query(), v.query, "{}", v.name);
+        }
+        assert_eq!(
+            Variant::named("bvh8-sah-packet8-tiles")
+                .unwrap()
+                .spec(2)
+                .name(),
+            "bvh8-sah-packet8"
+        );
         assert_eq!(
             Variant::named("embree-serial").unwrap().spec(8),
             BackendSpec::embree(1)

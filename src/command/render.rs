@@ -111,6 +111,8 @@ struct RenderReport {
 pub fn run(args: &RenderArgs) -> Result<()> {
     output::check_writable(&args.output)?;
     let threads = args.threads.unwrap_or_else(default_threads);
+    // The flags are checked before any work.
+    let spec = args.accel.spec(threads)?;
     let say = |line: String| {
         if !args.quiet {
             eprintln!("{line}");
@@ -132,7 +134,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         ms(load_time)
     ));
 
-    let backend = build_backend(&args.accel.spec(threads)?, &scene)?;
+    let backend = build_backend(&spec, &scene)?;
     say(format!(
         "backend {}: built in {:.1} ms",
         backend.name(),

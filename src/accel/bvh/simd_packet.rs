@@ -22,7 +22,7 @@ use super::leaf::{BlockTest, Ray4, Tri4, EMPTY_ID};
 use super::params::SLAB_SLACK;
 use super::simd::{Avx2, NodeKernel, WideRay};
 use super::wide::{WideNode, EMPTY};
-use crate::geometry::{safe_reciprocal, Hit, Ray};
+use crate::geometry::{safe_reciprocal, Hit, Ray, RECIPROCAL_MAX};
 
 /// Rays per packet.
 pub const PACKET: usize = 8;
@@ -53,8 +53,15 @@ pub trait PacketKernel: Copy {
     type Rays;
     fn prepare(self, rays: &[Ray]) -> Self::Rays;
     /// The box test of every ray of `active` against every child of `node`,
-    /// ray `r` within `(its tmin, tmax[r])`.
-    fn node(self, node: &WideNode<8>, rays: &Self::Rays, active: u32, tmax: &[f32; 8]) -> NodeHits;
+    /// ray `r` within `(its tmin, tmax[r])`; the least entry distances only
+    /// when `NEAR` (the any-hit traversal neither sorts nor culls by them).
+    fn node<const NEAR: bool>(
+        self,
+        node: &WideNode<8>,
+        rays: &Self::Rays,
+        active: u32,
+        tmax: &[f32; 8],
+    ) -> NodeHits;
     /// Closest-hit test of the rays of `active` against the lanes `in_leaf` of
     /// `block`: a ray whose hit beats `hits[r]` (by [`Hit::is_closer_than`],
     /// hits with `t` below `tmax[r]` only) gets it. Returns the rays whose
@@ -122,7 +129,7 @@ impl<K: NodeKernel<8>, T: BlockTest> PacketKernel for PerRay<K, T> {
     }
 
     #[inline(always)]
-    fn node(
+    fn node<const NEAR: bool>(
         self,
         node: &WideNode<8>,
         lanes: &Self::Rays,
@@ -140,7 +147,9 @@ impl<K: NodeKernel<8>, T: BlockTest> PacketKernel for PerRay<K, T> {
             out.lanes |= hit;
             for c in bits(hit) {
                 out.rays[c] |= 1 << r;
-                out.near[c] = out.near[c].min(entry[c]);
+                if NEAR {
+                    out.near[c] = out.near[c].min(entry[c]);
+                }
             }
         }
         out
@@ -217,18 +226,36 @@ impl PacketKernel for Avx2Packet {
 
     #[inline(always)]
     fn prepare(self, rays: &[Ray]) -> RaysSoa {
+        use std::arch::x86_64::*;
         let mut p = RaysSoa::default();
         for (r, ray) in rays.iter().enumerate() {
-            let inv = safe_reciprocal(ray.dir);
             for a in 0..3 {
                 p.origin[a][r] = ray.origin[a];
                 p.dir[a][r] = ray.dir[a];
-                p.inv_dir[a][r] = inv[a];
-                p.positive[a][r] = if inv[a] >= 0.0 { u32::MAX } else { 0 };
             }
-            p.node_tmin[r] = ray.tmin * (1.0 - SLAB_SLACK);
             p.tmin[r] = ray.tmin;
             p.tmax[r] = ray.tmax;
+        }
+        // SAFETY: `self.0` proves AVX2; loads and stores are of 32-byte
+        // aligned rows of `p` (RaysSoa is aligned to 32).
+        unsafe {
+            let big = _mm256_set1_ps(RECIPROCAL_MAX);
+            for a in 0..3 {
+                // safe_reciprocal: (1 / d) clamped (see RECIPROCAL_MAX).
+                let inv = _mm256_div_ps(_mm256_set1_ps(1.0), _mm256_load_ps(p.dir[a].as_ptr()));
+                let inv = _mm256_min_ps(
+                    _mm256_max_ps(inv, _mm256_sub_ps(_mm256_setzero_ps(), big)),
+                    big,
+                );
+                _mm256_store_ps(p.inv_dir[a].as_mut_ptr(), inv);
+                let positive = _mm256_cmp_ps::<_CMP_GE_OQ>(inv, _mm256_setzero_ps());
+                _mm256_store_ps(p.positive[a].as_mut_ptr() as *mut f32, positive);
+            }
+            let tmin = _mm256_load_ps(p.tmin.as_ptr());
+            _mm256_store_ps(
+                p.node_tmin.as_mut_ptr(),
+                _mm256_mul_ps(tmin, _mm256_set1_ps(1.0 - SLAB_SLACK)),
+            );
         }
         // Sign bits per ray: bit a set when axis a is negative.
         let mut signs = [0u32; PACKET];
@@ -246,7 +273,13 @@ impl PacketKernel for Avx2Packet {
     }
 
     #[inline(always)]
-    fn node(self, node: &WideNode<8>, p: &RaysSoa, active: u32, tmax: &[f32; 8]) -> NodeHits {
+    fn node<const NEAR: bool>(
+        self,
+        node: &WideNode<8>,
+        p: &RaysSoa,
+        active: u32,
+        tmax: &[f32; 8],
+    ) -> NodeHits {
         use crate::geometry::SLAB_GROW;
         use std::arch::x86_64::*;
         let mut out = NodeHits {
@@ -306,6 +339,8 @@ impl PacketKernel for Avx2Packet {
                     if rays != 0 {
                         out.lanes |= 1 << c;
                         out.rays[c] = rays;
+                    }
+                    if NEAR && rays != 0 {
                         let m = _mm256_blendv_ps(inf, near, hit);
                         let m =
                             _mm_min_ps(_mm256_castps256_ps128(m), _mm256_extractf128_ps::<1>(m));
@@ -315,12 +350,15 @@ impl PacketKernel for Avx2Packet {
                     }
                 }};
             }
+            // The used lanes (unused ones hold EMPTY).
+            let used = !(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
+                _mm256_load_si256(node.child.as_ptr() as *const __m256i),
+                _mm256_set1_epi32(EMPTY as i32),
+            ))) as u32)
+                & 0xFF;
             match p.rows {
                 Some([rx, ry, rz]) => {
-                    for c in 0..8 {
-                        if node.child[c] == EMPTY {
-                            continue;
-                        }
+                    for c in bits(used) {
                         child!(
                             c,
                             (plane!(rx, 0, c), plane!(rx ^ 1, 0, c)),
@@ -340,10 +378,7 @@ impl PacketKernel for Avx2Packet {
                             )
                         }};
                     }
-                    for c in 0..8 {
-                        if node.child[c] == EMPTY {
-                            continue;
-                        }
+                    for c in bits(used) {
                         let ((nx, fx), (ny, fy), (nz, fz)) =
                             (blended!(0, c), blended!(1, c), blended!(2, c));
                         child!(c, (nx, fx), (ny, fy), (nz, fz));

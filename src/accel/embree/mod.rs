@@ -14,7 +14,7 @@ mod ffi;
 mod wrapper;
 
 #[cfg(feature = "embree")]
-pub use wrapper::{version, Device, EmbreeBackend, EmbreeScene};
+pub use wrapper::{native_packets, version, Device, EmbreeBackend, EmbreeScene};
 
 /// Embree's build quality (`--embree-quality`, and the `embree-*` builders).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum, serde::Serialize)]
@@ -43,6 +43,14 @@ pub fn unavailable() -> crate::Error {
     crate::Error::Other(
         "this raylab was built without Embree (cargo feature `embree`); install libembree-dev and rebuild".into(),
     )
+}
+
+/// Packet widths the linked Embree traces natively here (none without Embree).
+pub fn native_packets_or_none() -> Vec<usize> {
+    #[cfg(feature = "embree")]
+    return native_packets();
+    #[cfg(not(feature = "embree"))]
+    Vec::new()
 }
 
 /// The linked Embree's version ("none" in a build without Embree).

@@ -165,6 +165,12 @@ pub fn version() -> String {
     )
 }
 
+/// Packet widths the linked Embree traces natively on this CPU (empty when
+/// no device can be made).
+pub fn native_packets() -> Vec<usize> {
+    Device::new("verbose=0").map_or(Vec::new(), |d| d.native_packets())
+}
+
 /// A committed Embree scene holding one triangle mesh.
 pub struct EmbreeScene {
     raw: ffi::RTCScene,

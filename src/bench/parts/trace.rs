@@ -208,14 +208,17 @@ pub fn trace(backend: &dyn Backend, closest: bool, rays: &[Ray], threads: usize)
 }
 
 /// The backends of the trace part for the bench's variants: each distinct
-/// backend once (schedules do not matter here), the naive scan left out.
+/// structure once (schedules and query paths do not matter here), the naive
+/// scan left out.
 pub fn trace_specs(
     variants: &[crate::bench::variants::Variant],
     threads: usize,
 ) -> Vec<BackendSpec> {
     let mut specs: Vec<BackendSpec> = Vec::new();
     for v in variants.iter().filter(|v| v.kind != BackendKind::Naive) {
+        // One per structure: the trace traces each on all its query paths.
         let spec = v.spec(threads).with_build_threads(threads);
+        let spec = spec.with_query(crate::accel::Query::Single).unwrap_or(spec);
         if !specs.contains(&spec) {
             specs.push(spec);
         }
@@ -662,13 +665,18 @@ mod tests {
             .to_vec();
         let bar = StepBar::new(0, true);
         let points = trace_throughput(&scene, &settings, &specs, &[1, 2], 1, &bar).unwrap();
-        assert_eq!(points.len(), 3 * 3 * 2);
+        // The 8-wide tree on its two query paths, every ray kind, two thread counts.
+        assert_eq!(points.len(), 4 * KINDS.len() * 2);
+        assert!(points.iter().any(|p| p.backend == "bvh8-sah-packet8"
+            && p.structure == "bvh8-sah"
+            && p.query == "packet8"));
         for p in &points {
             assert_eq!(p.differing, 0, "{p:?}");
             assert!(p.mrays.median > 0.0 && p.rays > 0, "{p:?}");
         }
         let md = markdown(&points);
         assert!(md.contains("| cornell-sphere | 2188 | ao ("), "{md}");
+        assert!(md.contains("| cornell-sphere | 2188 | diffuse ("), "{md}");
         assert!(md.contains("| cornell-sphere | bvh8-sah |"), "{md}");
         assert!(points.iter().all(|p| p.memory_bytes.is_some_and(|b| b > 0)));
         // Every backend's builds were timed on each thread count.

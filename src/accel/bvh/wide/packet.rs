@@ -27,6 +27,16 @@ use super::super::traverse::NoCount;
 use super::node::{for_leaf_blocks, WideBvh, LEAF};
 use crate::geometry::{Hit, Ray};
 
+/// The rays whose `cut` is at least `near` (a bit per ray).
+#[inline(always)]
+fn reach(near: f32, cut: &[f32; PACKET]) -> u32 {
+    let mut mask = 0;
+    for (r, &c) in cut.iter().enumerate() {
+        mask |= ((near <= c) as u32) << r;
+    }
+    mask
+}
+
 impl WideBvh<8> {
     /// The closest hits of up to [`PACKET`] rays into `hits` (as long), each
     /// as [`Self::closest_with`] answers it: packet tests `P`, and for the
@@ -92,7 +102,7 @@ impl WideBvh<8> {
                 });
             } else {
                 let node = &self.nodes[current as usize];
-                let found = packet.node(node, &prepared, mask, &cut);
+                let found = packet.node::<true>(node, &prepared, mask, &cut);
                 let any = found.lanes;
                 if any != 0 {
                     if any & (any - 1) == 0 {
@@ -129,9 +139,7 @@ impl WideBvh<8> {
             // find a closer hit there.
             mask = 0;
             while let Some((child, entered, near)) = stack.pop() {
-                mask = bits(entered)
-                    .filter(|&r| near <= cut[r])
-                    .fold(0, |m, r| m | 1 << r);
+                mask = entered & reach(near, &cut);
                 if mask != 0 {
                     current = child;
                     break;
@@ -180,7 +188,7 @@ impl WideBvh<8> {
                 });
             } else {
                 let node = &self.nodes[current as usize];
-                let found = packet.node(node, &prepared, mask, &tmax);
+                let found = packet.node::<false>(node, &prepared, mask, &tmax);
                 let any = found.lanes;
                 // Lane order, as the single-ray any-hit traversal: the first
                 // hit child next, the others pushed.
@@ -208,5 +216,171 @@ impl WideBvh<8> {
         for (r, o) in occluded.iter_mut().enumerate() {
             *o = rays[r].is_valid() && alive & (1 << r) == 0;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+
+    use super::super::Bvh8;
+    use crate::accel::bvh::leaf::BlockTest;
+    use crate::accel::bvh::params::BuildParams;
+    use crate::accel::bvh::simd::Kernel;
+    use crate::accel::bvh::simd_packet::PACKET;
+    use crate::accel::bvh::test_fixtures::{binary, random_tris};
+    use crate::accel::bvh::traverse::{NoCount, Traversal};
+    use crate::geometry::{Hit, MollerTrumbore, Ray, Watertight};
+    use crate::render::rng::Rng;
+
+    /// Packets as a stream brings them: coherent groups of eight (nearby
+    /// origins, nearly parallel directions, as a pixel block), groups aimed
+    /// at one vertex or edge from spread origins, incoherent rays, rays with
+    /// zero and negative-zero direction components, mixed signs, short and
+    /// long segments, and invalid rays among valid ones.
+    fn stream(tris: &[[Vec3; 3]], n: usize, seed: u64) -> Vec<Ray> {
+        let mut rng = Rng::for_pixel(seed, 5, 77);
+        let v =
+            |rng: &mut Rng, s: f32| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * s;
+        let mut rays = Vec::with_capacity(n);
+        while rays.len() < n {
+            let group = rays.len() / PACKET;
+            let base_o = v(&mut rng, 16.0) - Vec3::splat(3.0);
+            let target = tris[(rng.next_f32() * tris.len() as f32) as usize % tris.len()];
+            let base_d = (v(&mut rng, 10.0) - base_o).normalize_or(Vec3::X);
+            for lane in 0..PACKET {
+                let mut ray = match group % 5 {
+                    // A pixel block: nearby origins, nearly parallel.
+                    0 => Ray::new(
+                        base_o + v(&mut rng, 0.05),
+                        (base_d + (v(&mut rng, 0.02) - Vec3::splat(0.01))).normalize(),
+                    ),
+                    // Aimed exactly at a vertex or an edge's midpoint.
+                    1 => {
+                        let aim = match lane % 3 {
+                            0 => target[0],
+                            1 => (target[0] + target[1]) * 0.5,
+                            _ => target[2],
+                        };
+                        let o = base_o + v(&mut rng, 2.0);
+                        Ray::new(o, (aim - o).normalize_or(Vec3::Y))
+                    }
+                    // Incoherent: signs differ within the packet.
+                    2 => Ray::new(
+                        v(&mut rng, 16.0) - Vec3::splat(3.0),
+                        (v(&mut rng, 2.0) - Vec3::ONE).normalize_or(Vec3::Z),
+                    ),
+                    // Axis-parallel, with zero and negative-zero components.
+                    3 => {
+                        let axes = [Vec3::X, -Vec3::Y, Vec3::new(0.0, -0.0, 1.0), -Vec3::X];
+                        Ray::new(base_o + v(&mut rng, 0.5), axes[lane % 4])
+                    }
+                    // Short segments from near surfaces (as AO and shadow rays).
+                    _ => {
+                        let p = target[0] * 0.3 + target[1] * 0.3 + target[2] * 0.4;
+                        Ray::segment(
+                            p,
+                            (v(&mut rng, 2.0) - Vec3::ONE).normalize_or(Vec3::X),
+                            0.0,
+                            0.3,
+                        )
+                    }
+                };
+                if rng.next_f32() < 0.3 {
+                    ray.tmax = rng.next_f32() * 6.0;
+                }
+                if rng.next_f32() < 0.02 {
+                    ray.dir = [Vec3::ZERO, Vec3::splat(f32::NAN)][lane % 2];
+                }
+                rays.push(ray);
+            }
+        }
+        rays.truncate(n);
+        rays
+    }
+
+    fn bits(h: Option<Hit>) -> Option<[u32; 4]> {
+        h.map(|h| [h.t.to_bits(), h.u.to_bits(), h.v.to_bits(), h.tri])
+    }
+
+    /// Packets of every size from 1 to 8 against the single-ray traversal.
+    fn check<T: BlockTest>(tree: &Bvh8, rays: &[Ray], label: &str) {
+        for size in 1..=PACKET {
+            for (k, chunk) in rays.chunks(size).enumerate() {
+                let mut hits = vec![None; chunk.len()];
+                let mut occluded = vec![true; chunk.len()];
+                tree.closest_packet_with::<T>(chunk, &mut hits);
+                tree.any_packet_with::<T>(chunk, &mut occluded);
+                for (r, ray) in chunk.iter().enumerate() {
+                    let want = tree.closest::<T, _>(ray, &mut NoCount);
+                    assert_eq!(
+                        bits(hits[r]),
+                        bits(want),
+                        "{label}: packet of {size}, #{k} lane {r}: {ray:?}"
+                    );
+                    assert_eq!(
+                        occluded[r],
+                        tree.any::<T, _>(ray, &mut NoCount),
+                        "{label}: any-hit packet of {size}, #{k} lane {r}: {ray:?}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn packets_answer_as_single_rays_bit_for_bit() {
+        let tris = random_tris(3000, 21);
+        let rays = stream(&tris, 6000, 3);
+        for params in [
+            BuildParams::sah(),
+            BuildParams::median().with_max_leaf_size(3),
+        ] {
+            let bvh = binary(&tris, &params);
+            let mut kernels = vec![Kernel::Portable];
+            if let Kernel::Avx2(k) = Kernel::detect() {
+                kernels.push(Kernel::Avx2(k));
+            } else {
+                eprintln!("no AVX2 on this CPU: the AVX2 packet kernel is not tested");
+            }
+            for kernel in kernels {
+                let tree = Bvh8::collapse_with(&bvh, kernel).unwrap();
+                let label = format!("{params:?} {}", kernel.name());
+                check::<MollerTrumbore>(&tree, &rays, &format!("{label} mt"));
+                check::<Watertight>(&tree, &rays, &format!("{label} watertight"));
+            }
+        }
+    }
+
+    #[test]
+    fn an_empty_tree_and_invalid_rays_answer_misses() {
+        let tree = Bvh8::collapse(&binary(&Vec::<[Vec3; 3]>::new(), &BuildParams::sah()));
+        if let Ok(tree) = tree {
+            let rays = [Ray::new(Vec3::ZERO, Vec3::X); 3];
+            let mut hits = [Some(Hit {
+                t: 1.0,
+                u: 0.0,
+                v: 0.0,
+                tri: 0,
+            }); 3];
+            let mut occluded = [true; 3];
+            tree.closest_packet_with::<MollerTrumbore>(&rays, &mut hits);
+            tree.any_packet_with::<MollerTrumbore>(&rays, &mut occluded);
+            assert_eq!(hits, [None; 3]);
+            assert_eq!(occluded, [false; 3]);
+        }
+        let tris = random_tris(50, 2);
+        let tree = Bvh8::collapse(&binary(&tris, &BuildParams::sah())).unwrap();
+        let bad = [
+            Ray::new(Vec3::ZERO, Vec3::ZERO),
+            Ray::new(Vec3::splat(f32::NAN), Vec3::X),
+            Ray::new(Vec3::ZERO, Vec3::new(f32::INFINITY, 0.0, 0.0)),
+        ];
+        let mut hits = [None; 3];
+        let mut occluded = [true; 3];
+        tree.closest_packet_with::<MollerTrumbore>(&bad, &mut hits);
+        tree.any_packet_with::<MollerTrumbore>(&bad, &mut occluded);
+        assert_eq!(hits, [None; 3]);
+        assert_eq!(occluded, [false; 3]);
     }
 }
