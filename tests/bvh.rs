@@ -376,6 +376,28 @@ fn bvh_renders_are_bit_identical_to_naive() {
     }
 }
 
+/// With the watertight test too, naive's, the binary tree's and the 8-wide
+/// tree's images are the same (cosine AO and several light samples: many
+/// rays from surfaces, through edges).
+#[test]
+fn watertight_renders_are_bit_identical_to_naive() {
+    let scene = builtin("cornell-sphere").unwrap();
+    let mut s = settings(256, 192, AoMode::Cosine(8));
+    s.light_samples = 4;
+    let naive = Naive::new(&scene).with_intersector(Intersector::Watertight);
+    let (reference, _) = render(&scene, &naive, &s, Schedule::Rayon, 2, &Progress::new()).unwrap();
+    for params in [BuildParams::sah(), BuildParams::sah().with_width(8)] {
+        let bvh = BvhBackend::new(&scene.mesh(), &params)
+            .unwrap()
+            .with_intersector(Intersector::Watertight);
+        let (frame, _) = render(&scene, &bvh, &s, Schedule::Tiles, 2, &Progress::new()).unwrap();
+        assert!(
+            frame == reference,
+            "{params:?}: watertight image differs from naive's"
+        );
+    }
+}
+
 #[test]
 fn sah_tree_is_cheaper_than_median_on_the_big_scenes() {
     use raylab::accel::bvh::quality::TreeStats;
