@@ -217,7 +217,8 @@ pub(super) fn lin_range(
 }
 
 /// A scene name short enough to sit under a bar: without the `cornell-`
-/// prefix, and `mesh:N` with a power of ten as `mesh 1eK`.
+/// prefix, `mesh:N` with a power of ten as `mesh 1eK`, a file by its name
+/// without folders and extension.
 pub(super) fn short(scene: &str) -> String {
     if let Some(n) = scene
         .strip_prefix("mesh:")
@@ -226,6 +227,14 @@ pub(super) fn short(scene: &str) -> String {
         let k = n.checked_ilog10().unwrap_or(0);
         if 10u64.pow(k) == n {
             return format!("mesh 1e{k}");
+        }
+    }
+    if scene.contains('/') || scene.contains('.') {
+        // A file: its name without folders or extension (a chart's label
+        // has room for a word, not a path).
+        let path = std::path::Path::new(scene);
+        if let Some(stem) = path.file_stem() {
+            return stem.to_string_lossy().into_owned();
         }
     }
     scene.strip_prefix("cornell-").unwrap_or(scene).to_string()
@@ -307,6 +316,12 @@ mod tests {
         assert_eq!(super::short("mesh:1"), "mesh 1e0");
         assert_eq!(super::short("mesh:123456"), "mesh:123456");
         assert_eq!(super::short("mesh:0"), "mesh:0");
-        assert_eq!(super::short("/some/scene.obj"), "/some/scene.obj");
+        assert_eq!(super::short("/some/scene.obj"), "scene");
+        assert_eq!(
+            super::short(
+                "/usr/share/assimp/models/glTF2/2CylinderEngine-glTF-Binary/2CylinderEngine.glb"
+            ),
+            "2CylinderEngine"
+        );
     }
 }
