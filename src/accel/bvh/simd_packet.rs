@@ -27,6 +27,12 @@ use crate::geometry::{safe_reciprocal, Hit, Ray, RECIPROCAL_MAX};
 /// Rays per packet.
 pub const PACKET: usize = 8;
 
+/// The margin (relative to the determinant) by which every lane's `u` must
+/// lie outside [0, 1] for [`Avx2Packet`]'s triangle test to stop before its
+/// division: far above the division's rounding (2^-23), so a lane it stops
+/// is one the full test rejects.
+const U_MARGIN: f32 = 1.0 / (1 << 20) as f32;
+
 /// The bits of `mask`, lowest first.
 #[inline(always)]
 pub fn bits(mut mask: u32) -> impl Iterator<Item = usize> {
@@ -504,16 +510,29 @@ impl Avx2Packet {
             let py = sub!(mul!(dz, e2x), mul!(e2z, dx));
             let pz = sub!(mul!(dx, e2y), mul!(e2x, dy));
             let det = add!(add!(mul!(e1x, px), mul!(e1y, py)), mul!(e1z, pz));
-            let inv_det = _mm256_div_ps(s!(1.0), det);
             let (sx, sy, sz) = (
                 sub!(ox, s!(v0[0][i])),
                 sub!(oy, s!(v0[1][i])),
                 sub!(oz, s!(v0[2][i])),
             );
-            let u = mul!(
-                add!(add!(mul!(sx, px), mul!(sy, py)), mul!(sz, pz)),
-                inv_det
+            let u_num = add!(add!(mul!(sx, px), mul!(sy, py)), mul!(sz, pz));
+            // Before dividing: when every lane's u = u_num / det lies
+            // outside [0, 1] by more than U_MARGIN (u_num * sign(det) against
+            // |det|, exact but for the margin), no rounding of the division
+            // below can bring it back, and no lane hits. NaN lanes compare
+            // false and go on to the full test, which rejects them.
+            let abs_det = _mm256_andnot_ps(s!(-0.0), det);
+            let signed = _mm256_xor_ps(u_num, _mm256_and_ps(det, s!(-0.0)));
+            let margin = mul!(abs_det, s!(U_MARGIN));
+            let outside = _mm256_or_ps(
+                _mm256_cmp_ps::<_CMP_LT_OQ>(signed, sub!(s!(0.0), margin)),
+                _mm256_cmp_ps::<_CMP_GT_OQ>(signed, add!(abs_det, margin)),
             );
+            if _mm256_movemask_ps(outside) == 0xFF {
+                return (0, [0f32; 8], [0f32; 8], [0f32; 8]);
+            }
+            let inv_det = _mm256_div_ps(s!(1.0), det);
+            let u = mul!(u_num, inv_det);
             let qx = sub!(mul!(sy, e1z), mul!(e1y, sz));
             let qy = sub!(mul!(sz, e1x), mul!(e1z, sx));
             let qz = sub!(mul!(sx, e1y), mul!(e1x, sy));
@@ -525,7 +544,6 @@ impl Avx2Packet {
                 add!(add!(mul!(e2x, qx), mul!(e2y, qy)), mul!(e2z, qz)),
                 inv_det
             );
-            let abs_det = _mm256_andnot_ps(s!(-0.0), det);
             let ok = _mm256_and_ps(
                 _mm256_and_ps(
                     _mm256_and_ps(
