@@ -222,7 +222,8 @@ pub const SLAB_SLACK: f32 = 1e-6;
 pub const CULL_SLACK: f32 = 1e-4;
 
 /// A packet entry with fewer active rays than this finishes its subtree ray
-/// by ray with the single-ray traversal (`wide::packet`): below it the shared
-/// stack and per-child masks cost more than they save (measured with
-/// `raylab bench --part trace`, docs/results.md).
+/// by ray with the single-ray traversal (`wide::packet`): a lone ray pays the
+/// whole packet's node tests for nothing. 3 and 4 made no consistent
+/// difference (A/B with `raylab bench --parts trace`: docs/design.md,
+/// "Streams and packets").
 pub const PACKET_MIN_RAYS: u32 = 2;
