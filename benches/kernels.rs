@@ -1,7 +1,9 @@
 //! Criterion benches of the hot kernels on fixed ray sets, so regressions show in
 //! `cargo bench`: the ray/box and ray/triangle tests, closest-hit and any-hit
 //! queries per backend on the study's scenes (coherent camera rays and the
-//! incoherent AO rays a render casts), and builds per builder against size.
+//! incoherent AO rays a render casts), the same queries as streams on every
+//! query path (single rays, packets, Embree's stream API), and builds per
+//! builder against size.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::Vec3;
@@ -14,6 +16,11 @@ use raylab::scene::builtin::builtin;
 
 /// The AO rays of a 48x36 render of `scene` (paper AO): an incoherent fixed set.
 fn ao_rays(scene: &raylab::scene::Scene) -> Vec<Ray> {
+    recorded(scene).ao
+}
+
+/// The rays a 48x36 render of `scene` casts (paper AO), in its stream order.
+fn recorded(scene: &raylab::scene::Scene) -> raylab::validate::Recorded {
     let settings = raylab::render::RenderSettings {
         width: 48,
         height: 36,
@@ -33,9 +40,7 @@ fn ao_rays(scene: &raylab::scene::Scene) -> Vec<Ray> {
         two_sided_lights: false,
     };
     let bvh = raylab::accel::bvh::BvhBackend::new(&scene.mesh(), &BuildParams::sah()).unwrap();
-    raylab::validate::recorded_rays(scene, &bvh, &settings)
-        .unwrap()
-        .ao
+    raylab::validate::recorded_rays(scene, &bvh, &settings).unwrap()
 }
 
 fn ray_box(c: &mut Criterion) {
@@ -202,6 +207,50 @@ fn ao_queries(c: &mut Criterion) {
     g.finish();
 }
 
+/// The 8-wide tree and Embree on every query path they have, asked in
+/// streams of 512 rays as the renderer and the trace part ask: the primary
+/// and AO rays of a cornell-water render in its stream order.
+fn stream_queries(c: &mut Criterion) {
+    let scene = builtin("cornell-water").unwrap();
+    let rays = recorded(&scene);
+    let mut specs = vec![BackendSpec::bvh(BuildParams::sah().with_width(8))];
+    if raylab::accel::embree::AVAILABLE {
+        specs.push(BackendSpec::embree(1));
+    }
+    let mut g = c.benchmark_group("streams");
+    for structure in specs {
+        for query in structure.queries() {
+            let built = build_backend(&structure.with_query(query).unwrap(), &scene).unwrap();
+            let name = built.name();
+            g.throughput(Throughput::Elements(rays.primary.len() as u64));
+            g.bench_function(BenchmarkId::new("intersect_primary", &name), |b| {
+                let mut hits = vec![None; 512];
+                b.iter(|| {
+                    let mut n = 0;
+                    for chunk in rays.primary.chunks(512) {
+                        built.intersect_stream(chunk, &mut hits[..chunk.len()]);
+                        n += hits[..chunk.len()].iter().flatten().count();
+                    }
+                    n
+                })
+            });
+            g.throughput(Throughput::Elements(rays.ao.len() as u64));
+            g.bench_function(BenchmarkId::new("occluded_ao", &name), |b| {
+                let mut occluded = vec![false; 512];
+                b.iter(|| {
+                    let mut n = 0;
+                    for chunk in rays.ao.chunks(512) {
+                        built.occluded_stream(chunk, &mut occluded[..chunk.len()]);
+                        n += occluded[..chunk.len()].iter().filter(|&&o| o).count();
+                    }
+                    n
+                })
+            });
+        }
+    }
+    g.finish();
+}
+
 /// Build time against triangle count on the procedural meshes, serial and on 2 threads.
 fn bvh_builds(c: &mut Criterion) {
     let mut g = c.benchmark_group("bvh_build");
@@ -245,6 +294,7 @@ criterion_group!(
     ray_triangle,
     camera_queries,
     ao_queries,
+    stream_queries,
     bvh_builds
 );
 criterion_main!(benches);
