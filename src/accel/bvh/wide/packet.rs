@@ -25,6 +25,7 @@ use super::super::simd::NodeKernel;
 use super::super::simd_packet::{bits, PacketKernel, PACKET};
 use super::super::traverse::NoCount;
 use super::node::{for_leaf_blocks, WideBvh, LEAF};
+use super::traverse::push_sorted;
 use crate::geometry::{Hit, Ray};
 
 /// The rays whose `cut` is at least `near` (a bit per ray).
@@ -118,14 +119,7 @@ impl WideBvh<8> {
                     for c in bits(any) {
                         let entry = (node.child[c], found.rays[c], found.near[c]);
                         self.prefetch_child(entry.0);
-                        stack.push(entry);
-                        let s = stack.as_mut_slice();
-                        let mut j = s.len() - 1;
-                        while j > base && s[j - 1].2 < entry.2 {
-                            s[j] = s[j - 1];
-                            j -= 1;
-                        }
-                        s[j] = entry;
+                        push_sorted(&mut stack, base, entry, |e| e.2);
                     }
                 }
             }

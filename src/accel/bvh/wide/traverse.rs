@@ -109,14 +109,7 @@ impl<const N: usize> WideBvh<N> {
                         m &= m - 1;
                         let entry = (node.child[lane], near[lane]);
                         self.prefetch_child(entry.0);
-                        stack.push(entry);
-                        let s = stack.as_mut_slice();
-                        let mut j = s.len() - 1;
-                        while j > base && s[j - 1].1 < entry.1 {
-                            s[j] = s[j - 1];
-                            j -= 1;
-                        }
-                        s[j] = entry;
+                        push_sorted(&mut stack, base, entry, |e| e.1);
                     }
                 }
             }
@@ -198,6 +191,27 @@ impl<const N: usize> WideBvh<N> {
             }
         }
     }
+}
+
+/// Pushes `entry` onto `stack`, keeping the entries from `base` on ordered
+/// by `near` descending (farthest first, so the nearest is popped first):
+/// the insertion step of the closest-hit traversals, single-ray and packet.
+#[inline(always)]
+pub(super) fn push_sorted<E: Copy, const S: usize>(
+    stack: &mut ArrayVec<E, S>,
+    base: usize,
+    entry: E,
+    near: impl Fn(&E) -> f32,
+) {
+    stack.push(entry);
+    let s = stack.as_mut_slice();
+    let key = near(&entry);
+    let mut j = s.len() - 1;
+    while j > base && near(&s[j - 1]) < key {
+        s[j] = s[j - 1];
+        j -= 1;
+    }
+    s[j] = entry;
 }
 
 impl Traversal for WideBvh<4> {
