@@ -17,9 +17,12 @@ use raylab::render::{render, AoMode, Schedule};
 use raylab::scene::builtin::{builtin, BUILTIN_SCENES};
 use raylab::validate::{classify, Agreement};
 
-const BUILDERS: [BuildParams; 3] = [
+const BUILDERS: [BuildParams; 5] = [
     BuildParams::median(),
     BuildParams::sah(),
+    BuildParams::for_builder(BuilderKind::Lbvh),
+    // Spatial splits: triangles in several leaves, each with a clipped box.
+    BuildParams::for_builder(BuilderKind::Sbvh),
     // A multi-triangle-leaf median tree exercises leaf loops with ties inside a leaf.
     BuildParams::median().with_max_leaf_size(3),
 ];
@@ -45,7 +48,7 @@ fn wide_trees(tris: &[[Vec3; 3]], params: &BuildParams) -> Vec<(String, Tree)> {
             same_splits(8).with_kernel(Kernel::detect()),
         ));
     }
-    if params.builder == BuilderKind::Sah {
+    if params.builder != BuilderKind::Median {
         out.push((
             "8-wide built for blocks".to_string(),
             build(tris, &params.with_width(8)).unwrap(),
@@ -217,8 +220,9 @@ fn bvh_hits_match_naive_on_random_triangle_soups() {
     }
 }
 
-/// Checks the layout's invariants and returns the leaf-slot triangle ids.
-fn check_invariants(bvh: &Bvh, tris: &[[Vec3; 3]], max_leaf: usize) {
+/// Checks the layout's invariants. A builder that splits triangles
+/// (`splits`) may put one in several leaves, each holding only its part.
+fn check_invariants(bvh: &Bvh, tris: &[[Vec3; 3]], max_leaf: usize, splits: bool) {
     let mut seen = vec![0u32; tris.len()];
     let mut stack = vec![0usize];
     while let Some(i) = stack.pop() {
@@ -234,7 +238,7 @@ fn check_invariants(bvh: &Bvh, tris: &[[Vec3; 3]], max_leaf: usize) {
                 seen[id] += 1;
                 assert_eq!(bvh.tris[slot], tris[id], "gathered vertices out of order");
                 assert!(
-                    n.bounds().contains(&Aabb::from_points(&tris[id])),
+                    splits || n.bounds().contains(&Aabb::from_points(&tris[id])),
                     "triangle outside its leaf"
                 );
             }
@@ -250,8 +254,8 @@ fn check_invariants(bvh: &Bvh, tris: &[[Vec3; 3]], max_leaf: usize) {
         }
     }
     assert!(
-        seen.iter().all(|&c| c == 1),
-        "every triangle must be in exactly one leaf"
+        seen.iter().all(|&c| c == 1 || (splits && c > 1)),
+        "every triangle must be in exactly one leaf (with spatial splits: at least one)"
     );
 }
 
@@ -264,11 +268,12 @@ fn trees_keep_their_invariants() {
         builtin("cornell-water").unwrap().triangle_vertices(),
     ] {
         for params in BUILDERS {
-            check_invariants(&binary(&tris, &params), &tris, params.max_leaf_size);
+            let splits = params.builder == BuilderKind::Sbvh;
+            check_invariants(&binary(&tris, &params), &tris, params.max_leaf_size, splits);
         }
         for leaf in [1, 2, 8] {
             let params = BuildParams::sah().with_max_leaf_size(leaf);
-            check_invariants(&binary(&tris, &params), &tris, leaf);
+            check_invariants(&binary(&tris, &params), &tris, leaf, false);
         }
     }
 }
@@ -336,7 +341,12 @@ fn degenerate_inputs_build_and_trace() {
 #[test]
 fn tree_is_identical_for_any_thread_count() {
     let tris = soup(30_000, 12);
-    for builder in [BuilderKind::Median, BuilderKind::Sah] {
+    for builder in [
+        BuilderKind::Median,
+        BuilderKind::Lbvh,
+        BuilderKind::Sah,
+        BuilderKind::Sbvh,
+    ] {
         let one = binary(&tris, &BuildParams::for_builder(builder));
         for threads in [2, 4] {
             let many = binary(
@@ -364,6 +374,8 @@ fn bvh_renders_are_bit_identical_to_naive() {
             BuildParams::sah(),
             BuildParams::median().with_width(4),
             BuildParams::sah().with_width(4),
+            BuildParams::for_builder(BuilderKind::Lbvh).with_width(8),
+            BuildParams::for_builder(BuilderKind::Sbvh).with_width(8),
         ] {
             let bvh = BvhBackend::new(&scene.mesh(), &params).unwrap();
             let (frame, _) =

@@ -15,10 +15,12 @@
 //! `docs/design.md`, "Builders, layouts and traversal".
 
 mod embree;
+pub(crate) mod lbvh;
 pub(crate) mod median;
 pub(crate) mod nary;
 pub(crate) mod pool;
 pub(crate) mod sah;
+pub(crate) mod sbvh;
 pub(crate) mod topdown;
 
 use glam::Vec3;
@@ -42,7 +44,7 @@ use topdown::{Split, Splitter};
 /// Fails only for more than [`MAX_TRIANGLES`] triangles or in Embree's
 /// builders (no Embree in this build, or an Embree error).
 pub fn build<T: Triangles + ?Sized>(triangles: &T, params: &BuildParams) -> crate::Result<Tree> {
-    let own = OwnSplitter::of(params).is_some();
+    let own = params.builder.embree_quality().is_none();
     let params = if own && triangles.count() < PARALLEL_CUTOFF {
         params.with_threads(1)
     } else {
@@ -106,6 +108,15 @@ pub(crate) fn skeleton<T: Triangles + ?Sized>(
     params: &BuildParams,
 ) -> crate::Result<Skeleton> {
     let count = checked_count(triangles)?;
+    let parallel = params.threads > 1;
+    let max_leaf = params.max_leaf_size.max(1);
+    match params.builder {
+        BuilderKind::Lbvh => return Ok(lbvh::build(triangles, max_leaf, parallel)),
+        BuilderKind::Sbvh => {
+            return Ok(sbvh::build(triangles, max_leaf, params.sah_block, parallel))
+        }
+        _ => {}
+    }
     let Some(splitter) = OwnSplitter::of(params) else {
         // Embree's builder splits triangles spatially: it takes a slice.
         let all: Vec<[Vec3; 3]> = (0..count).map(|i| triangles.get(i)).collect();
@@ -115,12 +126,13 @@ pub(crate) fn skeleton<T: Triangles + ?Sized>(
     if count == 0 {
         return Ok(Skeleton::default());
     }
-    Ok(topdown::top_down(triangles, &splitter, params.threads > 1))
+    Ok(topdown::top_down(triangles, &splitter, parallel))
 }
 
 /// The `N`-wide tree of `params`' builder on the current thread pool:
-/// directly top-down ([`nary`]) for raylab's builders, by collapsing the
-/// binary tree for Embree's.
+/// directly top-down ([`nary`]) for the builders that split in place
+/// (median, SAH), by collapsing the binary tree for the others (LBVH, SBVH,
+/// Embree's).
 pub(crate) fn wide<const N: usize, T: Triangles + ?Sized>(
     triangles: &T,
     params: &BuildParams,
@@ -131,7 +143,10 @@ pub(crate) fn wide<const N: usize, T: Triangles + ?Sized>(
             checked_count(triangles)?;
             nary::build(triangles, &splitter, parallel, Kernel::detect())
         }
-        None => WideBvh::from_skeleton(&skeleton(triangles, params)?, triangles, parallel),
+        None => {
+            let skeleton = skeleton(triangles, params)?.compact();
+            WideBvh::from_skeleton(&skeleton, triangles, parallel)
+        }
     }
 }
 

@@ -1,0 +1,280 @@
+//! The linear BVH (Lauterbach et al. 2009; the split rule of Karras 2012):
+//! the low rung of the quality ladder, built for speed, not for the SAH.
+//!
+//! Each triangle's box centre is quantised to a 1024^3 grid over the scene's
+//! centres and interleaved into a 30-bit Morton code; the references are
+//! sorted by (code, scene index) with a stable radix sort. A node's range of
+//! sorted references then splits where the highest bit in which its first
+//! and last codes differ changes (a binary search), so every split is a
+//! plane of the grid, found without looking at boxes; equal codes split at
+//! the middle. Boxes are unions of the children's, made on the way back up,
+//! so the whole build reads each reference's box once after the sort.
+//!
+//! Determinism: the sort is by code then index, and the splits depend only
+//! on the sorted codes, so the tree is the same for any thread count.
+
+use glam::Vec4;
+
+use super::topdown::prim_refs;
+use crate::accel::bvh::node::{padded, Skeleton, UNUSED};
+use crate::accel::bvh::params::PARALLEL_CUTOFF;
+use crate::accel::bvh::prim::{Box4, NodeInfo, PrimRef, Triangles};
+use crate::accel::bvh::Node;
+
+/// Bits of the Morton code per axis (30 in all: the depth of the code's
+/// splits stays below `MAX_SPLIT_DEPTH`, so the tree fits the traversal
+/// stack like every builder's).
+const BITS: u32 = 10;
+
+/// Bits sorted per radix pass: 3 passes over the 30 bits.
+const RADIX_BITS: u32 = 10;
+
+/// The LBVH of `triangles` with leaves of at most `max_leaf`, its
+/// independent halves built in parallel when `parallel`.
+pub(crate) fn build<T: Triangles + ?Sized>(
+    triangles: &T,
+    max_leaf: usize,
+    parallel: bool,
+) -> Skeleton {
+    let prims = prim_refs(triangles, parallel);
+    if prims.is_empty() {
+        return Skeleton::default();
+    }
+    let info = NodeInfo::of(&prims, parallel);
+    let (prims, codes) = sorted_by_code(prims, &info, parallel);
+    let count = 2 * prims.len() - 1;
+    let mut nodes = crate::os::huge_vec(count);
+    nodes.resize(count, UNUSED);
+    let ctx = Ctx {
+        max_leaf: max_leaf.max(1),
+        parallel,
+    };
+    ctx.recurse(&prims, &codes, 0, 0, &mut nodes);
+    Skeleton {
+        nodes,
+        tri_ids: prims.iter().map(PrimRef::index).collect(),
+    }
+}
+
+/// The 30-bit Morton code of a doubled centre `c2` on the grid of
+/// `lo`-based cells `scale` (cells per unit, per axis).
+#[inline]
+fn morton(c2: Vec4, lo: Vec4, scale: Vec4) -> u32 {
+    let q = ((c2 - lo) * scale).max(Vec4::ZERO);
+    let cell = |v: f32| spread((v as u32).min((1 << BITS) - 1));
+    cell(q.x) << 2 | cell(q.y) << 1 | cell(q.z)
+}
+
+/// The low 10 bits of `v` moved to every third bit.
+#[inline]
+fn spread(v: u32) -> u32 {
+    let mut x = v & 0x3ff;
+    x = (x | x << 16) & 0x0300_00ff;
+    x = (x | x << 8) & 0x0300_f00f;
+    x = (x | x << 4) & 0x030c_30c3;
+    (x | x << 2) & 0x0924_9249
+}
+
+/// `prims` sorted by (Morton code, index), and the codes in that order.
+/// The codes are made in parallel when `parallel`; the sort is a stable
+/// least-significant-digit radix sort of (code, position) pairs, and the
+/// input is in index order, so equal codes keep index order.
+fn sorted_by_code(
+    prims: Vec<PrimRef>,
+    info: &NodeInfo,
+    parallel: bool,
+) -> (Vec<PrimRef>, Vec<u32>) {
+    use rayon::prelude::*;
+    let lo = info.centroids.lo;
+    let extent = info.centroids.hi - lo;
+    let cells = (1u32 << BITS) as f32;
+    let scale = Vec4::select(
+        extent.cmpgt(Vec4::ZERO),
+        Vec4::splat(cells) / extent,
+        Vec4::ZERO,
+    );
+    let key =
+        |(i, p): (usize, &PrimRef)| (morton(p.centroid2(), lo, scale) as u64) << 32 | i as u64;
+    let mut keys: Vec<u64> = if parallel {
+        prims.par_iter().enumerate().map(key).collect()
+    } else {
+        prims.iter().enumerate().map(key).collect()
+    };
+    let mut spare = vec![0u64; keys.len()];
+    let buckets = 1usize << RADIX_BITS;
+    for pass in 0..(3 * BITS).div_ceil(RADIX_BITS) {
+        let shift = 32 + pass * RADIX_BITS;
+        let digit = |k: u64| (k >> shift) as usize & (buckets - 1);
+        let mut starts = vec![0usize; buckets];
+        for &k in &keys {
+            starts[digit(k)] += 1;
+        }
+        let mut sum = 0;
+        for s in &mut starts {
+            let c = *s;
+            *s = sum;
+            sum += c;
+        }
+        for &k in &keys {
+            let d = digit(k);
+            spare[starts[d]] = k;
+            starts[d] += 1;
+        }
+        std::mem::swap(&mut keys, &mut spare);
+    }
+    let gather = |&k: &u64| prims[k as u32 as usize];
+    let sorted = if parallel {
+        keys.par_iter().map(gather).collect()
+    } else {
+        keys.iter().map(gather).collect()
+    };
+    let codes = keys.iter().map(|&k| (k >> 32) as u32).collect();
+    (sorted, codes)
+}
+
+/// Where a sorted range of codes splits: at the first code with the highest
+/// differing bit of the first and last set, or in the middle when all are
+/// equal. Always in `1..codes.len()` for two or more codes.
+fn split_point(codes: &[u32]) -> usize {
+    let (first, last) = (codes[0], codes[codes.len() - 1]);
+    if first == last {
+        return codes.len() / 2;
+    }
+    let bit = 31 - (first ^ last).leading_zeros();
+    // Every code in the range shares the bits above `bit`, so those with
+    // it set form the tail.
+    codes.partition_point(|&c| c & (1 << bit) == 0)
+}
+
+struct Ctx {
+    max_leaf: usize,
+    parallel: bool,
+}
+
+impl Ctx {
+    /// Builds the subtree of `prims` (leaf slots from `start` on) into
+    /// `nodes`, its `2 * prims.len() - 1` slots, the first at index `base`
+    /// of the whole array; returns the subtree's (unpadded) box.
+    fn recurse(
+        &self,
+        prims: &[PrimRef],
+        codes: &[u32],
+        start: usize,
+        base: usize,
+        nodes: &mut [Node],
+    ) -> Box4 {
+        let n = prims.len();
+        if n <= self.max_leaf {
+            let b = prims
+                .iter()
+                .fold(Box4::EMPTY, |b, p| b.union(Box4 { lo: p.lo, hi: p.hi }));
+            let p = padded(b.to_aabb());
+            nodes[0] = Node {
+                min: p.min,
+                offset: start as u32,
+                max: p.max,
+                count: n as u32,
+            };
+            return b;
+        }
+        let mid = split_point(codes);
+        let right_base = base + 2 * mid;
+        let (lp, rp) = prims.split_at(mid);
+        let (lc, rc) = codes.split_at(mid);
+        let (first, rest) = nodes.split_at_mut(1);
+        let (ln, rn) = rest.split_at_mut(2 * mid - 1);
+        let mut left = move || self.recurse(lp, lc, start, base + 1, ln);
+        let mut right = move || self.recurse(rp, rc, start + mid, right_base, rn);
+        let (lb, rb) = if self.parallel && n >= PARALLEL_CUTOFF {
+            rayon::join(left, right)
+        } else {
+            (left(), right())
+        };
+        let b = lb.union(rb);
+        let p = padded(b.to_aabb());
+        first[0] = Node {
+            min: p.min,
+            offset: right_base as u32,
+            max: p.max,
+            count: 0,
+        };
+        b
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::bvh::test_fixtures::random_tris;
+
+    #[test]
+    fn morton_codes_interleave_x_y_z_from_the_top() {
+        assert_eq!(spread(0b11), 0b1001);
+        assert_eq!(spread(0x3ff), 0x0924_9249);
+        let lo = Vec4::ZERO;
+        let scale = Vec4::splat(1.0);
+        // x's top cell bit is the code's top bit.
+        assert_eq!(morton(Vec4::new(512.0, 0.0, 0.0, 0.0), lo, scale), 1 << 29);
+        assert_eq!(morton(Vec4::new(0.0, 512.0, 0.0, 0.0), lo, scale), 1 << 28);
+        assert_eq!(morton(Vec4::new(0.0, 0.0, 1.0, 0.0), lo, scale), 1);
+        // Outside the grid clamps to its last cell.
+        assert_eq!(
+            morton(Vec4::splat(5000.0), lo, scale),
+            (1 << 30) - 1,
+            "clamped"
+        );
+    }
+
+    #[test]
+    fn splits_fall_where_the_highest_differing_bit_changes() {
+        assert_eq!(split_point(&[0b000, 0b001, 0b100, 0b101]), 2);
+        assert_eq!(split_point(&[0b000, 0b010, 0b011, 0b011, 0b100]), 4);
+        assert_eq!(split_point(&[7, 7, 7]), 1);
+        assert_eq!(split_point(&[0, 1]), 1);
+    }
+
+    #[test]
+    fn sort_orders_by_code_then_index_and_keeps_every_triangle() {
+        let tris = random_tris(5000, 3);
+        for parallel in [false, true] {
+            let prims = prim_refs(&tris, parallel);
+            let info = NodeInfo::of(&prims, parallel);
+            let (sorted, codes) = sorted_by_code(prims.clone(), &info, parallel);
+            assert_eq!(sorted.len(), prims.len());
+            for w in sorted.windows(2).zip(codes.windows(2)) {
+                let ((a, b), (ca, cb)) = ((w.0[0], w.0[1]), (w.1[0], w.1[1]));
+                assert!(ca < cb || (ca == cb && a.index() < b.index()));
+            }
+            let mut ids: Vec<u32> = sorted.iter().map(PrimRef::index).collect();
+            ids.sort();
+            assert_eq!(ids, (0..5000).collect::<Vec<u32>>());
+        }
+    }
+
+    #[test]
+    fn every_node_box_holds_its_triangles_and_leaves_respect_the_limit() {
+        let tris = random_tris(3000, 8);
+        let s = build(&tris, 4, false).compact();
+        assert_eq!(s, build(&tris, 4, true).compact(), "parallel build differs");
+        let mut stack = vec![(0usize, None::<crate::geometry::Aabb>)];
+        let mut seen = 0;
+        while let Some((i, parent)) = stack.pop() {
+            let n = s.nodes[i];
+            if let Some(p) = parent {
+                assert!(p.contains(&n.bounds()), "child outside its parent");
+            }
+            if n.is_leaf() {
+                assert!(n.count <= 4);
+                for slot in n.offset..n.offset + n.count {
+                    let t = tris[s.tri_ids[slot as usize] as usize];
+                    assert!(n.bounds().contains(&crate::geometry::Aabb::from_points(&t)));
+                    seen += 1;
+                }
+            } else {
+                stack.push((i + 1, Some(n.bounds())));
+                stack.push((n.offset as usize, Some(n.bounds())));
+            }
+        }
+        assert_eq!(seen, tris.len());
+    }
+}
