@@ -433,6 +433,25 @@ fn flags_the_chosen_backend_would_ignore_are_refused() {
         (&["--query", "packet16"][..], "--query"),
         (&["--query", "stream"][..], "--query"),
         (&["--query", "sideways"][..], "--query"),
+        // The quality ladder: for the BVH and Embree, instead of the flags
+        // that name a builder or Embree's quality.
+        (
+            &["--backend", "naive", "--quality", "high"][..],
+            "--quality",
+        ),
+        (&["--quality", "high", "--builder", "sah"][..], "--quality"),
+        (
+            &[
+                "--backend",
+                "embree",
+                "--quality",
+                "low",
+                "--embree-quality",
+                "high",
+            ][..],
+            "--quality",
+        ),
+        (&["--quality", "best"][..], "--quality"),
     ] {
         let mut a = vec!["render", "cornell-empty", "--size", "8x6", "-o", o];
         a.extend(args);
@@ -667,6 +686,45 @@ fn query_paths_render_the_same_image_and_are_named() {
             let (name, _) = render(&["--backend", "embree", "--query", q]);
             assert_eq!(name, format!("embree-medium-{q}"));
         }
+    }
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn quality_rungs_name_their_builders_and_render_the_same_image() {
+    let d = temp_dir("quality");
+    let o = d.join("x.png");
+    let o = o.to_str().unwrap();
+    let render = |scene: &str, args: &[&str]| {
+        let mut a = vec!["render", scene, "--size", "48x36", "--json", "-q", "-o", o];
+        a.extend(args);
+        let out = raylab(&a);
+        assert_success(&out);
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        (
+            v["backend"].as_str().unwrap().to_string(),
+            v["image_hash"].clone(),
+        )
+    };
+    // Long thin blades: the SBVH splits them, and must find the same hits.
+    for scene in ["cornell-water", "grass:3000"] {
+        let (name, medium) = render(scene, &[]);
+        assert_eq!(name, "bvh8-sah-packet8");
+        for (rung, builder) in [("low", "lbvh"), ("medium", "sah"), ("high", "sbvh")] {
+            let (name, image) = render(scene, &["--quality", rung]);
+            assert_eq!(name, format!("bvh8-{builder}-packet8"), "{scene}");
+            assert_eq!(image, medium, "{scene}: --quality {rung}");
+            let (name, image) = render(scene, &["--builder", builder, "--bvh-width", "2"]);
+            assert_eq!(name, format!("bvh-{builder}"), "{scene}");
+            assert_eq!(image, medium, "{scene}: binary {builder}");
+        }
+    }
+    if raylab::accel::embree::AVAILABLE {
+        let (name, _) = render(
+            "cornell-empty",
+            &["--backend", "embree", "--quality", "high"],
+        );
+        assert_eq!(name, "embree-high-packet8");
     }
     std::fs::remove_dir_all(&d).ok();
 }

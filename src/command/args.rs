@@ -97,7 +97,9 @@ impl ViewArgs {
 /// How a BVH is built (used with `--backend bvh`).
 #[derive(Args, Debug, Clone)]
 pub struct BvhArgs {
-    /// BVH builder: median (the study's) or sah (binned SAH).
+    /// BVH builder: median (the study's), lbvh (Morton codes, the fastest
+    /// build), sah (binned SAH), sbvh (spatial splits, the best trees), or
+    /// Embree's builders in raylab's layout (embree-low, -medium, -high).
     #[arg(long, value_enum, default_value_t = BuilderKind::Sah)]
     pub builder: BuilderKind,
     /// Most triangles per BVH leaf [default: 1 for median, 4 for sah].
@@ -141,7 +143,7 @@ impl BvhArgs {
 #[derive(Args, Debug, Clone)]
 pub struct EmbreeArgs {
     /// Embree's scene build quality.
-    #[arg(long, value_enum, default_value_t = Quality::Medium)]
+    #[arg(long, value_enum, default_value_t = Quality::Medium, conflicts_with = "quality")]
     pub embree_quality: Quality,
     /// Set RTC_SCENE_FLAG_ROBUST (watertight-leaning traversal, slower).
     #[arg(long)]
@@ -167,12 +169,18 @@ pub struct BackendArgs {
     /// backend's fastest, see docs/reference.md].
     #[arg(long, value_name = "PATH")]
     pub query: Option<Query>,
+    /// The rung of the build-quality ladder, for raylab's BVH and Embree
+    /// alike: low (raylab's LBVH; Embree's Morton builder), medium (binned
+    /// SAH, the default) or high (spatial splits: raylab's SBVH; Embree's
+    /// high quality). Instead of --builder or --embree-quality.
+    #[arg(long, value_enum, conflicts_with = "builder")]
+    pub quality: Option<Quality>,
 }
 
 impl BackendArgs {
     /// The backend these flags describe, built on `threads`.
     pub fn spec(&self, threads: usize) -> Result<BackendSpec> {
-        let spec = backend_spec(self.backend, &self.bvh, &self.embree, threads);
+        let spec = backend_spec(self.backend, &self.bvh, &self.embree, self.quality, threads);
         match self.query {
             Some(q) => spec.with_query(q),
             None => Ok(spec.with_fastest_query()),
@@ -185,9 +193,11 @@ fn backend_spec(
     kind: BackendKind,
     bvh: &BvhArgs,
     embree: &EmbreeArgs,
+    quality: Option<Quality>,
     threads: usize,
 ) -> BackendSpec {
-    let params = bvh.params(bvh.builder, threads);
+    let builder = quality.map_or(bvh.builder, |q| BuildParams::for_quality(q).builder);
+    let params = bvh.params(builder, threads);
     match kind {
         BackendKind::Naive => BackendSpec::Naive {
             intersector: bvh.intersector,
@@ -198,7 +208,7 @@ fn backend_spec(
             query: Query::Single,
         },
         BackendKind::Embree => BackendSpec::Embree {
-            quality: embree.embree_quality,
+            quality: quality.unwrap_or(embree.embree_quality),
             robust: embree.embree_robust,
             threads: params.threads,
             query: Query::Single,
@@ -287,6 +297,11 @@ pub fn check_backend_flags(m: &clap::ArgMatches, backend: BackendKind) -> Result
             &[BackendKind::Naive, BackendKind::Bvh],
         ),
         ("embree_quality", "--embree-quality", &[BackendKind::Embree]),
+        (
+            "quality",
+            "--quality",
+            &[BackendKind::Bvh, BackendKind::Embree],
+        ),
         ("embree_robust", "--embree-robust", &[BackendKind::Embree]),
     ];
     let name = |k: &BackendKind| format!("{k:?}").to_lowercase();

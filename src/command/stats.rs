@@ -9,13 +9,26 @@ use crate::render::schedule::default_threads;
 use crate::scene::builtin::BUILTIN_SCENES;
 use crate::scene::load::load_scene;
 
+/// What `--builder` takes: every builder's name, and `all`.
+const BUILDER_NAMES: [&str; BuilderKind::ALL.len() + 1] = [
+    "median",
+    "lbvh",
+    "sah",
+    "sbvh",
+    "embree-low",
+    "embree-medium",
+    "embree-high",
+    "all",
+];
+
 #[derive(Args, Debug)]
 pub struct StatsArgs {
     /// .obj files or built-in names [default: the four built-in Cornell boxes].
     scenes: Vec<String>,
-    /// Which builders to measure: median, sah, embree-low, embree-medium,
-    /// embree-high, or all (the Embree ones only when Embree is built in).
-    #[arg(long, value_name = "NAME", default_value = "all", value_parser = ["median", "sah", "embree-low", "embree-medium", "embree-high", "all"])]
+    /// Which builders to measure: median, lbvh, sah, sbvh, embree-low,
+    /// embree-medium, embree-high, or all (the Embree ones only when Embree
+    /// is built in).
+    #[arg(long, value_name = "NAME", default_value = "all", value_parser = BUILDER_NAMES)]
     builder: String,
     /// Most triangles per leaf for every builder [default: each builder's own].
     #[arg(long, value_name = "N", value_parser = parse_leaf_size)]
@@ -80,4 +93,15 @@ pub fn run(args: &StatsArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn builder_flag_takes_every_builders_name() {
+        let names: Vec<&str> = BuilderKind::ALL.iter().map(|b| b.name()).collect();
+        assert_eq!(&BUILDER_NAMES[..names.len()], &names[..]);
+    }
 }

@@ -33,10 +33,24 @@ pub const BUILTIN_SCENES: &[(&str, &str)] = &[
 ];
 
 /// Parameterised built-in scenes, listed by `raylab scenes` after the fixed ones.
-pub const PROCEDURAL_SCENES: &[(&str, &str)] = &[(
-    "mesh:N",
-    "a displaced UV sphere of about N triangles (1e2..=1e8) in the empty box, for scaling curves",
-)];
+pub const PROCEDURAL_SCENES: &[(&str, &str)] = &[
+    (
+        "mesh:N",
+        "a displaced UV sphere of about N triangles (1e2..=1e8) in the empty box, for scaling curves",
+    ),
+    (
+        "grass:N",
+        "N leaning grass blades (1e2..=1e7), one long thin diagonal triangle each, in the empty box",
+    ),
+    (
+        "city:N",
+        "N boxes (1e1..=1e6) of sizes over 2.5 decades on a 40x40 ground plane under the box's floor: a teapot in a stadium",
+    ),
+    (
+        "city45:N",
+        "city:N turned 45 degrees about the vertical axis: every wall diagonal to the axes",
+    ),
+];
 
 /// Triangle budget of `mesh:N` scenes.
 pub const MESH_TRIANGLES: std::ops::RangeInclusive<u64> = 100..=100_000_000;
@@ -67,8 +81,20 @@ pub fn builtin(name: &str) -> Result<Scene> {
             b.water();
         }
         _ if name.starts_with("mesh:") => {
-            let n = parse_mesh_size(name)?;
+            let n = parse_count(name, "mesh", MESH_TRIANGLES)?;
             b.displaced_sphere(n);
+        }
+        _ if name.starts_with("grass:") => {
+            let n = parse_count(name, "grass", 100..=10_000_000)?;
+            b.grass(n as usize);
+        }
+        _ if name.starts_with("city:") => {
+            let n = parse_count(name, "city", 10..=1_000_000)?;
+            b.city(n as usize, 0.0);
+        }
+        _ if name.starts_with("city45:") => {
+            let n = parse_count(name, "city45", 10..=1_000_000)?;
+            b.city(n as usize, PI / 4.0);
         }
         _ => {
             let names: Vec<&str> = BUILTIN_SCENES.iter().map(|(n, _)| *n).collect();
@@ -93,21 +119,21 @@ pub fn builtin(name: &str) -> Result<Scene> {
     Ok(scene)
 }
 
-/// The `N` of `mesh:N` (accepts `1e5`-style exponents).
-fn parse_mesh_size(name: &str) -> Result<u64> {
-    let text = &name["mesh:".len()..];
+/// The `N` of `{prefix}:N` (accepts `1e5`-style exponents), within `range`.
+fn parse_count(name: &str, prefix: &str, range: std::ops::RangeInclusive<u64>) -> Result<u64> {
+    let text = &name[prefix.len() + 1..];
     let n = text.parse::<u64>().ok().or_else(|| {
         let f: f64 = text.parse().ok()?;
         (f.is_finite() && f.fract() == 0.0 && f >= 0.0 && f <= u64::MAX as f64).then_some(f as u64)
     });
     match n {
-        Some(n) if MESH_TRIANGLES.contains(&n) => Ok(n),
+        Some(n) if range.contains(&n) => Ok(n),
         _ => Err(Error::usage(
             "SCENE",
             format!(
-                "'{name}': N in mesh:N must be a whole number in {}..={}",
-                MESH_TRIANGLES.start(),
-                MESH_TRIANGLES.end()
+                "'{name}': N in {prefix}:N must be a whole number in {}..={}",
+                range.start(),
+                range.end()
             ),
         )),
     }
@@ -277,6 +303,72 @@ impl Builder {
         }
     }
 
+    /// `n` grass blades on the floor: each one triangle 6 mm wide at its
+    /// base and 0.3 to 0.9 tall, its tip leaning up to 0.4 of its height in
+    /// a random direction. Long thin diagonal triangles: the boxes of any
+    /// group of them overlap, which object splits cannot avoid and spatial
+    /// splits can.
+    fn grass(&mut self, n: usize) {
+        let green = self.material(Material::diffuse("grass", Vec3::new(0.2, 0.5, 0.1)));
+        let mut rng = crate::render::rng::Rng::for_pixel(0, 0x67_7261_7373, 1);
+        for _ in 0..n {
+            let mut u = || rng.next_f32();
+            let base = Vec3::new(1.9 * u() - 0.95, 0.0, 1.9 * u() - 0.95);
+            let height = 0.3 + 0.6 * u();
+            let angle = 2.0 * PI * u();
+            let lean = Vec3::new(angle.cos(), 0.0, angle.sin()) * 0.4 * height * u();
+            let side = Vec3::new(-angle.sin(), 0.0, angle.cos()) * 0.003;
+            let tip = base + lean + Vec3::Y * height;
+            let i = [base - side, base + side, tip].map(|p| self.vertex(p, Vec3::ZERO));
+            self.triangles.push(i);
+            self.material_ids.push(green);
+        }
+    }
+
+    /// `n` boxes standing on the floor, footprints 2 mm to 0.5 wide
+    /// (log-uniform) and heights 0.5 to 2.5 times that, on a 40 x 40 ground
+    /// plane just under the floor (hidden by it, but the tree must hold
+    /// it); the whole city turned by `turn` about the vertical axis. Small
+    /// detail in a huge box ("teapot in a stadium"); turned, every wall is
+    /// diagonal.
+    fn city(&mut self, n: usize, turn: f32) {
+        let concrete = self.material(Material::diffuse("city", Vec3::new(0.6, 0.6, 0.65)));
+        let ground = self.material(Material::diffuse("ground", Vec3::splat(0.4)));
+        let first = self.positions.len();
+        let mut rng = crate::render::rng::Rng::for_pixel(0, 0x6369_7479, 2);
+        for _ in 0..n {
+            let mut u = || rng.next_f32();
+            let size = 0.002 * 250f32.powf(u());
+            let height = size * (0.5 + 2.0 * u());
+            let (x, z) = (1.8 * u() - 0.9, 1.8 * u() - 0.9);
+            let h = size * 0.5;
+            self.block(
+                [
+                    [x - h, z - h],
+                    [x + h, z - h],
+                    [x + h, z + h],
+                    [x - h, z + h],
+                ],
+                height,
+                concrete,
+            );
+        }
+        let y = -0.001;
+        self.quad(
+            [
+                Vec3::new(-20.0, y, 20.0),
+                Vec3::new(20.0, y, 20.0),
+                Vec3::new(20.0, y, -20.0),
+                Vec3::new(-20.0, y, -20.0),
+            ],
+            ground,
+        );
+        let (sin, cos) = turn.sin_cos();
+        for p in &mut self.positions[first..] {
+            *p = Vec3::new(cos * p.x - sin * p.z, p.y, sin * p.x + cos * p.z);
+        }
+    }
+
     /// The two glossy spheres of the McGuire sphere scene (same places, sizes and
     /// materials): 2 x 1088 triangles.
     fn spheres(&mut self) {
@@ -406,6 +498,22 @@ mod tests {
                 builtin(bad).unwrap_err().to_string().contains("mesh:N"),
                 "{bad}"
             );
+        }
+    }
+
+    #[test]
+    fn builder_scenes_have_their_triangles() {
+        assert_eq!(builtin("grass:1000").unwrap().triangle_count(), 12 + 1000);
+        assert_eq!(builtin("city:100").unwrap().triangle_count(), 12 + 1200 + 2);
+        let straight = builtin("city:50").unwrap();
+        let turned = builtin("city45:50").unwrap();
+        assert_eq!(straight.triangle_count(), turned.triangle_count());
+        // Turned, the ground's corners lie on the axes.
+        assert!((turned.bounds().max.x - 20.0 * 2f32.sqrt()).abs() < 1e-3);
+        assert!((straight.bounds().max.x - 20.0).abs() < 1e-6);
+        for bad in ["grass:5", "city:x", "city45:1e7"] {
+            let e = builtin(bad).unwrap_err().to_string();
+            assert!(e.contains(":N must be"), "{bad}: {e}");
         }
     }
 
