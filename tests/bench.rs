@@ -177,7 +177,21 @@ fn quick_bench_runs_every_experiment() {
             assert_eq!(p["differing"], 0, "{p}");
         }
     }
-    assert_eq!(len("builders"), 2 * if embree() { 5 } else { 2 });
+    // Every builder, Embree's three when built in, on the last two scenes.
+    assert_eq!(len("builders"), 2 * if embree() { 7 } else { 4 });
+    // The ladder: 3 rungs of raylab's tree and of Embree's scene, every scene.
+    let structures = if embree() { 2 } else { 1 };
+    assert_eq!(len("ladder"), 4 * 3 * structures);
+    for p in json["ladder"].as_array().unwrap() {
+        assert!(p["render_ms"]["median"].as_f64().unwrap() > 0.0, "{p}");
+        assert!(p["build_ms_1t"]["median"].as_f64().unwrap() > 0.0, "{p}");
+        if p["structure"] == "raylab" {
+            assert!(p["sah_cost"].as_f64().unwrap() > 0.0, "{p}");
+            let refs = p["references_per_triangle"].as_f64().unwrap();
+            let split = p["rung"] == "high";
+            assert!(refs == 1.0 || (split && refs > 1.0 && refs <= 1.3), "{p}");
+        }
+    }
     assert!(len("leaks") >= 4 * 6);
     assert_eq!(len("validation"), 4 * 2);
     for v in json["validation"].as_array().unwrap() {
@@ -198,6 +212,7 @@ fn quick_bench_draws_charts_and_images() {
         "cost-growth",
         "ao-error",
         "builders",
+        "ladder",
         "leaks",
     ];
     if threads > 1 {

@@ -25,6 +25,8 @@ pub enum Part {
     AoError,
     /// Tree quality against build and render time, per builder.
     Builders,
+    /// Each rung of the build-quality ladder, raylab's and Embree's.
+    Ladder,
     /// Rays that leak through closed meshes, per intersection method.
     Leaks,
     /// Every BVH's hits against Embree's (or naive's).
@@ -32,13 +34,14 @@ pub enum Part {
 }
 
 impl Part {
-    pub const ALL: [Part; 8] = [
+    pub const ALL: [Part; 9] = [
         Part::Tables,
         Part::Trace,
         Part::Scaling,
         Part::Growth,
         Part::AoError,
         Part::Builders,
+        Part::Ladder,
         Part::Leaks,
         Part::Validate,
     ];
@@ -52,6 +55,7 @@ impl Part {
             Part::Growth => "growth",
             Part::AoError => "ao-error",
             Part::Builders => "builders",
+            Part::Ladder => "ladder",
             Part::Leaks => "leaks",
             Part::Validate => "validate",
         }

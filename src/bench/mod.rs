@@ -32,10 +32,11 @@ use measure::{Matrix, Measurement, View};
 use parts::ao_error::AoErrorPoint;
 use parts::builders::BuilderPoint;
 use parts::growth::GrowthPoint;
+use parts::ladder::LadderPoint;
 use parts::scaling::ScalingPoint;
 use parts::trace::TracePoint;
 use parts::validate::ValidationRow;
-use parts::{ao_error, builders, growth, leaks, scaling, tables, trace, validate};
+use parts::{ao_error, builders, growth, ladder, leaks, scaling, tables, trace, validate};
 
 /// The machine a bench ran on.
 #[derive(Clone, Debug, Serialize)]
@@ -115,6 +116,7 @@ pub struct BenchReport {
     pub growth: Vec<GrowthPoint>,
     pub ao_error: Vec<AoErrorPoint>,
     pub builders: Vec<BuilderPoint>,
+    pub ladder: Vec<LadderPoint>,
     pub leaks: Vec<crate::stress::LeakRow>,
     pub validation: Vec<ValidationRow>,
     pub images: Vec<SceneImages>,
@@ -171,6 +173,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
         + steps_of(Part::Growth, growth::steps)
         + steps_of(Part::AoError, ao_error::steps)
         + steps_of(Part::Builders, builders::steps)
+        + steps_of(Part::Ladder, ladder::steps)
         + steps_of(Part::Leaks, leaks::steps)
         + steps_of(Part::Validate, validate::steps);
     let mut units = steps * step;
@@ -203,6 +206,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
     let growth = run_part(cfg, Part::Growth, scenes, &bar, growth::run)?;
     let ao_error = run_part(cfg, Part::AoError, scenes, &bar, ao_error::run)?;
     let builders = run_part(cfg, Part::Builders, scenes, &bar, builders::run)?;
+    let ladder = run_part(cfg, Part::Ladder, scenes, &bar, ladder::run)?;
     let leaks = run_part(cfg, Part::Leaks, scenes, &bar, leaks::run)?;
     let validation = run_part(cfg, Part::Validate, scenes, &bar, validate::run)?;
     bar.finish();
@@ -228,6 +232,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
         growth,
         ao_error,
         builders,
+        ladder,
         leaks,
         validation,
         images,
@@ -320,6 +325,9 @@ fn write_charts(dir: &Path, r: &BenchReport) -> Result<Vec<String>> {
     if !r.builders.is_empty() {
         files.extend(builders::charts(dir, &r.builders)?);
     }
+    if !r.ladder.is_empty() {
+        files.extend(ladder::charts(dir, &r.ladder)?);
+    }
     if !r.leaks.is_empty() {
         files.extend(leaks::charts(dir, &r.leaks)?);
     }
@@ -390,6 +398,9 @@ pub fn markdown(r: &BenchReport) -> String {
     }
     if !r.builders.is_empty() {
         out.push_str(&builders::markdown(&r.builders));
+    }
+    if !r.ladder.is_empty() {
+        out.push_str(&ladder::markdown(&r.ladder));
     }
     if !r.leaks.is_empty() {
         out.push_str(&leaks::markdown(&r.leaks));

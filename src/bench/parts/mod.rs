@@ -9,6 +9,7 @@
 pub mod ao_error;
 pub mod builders;
 pub mod growth;
+pub mod ladder;
 pub mod leaks;
 pub mod scaling;
 pub mod tables;
@@ -38,6 +39,7 @@ pub fn section(part: Part) -> &'static ChartSection {
         Part::Growth => &growth::SECTION,
         Part::AoError => &ao_error::SECTION,
         Part::Builders => &builders::SECTION,
+        Part::Ladder => &ladder::SECTION,
         Part::Leaks => &leaks::SECTION,
         Part::Validate => &validate::SECTION,
     }
