@@ -130,7 +130,11 @@ pub fn builder_report(
     Ok(BuilderReport {
         scene: scene.name.clone(),
         triangles: scene.triangle_count(),
-        builder: params.builder.name().to_string(),
+        builder: format!(
+            "{}{}",
+            params.builder.name(),
+            if params.optimize { "-opt" } else { "" }
+        ),
         max_leaf_size_param: params.max_leaf_size,
         build_ms_serial: ms(serial_time),
         build_ms_parallel: ms(parallel_time),

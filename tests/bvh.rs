@@ -17,12 +17,14 @@ use raylab::render::{render, AoMode, Schedule};
 use raylab::scene::builtin::{builtin, BUILTIN_SCENES};
 use raylab::validate::{classify, Agreement};
 
-const BUILDERS: [BuildParams; 5] = [
+const BUILDERS: [BuildParams; 6] = [
     BuildParams::median(),
     BuildParams::sah(),
     BuildParams::for_builder(BuilderKind::Lbvh),
     // Spatial splits: triangles in several leaves, each with a clipped box.
     BuildParams::for_builder(BuilderKind::Sbvh),
+    // Reinsertion moves subtrees: the high rung.
+    BuildParams::for_quality(raylab::accel::bvh::params::Quality::High),
     // A multi-triangle-leaf median tree exercises leaf loops with ties inside a leaf.
     BuildParams::median().with_max_leaf_size(3),
 ];
@@ -341,21 +343,19 @@ fn degenerate_inputs_build_and_trace() {
 #[test]
 fn tree_is_identical_for_any_thread_count() {
     let tris = soup(30_000, 12);
-    for builder in [
-        BuilderKind::Median,
-        BuilderKind::Lbvh,
-        BuilderKind::Sah,
-        BuilderKind::Sbvh,
+    for params in [
+        BuildParams::median(),
+        BuildParams::for_builder(BuilderKind::Lbvh),
+        BuildParams::sah(),
+        BuildParams::for_builder(BuilderKind::Sbvh),
+        BuildParams::sah().with_optimize(true),
     ] {
-        let one = binary(&tris, &BuildParams::for_builder(builder));
+        let one = binary(&tris, &params);
         for threads in [2, 4] {
-            let many = binary(
-                &tris,
-                &BuildParams::for_builder(builder).with_threads(threads),
-            );
+            let many = binary(&tris, &params.with_threads(threads));
             assert!(
                 one.nodes == many.nodes && one.tri_ids == many.tri_ids,
-                "{builder:?} on {threads} threads"
+                "{params:?} on {threads} threads"
             );
         }
     }

@@ -452,6 +452,7 @@ fn flags_the_chosen_backend_would_ignore_are_refused() {
             "--quality",
         ),
         (&["--quality", "best"][..], "--quality"),
+        (&["--backend", "embree", "--optimize"][..], "--optimize"),
     ] {
         let mut a = vec!["render", "cornell-empty", "--size", "8x6", "-o", o];
         a.extend(args);
@@ -712,11 +713,15 @@ fn quality_rungs_name_their_builders_and_render_the_same_image() {
         assert_eq!(name, "bvh8-sah-packet8");
         for (rung, builder) in [("low", "lbvh"), ("medium", "sah"), ("high", "sbvh")] {
             let (name, image) = render(scene, &["--quality", rung]);
-            assert_eq!(name, format!("bvh8-{builder}-packet8"), "{scene}");
+            let opt = if rung == "high" { "-opt" } else { "" };
+            assert_eq!(name, format!("bvh8-{builder}{opt}-packet8"), "{scene}");
             assert_eq!(image, medium, "{scene}: --quality {rung}");
             let (name, image) = render(scene, &["--builder", builder, "--bvh-width", "2"]);
             assert_eq!(name, format!("bvh-{builder}"), "{scene}");
             assert_eq!(image, medium, "{scene}: binary {builder}");
+            let (name, image) = render(scene, &["--builder", builder, "--optimize"]);
+            assert_eq!(name, format!("bvh8-{builder}-opt-packet8"), "{scene}");
+            assert_eq!(image, medium, "{scene}: optimised {builder}");
         }
     }
     if raylab::accel::embree::AVAILABLE {

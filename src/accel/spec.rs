@@ -107,7 +107,7 @@ impl BackendSpec {
     }
 
     /// The name reports use: `naive`, `bvh-<builder>` (`bvh4-`, `bvh8-` for the
-    /// wide trees), `embree-<quality>` (`-robust`); raylab's backends add
+    /// wide trees; `-opt` when reinsertion-optimised), `embree-<quality>` (`-robust`); raylab's backends add
     /// `-watertight` for the watertight triangle test; a query path other
     /// than single rays adds its name (`-packet8`, `-stream`).
     pub fn name(&self) -> String {
@@ -134,7 +134,11 @@ impl BackendSpec {
                     2 => "bvh".to_string(),
                     w => format!("bvh{w}"),
                 };
-                with_test(format!("{tree}-{}", params.builder.name()), intersector)
+                let optimized = if params.optimize { "-opt" } else { "" };
+                with_test(
+                    format!("{tree}-{}{optimized}", params.builder.name()),
+                    intersector,
+                )
             }
             BackendSpec::Embree {
                 quality, robust, ..

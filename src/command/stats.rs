@@ -33,6 +33,9 @@ pub struct StatsArgs {
     /// Most triangles per leaf for every builder [default: each builder's own].
     #[arg(long, value_name = "N", value_parser = parse_leaf_size)]
     leaf_size: Option<usize>,
+    /// Reinsertion-optimise every builder's tree (as `render --optimize`).
+    #[arg(long)]
+    optimize: bool,
     /// Threads for the parallel build and the counting render [default: all hardware threads].
     #[arg(long, value_name = "N", value_parser = parse_threads)]
     threads: Option<usize>,
@@ -69,7 +72,7 @@ pub fn run(args: &StatsArgs) -> Result<()> {
         let mut scene = load_scene(name)?;
         let settings = args.view.prepare(&mut scene)?;
         for &builder in &builders {
-            let mut params = BuildParams::for_builder(builder);
+            let mut params = BuildParams::for_builder(builder).with_optimize(args.optimize);
             if let Some(n) = args.leaf_size {
                 params = params.with_max_leaf_size(n);
             }

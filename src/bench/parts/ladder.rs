@@ -256,7 +256,7 @@ pub fn markdown(points: &[LadderPoint]) -> String {
         ]);
     }
     format!(
-        "### Build-quality ladder\n\nEach rung (`--quality`) of raylab's 8-wide tree (low: LBVH, medium: binned SAH, high: SBVH) and of Embree's scene (its build quality of the same name), each on its fastest query path. SAH cost: the binary tree of the 8-wide tree's splits, leaf tests in pairs. Mrays/s per thread over the median render.\n\n{}\n",
+        "### Build-quality ladder\n\nEach rung (`--quality`) of raylab's 8-wide tree (low: LBVH, medium: binned SAH, high: SBVH with reinsertion) and of Embree's scene (its build quality of the same name), each on its fastest query path. SAH cost: the binary tree of the 8-wide tree's splits, leaf tests in pairs. Mrays/s per thread over the median render.\n\n{}\n",
         t.markdown()
     )
 }

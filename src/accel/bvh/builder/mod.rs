@@ -19,6 +19,7 @@ pub(crate) mod lbvh;
 pub(crate) mod median;
 pub(crate) mod nary;
 pub(crate) mod pool;
+pub(crate) mod reinsert;
 pub(crate) mod sah;
 pub(crate) mod sbvh;
 pub(crate) mod topdown;
@@ -102,8 +103,21 @@ fn checked_count<T: Triangles + ?Sized>(triangles: &T) -> crate::Result<usize> {
 }
 
 /// The binary tree of `params`' builder without its triangles gathered, on
-/// the current thread pool.
+/// the current thread pool; reinsertion-optimised when `params.optimize`.
 pub(crate) fn skeleton<T: Triangles + ?Sized>(
+    triangles: &T,
+    params: &BuildParams,
+) -> crate::Result<Skeleton> {
+    let built = built_skeleton(triangles, params)?;
+    Ok(if params.optimize {
+        reinsert::optimize(built)
+    } else {
+        built
+    })
+}
+
+/// The binary tree as `params`' builder makes it.
+fn built_skeleton<T: Triangles + ?Sized>(
     triangles: &T,
     params: &BuildParams,
 ) -> crate::Result<Skeleton> {
@@ -132,13 +146,13 @@ pub(crate) fn skeleton<T: Triangles + ?Sized>(
 /// The `N`-wide tree of `params`' builder on the current thread pool:
 /// directly top-down ([`nary`]) for the builders that split in place
 /// (median, SAH), by collapsing the binary tree for the others (LBVH, SBVH,
-/// Embree's).
+/// Embree's) and for optimised trees.
 pub(crate) fn wide<const N: usize, T: Triangles + ?Sized>(
     triangles: &T,
     params: &BuildParams,
 ) -> crate::Result<WideBvh<N>> {
     let parallel = params.threads > 1;
-    match OwnSplitter::of(params) {
+    match OwnSplitter::of(params).filter(|_| !params.optimize) {
         Some(splitter) => {
             checked_count(triangles)?;
             nary::build(triangles, &splitter, parallel, Kernel::detect())

@@ -27,7 +27,7 @@ use super::topdown::{prim_refs, try_split};
 use crate::accel::bvh::node::{padded, Skeleton, UNUSED};
 use crate::accel::bvh::params::{
     C_INTERSECT, C_TRAVERSAL, MAX_SPLIT_DEPTH, PARALLEL_CUTOFF, SBVH_ALPHA, SBVH_BINS, SBVH_GROWTH,
-    SBVH_MIN_SPATIAL,
+    SBVH_MIN_SPATIAL, SBVH_NODE_OVERLAP, SBVH_PARALLEL_BINNING,
 };
 use crate::accel::bvh::prim::{Box4, NodeInfo, PrimRef, Triangles};
 use crate::accel::bvh::Node;
@@ -149,7 +149,9 @@ impl<T: Triangles + ?Sized> Sbvh<'_, T> {
             Some((weighted, left, right)) => (weighted, intersection(left, right).area()),
             None => (f32::INFINITY, info.bounds.area()),
         };
-        if overlap <= SBVH_ALPHA * self.root_area {
+        if overlap <= SBVH_ALPHA * self.root_area
+            || overlap < SBVH_NODE_OVERLAP * info.bounds.area()
+        {
             return None;
         }
         let plane = self.best_plane(refs, info, allowance)?;
@@ -174,27 +176,21 @@ impl<T: Triangles + ?Sized> Sbvh<'_, T> {
     fn best_plane(&self, refs: &[PrimRef], info: &NodeInfo, allowance: usize) -> Option<Plane> {
         const B: usize = SBVH_BINS;
         let n = refs.len();
+        let grids = [0, 1, 2].map(|axis| Grid::of(info, axis));
+        let bins = if self.parallel && n >= SBVH_PARALLEL_BINNING {
+            use rayon::prelude::*;
+            refs.par_chunks(SBVH_PARALLEL_BINNING / 2)
+                .map(|chunk| self.spatial_bins(chunk, &grids))
+                .reduce(SpatialBins::empty, SpatialBins::merged)
+        } else {
+            self.spatial_bins(refs, &grids)
+        };
         let mut best: Option<Plane> = None;
-        for axis in 0..3 {
-            let grid = Grid::of(info, axis);
+        for (axis, grid) in grids.iter().enumerate() {
             if grid.scale <= 0.0 {
                 continue;
             }
-            let mut boxes = [Box4::EMPTY; B];
-            let mut enter = [0u32; B];
-            let mut exit = [0u32; B];
-            for r in refs {
-                let (first, last) = (grid.bin(r.lo[axis]), grid.bin(r.hi[axis]));
-                enter[first] += 1;
-                exit[last] += 1;
-                let whole = Box4 { lo: r.lo, hi: r.hi };
-                if first == last {
-                    boxes[first] = boxes[first].union(whole);
-                    continue;
-                }
-                let tri = self.triangles.get(r.index() as usize);
-                bin_parts(&tri, axis, &grid, (first, last), &whole, &mut boxes);
-            }
+            let (boxes, enter, exit) = (&bins.boxes[axis], &bins.enter[axis], &bins.exit[axis]);
             let mut right_weighted = [0f32; B];
             let mut right_count = [0u32; B];
             let (mut acc, mut count) = (Box4::EMPTY, 0u32);
@@ -223,6 +219,38 @@ impl<T: Triangles + ?Sized> Sbvh<'_, T> {
             }
         }
         best
+    }
+
+    /// `refs` binned on the three axes' `grids` in one pass, so that each
+    /// straddling reference's triangle is read once, not once per axis.
+    fn spatial_bins(&self, refs: &[PrimRef], grids: &[Grid; 3]) -> SpatialBins {
+        let mut bins = SpatialBins::empty();
+        for r in refs {
+            let whole = Box4 { lo: r.lo, hi: r.hi };
+            let mut tri = None;
+            for (axis, grid) in grids.iter().enumerate() {
+                if grid.scale <= 0.0 {
+                    continue;
+                }
+                let (first, last) = (grid.bin(r.lo[axis]), grid.bin(r.hi[axis]));
+                bins.enter[axis][first] += 1;
+                bins.exit[axis][last] += 1;
+                if first == last {
+                    bins.boxes[axis][first] = bins.boxes[axis][first].union(whole);
+                    continue;
+                }
+                let tri = tri.get_or_insert_with(|| self.triangles.get(r.index() as usize));
+                bin_parts(
+                    tri,
+                    axis,
+                    grid,
+                    (first, last),
+                    &whole,
+                    &mut bins.boxes[axis],
+                );
+            }
+        }
+        bins
     }
 
     /// The references of each side of `plane`: whole when they lie on one
@@ -263,6 +291,38 @@ impl<T: Triangles + ?Sized> Sbvh<'_, T> {
             }
         }
         (left, right)
+    }
+}
+
+/// The spatial search's bins on the three axes: each bin's box of the
+/// references' parts in it, and how many references enter (start) and exit
+/// (end) in it. Merging is exact, so chunks binned in parallel give the same
+/// bins as one pass.
+#[derive(Clone)]
+struct SpatialBins {
+    boxes: [[Box4; SBVH_BINS]; 3],
+    enter: [[u32; SBVH_BINS]; 3],
+    exit: [[u32; SBVH_BINS]; 3],
+}
+
+impl SpatialBins {
+    fn empty() -> SpatialBins {
+        SpatialBins {
+            boxes: [[Box4::EMPTY; SBVH_BINS]; 3],
+            enter: [[0; SBVH_BINS]; 3],
+            exit: [[0; SBVH_BINS]; 3],
+        }
+    }
+
+    fn merged(mut self, other: SpatialBins) -> SpatialBins {
+        for axis in 0..3 {
+            for bin in 0..SBVH_BINS {
+                self.boxes[axis][bin] = self.boxes[axis][bin].union(other.boxes[axis][bin]);
+                self.enter[axis][bin] += other.enter[axis][bin];
+                self.exit[axis][bin] += other.exit[axis][bin];
+            }
+        }
+        self
     }
 }
 
@@ -324,17 +384,25 @@ fn bin_parts(
 ) {
     let sections = Sections::of(tri, axis);
     let (lo, hi) = (within.lo[axis], within.hi[axis]);
-    let mut lower = sections.at(lo);
-    let mut below = lo;
+    let (v, axis_of) = (&sections.v, |i: usize| sections.v[i][axis]);
+    // Where the reference holds the whole triangle along the axis (it was
+    // never cut there), its ends are vertices: no section to compute.
+    let (mut lower, mut below) = if lo <= axis_of(0) {
+        (Box4::EMPTY, f32::NEG_INFINITY)
+    } else {
+        (sections.at(lo), lo)
+    };
     for (bin, slot) in boxes.iter_mut().enumerate().take(last + 1).skip(first) {
-        let above = if bin == last {
-            hi
+        let (upper, above) = if bin < last {
+            let above = grid.plane(bin + 1).min(hi);
+            (sections.at(above), above)
+        } else if hi >= axis_of(2) {
+            (Box4::EMPTY, f32::INFINITY)
         } else {
-            grid.plane(bin + 1).min(hi)
+            (sections.at(hi), hi)
         };
-        let upper = sections.at(above);
         let mut b = lower.union(upper);
-        for p in &sections.v {
+        for p in v {
             if p[axis] > below && p[axis] < above {
                 b.grow(*p);
             }
