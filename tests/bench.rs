@@ -158,16 +158,17 @@ fn quick_bench_runs_every_experiment() {
         assert!(rmse("paper") > 0.0);
     }
     // Trace: 4 scenes x 4 ray kinds x thread counts (1 and N) x the distinct
-    // non-naive structures (median, sah, sah 4-wide, sah 8-wide, Embree) on
-    // every query path each has (8-wide: single and packets; Embree: single,
-    // packets of 4, 8 and 16, and the stream API where it exists).
+    // non-naive structures (median, sah, sah 4-wide, and 8-wide: sah, the
+    // ladder's lbvh and sbvh-opt; Embree MEDIUM, LOW and HIGH) on every query
+    // path each has (8-wide: single and packets; Embree: single, packets of
+    // 4, 8 and 16, and the stream API where it exists).
     let trace_threads = if threads > 1 { 2 } else { 1 };
     let embree_paths = if embree() {
-        raylab::accel::BackendSpec::embree(1).queries().len()
+        3 * raylab::accel::BackendSpec::embree(1).queries().len()
     } else {
         0
     };
-    let backends = 4 + 1 + embree_paths;
+    let backends = 3 + 3 * 2 + embree_paths;
     assert_eq!(len("trace"), 4 * 4 * trace_threads * backends);
     for p in json["trace"].as_array().unwrap() {
         assert!(p["mrays"]["median"].as_f64().unwrap() > 0.0, "{p}");

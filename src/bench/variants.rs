@@ -25,6 +25,10 @@ pub struct Variant {
     pub width: usize,
     /// How the renderer's streams are traced: single rays, or packets.
     pub query: Query,
+    /// A rung of the build-quality ladder instead of `builder` (raylab's
+    /// pipeline of that rung; Embree's build quality), or `None`: `builder`,
+    /// and Embree MEDIUM.
+    pub rung: Option<Quality>,
 }
 
 const fn v(
@@ -42,6 +46,7 @@ const fn v(
         parallel_build,
         width: 2,
         query: Query::Single,
+        rung: None,
     }
 }
 
@@ -58,12 +63,21 @@ const fn packets(v: Variant) -> Variant {
     }
 }
 
+/// The variant built at `rung` of the quality ladder.
+const fn rung(v: Variant, rung: Quality) -> Variant {
+    Variant {
+        rung: Some(rung),
+        ..v
+    }
+}
+
+use crate::accel::bvh::params::Quality;
 use BackendKind::{Bvh, Embree, Naive};
 use BuilderKind::{Median, Sah};
 use Schedule::{Rayon, Rows, Serial, Tiles};
 
 /// Every variant, in the order tables list them. `naive-serial` is the baseline.
-pub const VARIANTS: [Variant; 25] = [
+pub const VARIANTS: [Variant; 29] = [
     v("naive-serial", Naive, Sah, Serial, false),
     v("naive-rows", Naive, Sah, Rows, false),
     v("naive-tiles", Naive, Sah, Tiles, false),
@@ -87,11 +101,33 @@ pub const VARIANTS: [Variant; 25] = [
         8,
     )),
     packets(wide(v("bvh8-sah-packet8-tiles", Bvh, Sah, Tiles, true), 8)),
+    rung(
+        packets(wide(
+            v("bvh8-lbvh-packet8-serial", Bvh, Sah, Serial, false),
+            8,
+        )),
+        Quality::Low,
+    ),
+    rung(
+        packets(wide(
+            v("bvh8-sbvh-opt-packet8-serial", Bvh, Sah, Serial, false),
+            8,
+        )),
+        Quality::High,
+    ),
     v("embree-serial", Embree, Sah, Serial, false),
     v("embree-tiles", Embree, Sah, Tiles, true),
     v("embree-rayon", Embree, Sah, Rayon, true),
     packets(v("embree-packet8-serial", Embree, Sah, Serial, false)),
     packets(v("embree-packet8-tiles", Embree, Sah, Tiles, true)),
+    rung(
+        packets(v("embree-low-packet8-serial", Embree, Sah, Serial, false)),
+        Quality::Low,
+    ),
+    rung(
+        packets(v("embree-high-packet8-serial", Embree, Sah, Serial, false)),
+        Quality::High,
+    ),
 ];
 
 /// The study's own combinations (naive, median BVH, rows, tiles, parallel build).
@@ -130,11 +166,31 @@ impl Variant {
         let spec = match self.kind {
             Naive => BackendSpec::naive(),
             Bvh => BackendSpec::bvh(
-                BuildParams::for_builder(self.builder)
+                self.rung
+                    .map_or(
+                        BuildParams::for_builder(self.builder),
+                        BuildParams::for_quality,
+                    )
                     .with_threads(threads)
                     .with_width(self.width),
             ),
-            Embree => BackendSpec::embree(threads),
+            Embree => match (BackendSpec::embree(threads), self.rung) {
+                (
+                    BackendSpec::Embree {
+                        robust,
+                        threads,
+                        query,
+                        ..
+                    },
+                    Some(quality),
+                ) => BackendSpec::Embree {
+                    quality,
+                    robust,
+                    threads,
+                    query,
+                },
+                (spec, _) => spec,
+            },
         };
         // Every variant's query path is one its backend has (a test checks).
         spec.with_query(self.query).unwrap_or(spec)
@@ -142,18 +198,26 @@ impl Variant {
 
     /// A one-line description for reports.
     pub fn describe(&self) -> String {
+        let builder = match self.rung {
+            Some(Quality::Low) => "LBVH (--quality low)",
+            Some(Quality::High) => "SBVH with reinsertion (--quality high)",
+            _ => self.builder.name(),
+        };
+        let embree = self.rung.map_or("MEDIUM", |q| match q {
+            Quality::Low => "LOW",
+            Quality::Medium => "MEDIUM",
+            Quality::High => "HIGH",
+        });
         let backend = match self.kind {
             Naive => "all triangles per ray".to_string(),
-            Bvh if self.width > 2 => format!(
-                "{} BVH with {}-wide SIMD nodes",
-                self.builder.name(),
-                self.width
-            ),
-            Bvh => format!("{} BVH", self.builder.name()),
-            Embree if self.query == Query::Packet(8) => {
-                "Embree MEDIUM, rtcIntersect8/rtcOccluded8".to_string()
+            Bvh if self.width > 2 => {
+                format!("{builder} BVH with {}-wide SIMD nodes", self.width)
             }
-            Embree => "Embree MEDIUM, rtcIntersect1/rtcOccluded1".to_string(),
+            Bvh => format!("{builder} BVH"),
+            Embree if self.query == Query::Packet(8) => {
+                format!("Embree {embree}, rtcIntersect8/rtcOccluded8")
+            }
+            Embree => format!("Embree {embree}, rtcIntersect1/rtcOccluded1"),
         };
         let backend = match (self.kind, self.query) {
             (Bvh, Query::Packet(n)) => format!("{backend}, {n}-ray packets"),
@@ -266,5 +330,16 @@ mod tests {
             Variant::named("embree-serial").unwrap().spec(8),
             BackendSpec::embree(1)
         );
+        // The ladder's variants: the spec's name says the rung's pipeline.
+        for (variant, spec) in [
+            ("bvh8-lbvh-packet8-serial", "bvh8-lbvh-packet8"),
+            ("bvh8-sbvh-opt-packet8-serial", "bvh8-sbvh-opt-packet8"),
+            ("embree-low-packet8-serial", "embree-low-packet8"),
+            ("embree-high-packet8-serial", "embree-high-packet8"),
+        ] {
+            let v = Variant::named(variant).unwrap();
+            assert_eq!(v.spec(2).name(), spec);
+            assert_eq!(v.spec(2).build_threads(), 1);
+        }
     }
 }
