@@ -258,10 +258,14 @@ fn bvh_builds(c: &mut Criterion) {
     for n in [1_000u64, 10_000, 100_000] {
         let tris = builtin(&format!("mesh:{n}")).unwrap().triangle_vertices();
         g.throughput(Throughput::Elements(tris.len() as u64));
+        use raylab::accel::bvh::params::Quality;
         let mut builders = vec![
             BuildParams::median(),
             BuildParams::sah(),
             BuildParams::sah().with_width(8),
+            // The quality ladder's other rungs, as the renderer builds them.
+            BuildParams::for_quality(Quality::Low).with_width(8),
+            BuildParams::for_quality(Quality::High).with_width(8),
         ];
         if raylab::accel::embree::AVAILABLE {
             // Embree's builder (rtcBuildBVH) into our layout, and Embree's own scene build.
@@ -277,7 +281,8 @@ fn bvh_builds(c: &mut Criterion) {
                 } else {
                     String::new()
                 };
-                let id = format!("{}{wide}-{threads}t", params.builder.name());
+                let opt = if p.optimize { "-opt" } else { "" };
+                let id = format!("{}{opt}{wide}-{threads}t", params.builder.name());
                 g.bench_with_input(BenchmarkId::new(id, n), &tris, |b, tris| {
                     // The tree the renderer traverses (wide trees built directly).
                     b.iter(|| raylab::accel::bvh::build(tris, &p).unwrap())
