@@ -125,7 +125,12 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lad
                     rung.name(),
                     scene.name
                 ));
+                // Each series starts with an untimed build and render: the
+                // first Embree build on a thread count makes its device (14 ms
+                // against 0.2 for cornell-empty), the first render wakes the
+                // pool and faults the pages in.
                 let builds = |threads: usize| -> Result<Stat> {
+                    build_backend(&spec(structure, rung, threads), scene)?;
                     let mut times = Vec::new();
                     for _ in 0..reps.max(1) {
                         let built = build_backend(&spec(structure, rung, threads), scene)?;
@@ -152,6 +157,14 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lad
                 let built = build_backend(&spec(structure, rung, cfg.threads), scene)?;
                 let mut times = Vec::new();
                 let mut kinds: Vec<RenderStats> = Vec::new();
+                render(
+                    scene,
+                    built.backend.as_ref(),
+                    &settings,
+                    Schedule::Tiles,
+                    cfg.threads,
+                    &Progress::new(),
+                )?;
                 for _ in 0..reps.max(1) {
                     let start = std::time::Instant::now();
                     let (_, stats) = render(
