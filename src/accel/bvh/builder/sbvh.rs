@@ -6,9 +6,10 @@
 //!
 //! Per node: the best object split is costed (binned centroids, as the SAH
 //! builder); where its children overlap by more than [`SBVH_ALPHA`] of the
-//! root's area, [`SBVH_BINS`] planes per axis over the node's box are costed
-//! too, each reference counted on both sides of the planes it straddles and
-//! its triangle clipped to each bin for the bins' boxes. The cheaper split
+//! root's area and [`SBVH_NODE_OVERLAP`] of the node's, [`SBVH_BINS`] planes
+//! per axis over the node's box are costed too, each reference counted on
+//! both sides of the planes it straddles and its triangle's part in each bin
+//! bounded for the bins' boxes ([`bin_parts`]). The cheaper split
 //! wins; an object split is then made by the SAH builder itself
 //! ([`BinnedSah`]), so a tree without spatial splits is the SAH builder's
 //! tree. References may grow by at most [`SBVH_GROWTH`] of the triangle
