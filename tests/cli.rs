@@ -695,13 +695,8 @@ fn query_paths_render_the_same_image_and_are_named() {
 fn quality_rungs_name_their_builders_and_render_the_same_image() {
     let d = temp_dir("quality");
     let o = d.join("x.png");
-    let o = o.to_str().unwrap();
     let render = |scene: &str, args: &[&str]| {
-        let mut a = vec!["render", scene, "--size", "48x36", "--json", "-q", "-o", o];
-        a.extend(args);
-        let out = raylab(&a);
-        assert_success(&out);
-        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        let v = render_json(std::path::Path::new(scene), &o, args);
         (
             v["backend"].as_str().unwrap().to_string(),
             v["image_hash"].clone(),

@@ -76,8 +76,13 @@ impl BackendSpec {
 
     /// Embree at medium quality, not robust (Embree's defaults), built on `threads`.
     pub const fn embree(threads: usize) -> Self {
+        Self::embree_at(Quality::Medium, threads)
+    }
+
+    /// Embree at build `quality`, not robust, built on `threads`.
+    pub const fn embree_at(quality: Quality, threads: usize) -> Self {
         BackendSpec::Embree {
-            quality: Quality::Medium,
+            quality,
             robust: false,
             threads,
             query: Query::Single,

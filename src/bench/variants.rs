@@ -174,23 +174,7 @@ impl Variant {
                     .with_threads(threads)
                     .with_width(self.width),
             ),
-            Embree => match (BackendSpec::embree(threads), self.rung) {
-                (
-                    BackendSpec::Embree {
-                        robust,
-                        threads,
-                        query,
-                        ..
-                    },
-                    Some(quality),
-                ) => BackendSpec::Embree {
-                    quality,
-                    robust,
-                    threads,
-                    query,
-                },
-                (spec, _) => spec,
-            },
+            Embree => BackendSpec::embree_at(self.rung.unwrap_or(Quality::Medium), threads),
         };
         // Every variant's query path is one its backend has (a test checks).
         spec.with_query(self.query).unwrap_or(spec)

@@ -90,20 +90,7 @@ fn spec(structure: &str, rung: Quality, threads: usize) -> BackendSpec {
                 .with_width(8)
                 .with_threads(threads),
         ),
-        _ => match BackendSpec::embree(threads) {
-            BackendSpec::Embree {
-                robust,
-                threads,
-                query,
-                ..
-            } => BackendSpec::Embree {
-                quality: rung,
-                robust,
-                threads,
-                query,
-            },
-            other => other,
-        },
+        _ => BackendSpec::embree_at(rung, threads),
     };
     spec.with_fastest_query()
 }
@@ -155,26 +142,22 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lad
                     (f64::NAN, f64::NAN)
                 };
                 let built = build_backend(&spec(structure, rung, cfg.threads), scene)?;
-                let mut times = Vec::new();
-                let mut kinds: Vec<RenderStats> = Vec::new();
-                render(
-                    scene,
-                    built.backend.as_ref(),
-                    &settings,
-                    Schedule::Tiles,
-                    cfg.threads,
-                    &Progress::new(),
-                )?;
-                for _ in 0..reps.max(1) {
-                    let start = std::time::Instant::now();
-                    let (_, stats) = render(
+                let render_once = || {
+                    render(
                         scene,
                         built.backend.as_ref(),
                         &settings,
                         Schedule::Tiles,
                         cfg.threads,
                         &Progress::new(),
-                    )?;
+                    )
+                };
+                let mut times = Vec::new();
+                let mut kinds: Vec<RenderStats> = Vec::new();
+                render_once()?;
+                for _ in 0..reps.max(1) {
+                    let start = std::time::Instant::now();
+                    let (_, stats) = render_once()?;
                     times.push(start.elapsed().as_secs_f64() * 1e3);
                     kinds.push(stats);
                 }

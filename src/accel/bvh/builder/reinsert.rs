@@ -307,20 +307,17 @@ mod tests {
             a.sah_cost
         );
         // Every leaf keeps its range; every parent holds its children.
-        let mut ranges: Vec<(u32, u32)> = after
-            .nodes
-            .iter()
-            .filter(|n| n.is_leaf())
-            .map(|n| (n.offset, n.count))
-            .collect();
-        let mut want: Vec<(u32, u32)> = before
-            .nodes
-            .iter()
-            .filter(|n| n.is_leaf())
-            .map(|n| (n.offset, n.count))
-            .collect();
-        ranges.sort();
-        want.sort();
+        let leaf_ranges = |s: &Skeleton| {
+            let mut r: Vec<(u32, u32)> = s
+                .nodes
+                .iter()
+                .filter(|n| n.is_leaf())
+                .map(|n| (n.offset, n.count))
+                .collect();
+            r.sort();
+            r
+        };
+        let (ranges, want) = (leaf_ranges(&after), leaf_ranges(&before));
         assert_eq!(ranges, want);
         for (i, n) in after.nodes.iter().enumerate() {
             if !n.is_leaf() {
