@@ -380,14 +380,18 @@ pub enum StressBackend {
     BvhSah,
     /// Embree, default and robust.
     Embree,
+    /// The other libraries, each with its own test: tinybvh (BVH8_CPU and
+    /// the binary tree), obvhs (CwBvh and Bvh2), the bvh crate.
+    Libraries,
 }
 
 impl StressBackend {
-    pub const ALL: [StressBackend; 4] = [
+    pub const ALL: [StressBackend; 5] = [
         StressBackend::Naive,
         StressBackend::BvhMedian,
         StressBackend::BvhSah,
         StressBackend::Embree,
+        StressBackend::Libraries,
     ];
 
     pub fn name(self) -> &'static str {
@@ -396,6 +400,7 @@ impl StressBackend {
             StressBackend::BvhMedian => "bvh-median",
             StressBackend::BvhSah => "bvh-sah",
             StressBackend::Embree => "embree",
+            StressBackend::Libraries => "libraries",
         }
     }
 }
@@ -455,6 +460,34 @@ fn stress_specs(kinds: &[StressBackend]) -> Vec<BackendSpec> {
             });
         }
     }
+    if kinds.contains(&StressBackend::Libraries) {
+        use crate::accel::library::{Library, ObvhsLayout, TinybvhLayout};
+        let medium = Quality::Medium;
+        out.extend(
+            [
+                Library::Tinybvh {
+                    layout: TinybvhLayout::Bvh8,
+                    hq: false,
+                },
+                Library::Tinybvh {
+                    layout: TinybvhLayout::Bvh,
+                    hq: false,
+                },
+                Library::Obvhs {
+                    layout: ObvhsLayout::CwBvh,
+                    quality: medium,
+                },
+                Library::Obvhs {
+                    layout: ObvhsLayout::Bvh2,
+                    quality: medium,
+                },
+                Library::BvhCrate,
+            ]
+            .into_iter()
+            .filter(Library::available)
+            .map(|library| BackendSpec::library(library, 1)),
+        );
+    }
     out
 }
 
@@ -478,6 +511,7 @@ fn stress_backends(
                     intersector.name()
                 }
                 BackendSpec::Embree { .. } => "embree",
+                BackendSpec::Library { .. } => "its own",
             };
             Ok((build_backend(spec, mesh)?, test.to_string()))
         })

@@ -6,6 +6,7 @@ use std::time::{Duration, Instant};
 
 use super::bvh::{BuildParams, BvhBackend};
 use super::embree::Quality;
+use super::library::{Library, ObvhsLayout, TinybvhLayout};
 use super::naive::Naive;
 use super::query::Query;
 use super::Backend;
@@ -22,6 +23,13 @@ pub enum BackendKind {
     Bvh,
     /// Intel Embree's single-ray queries (rtcIntersect1/rtcOccluded1).
     Embree,
+    /// tinybvh through tinybvh-rs (`--layout bvh8|bvh`; `--quality high`: BuildHQ).
+    Tinybvh,
+    /// obvhs (`--layout cwbvh|bvh2`; `--quality` picks its preset).
+    Obvhs,
+    /// The bvh crate (svenstaro/bvh).
+    #[value(name = "bvh-crate")]
+    BvhCrate,
 }
 
 impl BackendKind {
@@ -31,7 +39,28 @@ impl BackendKind {
             BackendKind::Naive => "naive",
             BackendKind::Bvh => "bvh",
             BackendKind::Embree => "embree",
+            BackendKind::Tinybvh => "tinybvh",
+            BackendKind::Obvhs => "obvhs",
+            BackendKind::BvhCrate => "bvh-crate",
         }
+    }
+
+    /// Every kind, in `--backend`'s order.
+    pub const ALL: [BackendKind; 6] = [
+        BackendKind::Naive,
+        BackendKind::Bvh,
+        BackendKind::Embree,
+        BackendKind::Tinybvh,
+        BackendKind::Obvhs,
+        BackendKind::BvhCrate,
+    ];
+
+    /// Whether this is another library's BVH.
+    pub const fn is_library(self) -> bool {
+        matches!(
+            self,
+            BackendKind::Tinybvh | BackendKind::Obvhs | BackendKind::BvhCrate
+        )
     }
 }
 
@@ -55,6 +84,9 @@ pub enum BackendSpec {
         threads: usize,
         query: Query,
     },
+    /// Another library's BVH, built on `threads` where it can build in
+    /// parallel, traversed one ray at a time with its own kernels.
+    Library { library: Library, threads: usize },
 }
 
 impl BackendSpec {
@@ -89,12 +121,41 @@ impl BackendSpec {
         }
     }
 
-    /// Each kind's default (for `bvh`: the 2-wide SAH tree), built on `threads`.
+    /// Another library's BVH built on `threads` (one where it cannot build
+    /// in parallel).
+    pub const fn library(library: Library, threads: usize) -> Self {
+        BackendSpec::Library {
+            library,
+            threads: if library.builds_in_parallel() {
+                threads
+            } else {
+                1
+            },
+        }
+    }
+
+    /// Each kind's default (for `bvh`: the 2-wide SAH tree; for the other
+    /// libraries their fastest layout at their default build), built on `threads`.
     pub const fn default_for(kind: BackendKind, threads: usize) -> Self {
         match kind {
             BackendKind::Naive => Self::naive(),
             BackendKind::Bvh => Self::bvh(BuildParams::sah().with_threads(threads)),
             BackendKind::Embree => Self::embree(threads),
+            BackendKind::Tinybvh => Self::library(
+                Library::Tinybvh {
+                    layout: TinybvhLayout::Bvh8,
+                    hq: false,
+                },
+                threads,
+            ),
+            BackendKind::Obvhs => Self::library(
+                Library::Obvhs {
+                    layout: ObvhsLayout::CwBvh,
+                    quality: Quality::Medium,
+                },
+                threads,
+            ),
+            BackendKind::BvhCrate => Self::library(Library::BvhCrate, threads),
         }
     }
 
@@ -103,6 +164,11 @@ impl BackendSpec {
             BackendSpec::Naive { .. } => BackendKind::Naive,
             BackendSpec::Bvh { .. } => BackendKind::Bvh,
             BackendSpec::Embree { .. } => BackendKind::Embree,
+            BackendSpec::Library { library, .. } => match library {
+                Library::Tinybvh { .. } => BackendKind::Tinybvh,
+                Library::Obvhs { .. } => BackendKind::Obvhs,
+                Library::BvhCrate => BackendKind::BvhCrate,
+            },
         }
     }
 
@@ -152,13 +218,14 @@ impl BackendSpec {
                 quality.name(),
                 if *robust { "-robust" } else { "" }
             ),
+            BackendSpec::Library { library, .. } => library.name(),
         }
     }
 
     /// How streams are traced (the naive scan: one ray at a time).
     pub const fn query(&self) -> Query {
         match self {
-            BackendSpec::Naive { .. } => Query::Single,
+            BackendSpec::Naive { .. } | BackendSpec::Library { .. } => Query::Single,
             BackendSpec::Bvh { query, .. } | BackendSpec::Embree { query, .. } => *query,
         }
     }
@@ -168,7 +235,7 @@ impl BackendSpec {
     /// rays, and its stream API where the linked Embree has it (3, not 4).
     pub fn queries(&self) -> Vec<Query> {
         match self {
-            BackendSpec::Naive { .. } => vec![Query::Single],
+            BackendSpec::Naive { .. } | BackendSpec::Library { .. } => vec![Query::Single],
             BackendSpec::Bvh { params, .. } if params.width == 8 => {
                 vec![Query::Single, Query::Packet(8)]
             }
@@ -223,7 +290,7 @@ impl BackendSpec {
             ));
         }
         match &mut self {
-            BackendSpec::Naive { .. } => {}
+            BackendSpec::Naive { .. } | BackendSpec::Library { .. } => {}
             BackendSpec::Bvh { query: q, .. } | BackendSpec::Embree { query: q, .. } => *q = query,
         }
         Ok(self)
@@ -234,7 +301,7 @@ impl BackendSpec {
         match self {
             BackendSpec::Naive { .. } => 1,
             BackendSpec::Bvh { params, .. } => params.threads,
-            BackendSpec::Embree { threads, .. } => *threads,
+            BackendSpec::Embree { threads, .. } | BackendSpec::Library { threads, .. } => *threads,
         }
     }
 
@@ -244,18 +311,29 @@ impl BackendSpec {
             BackendSpec::Naive { .. } => {}
             BackendSpec::Bvh { params, .. } => *params = params.with_threads(threads),
             BackendSpec::Embree { threads: t, .. } => *t = threads,
+            BackendSpec::Library {
+                library,
+                threads: t,
+            } => {
+                *t = if library.builds_in_parallel() {
+                    threads
+                } else {
+                    1
+                }
+            }
         }
         self
     }
 
-    /// The same backend with `intersector` for its triangle tests; Embree has
-    /// its own test, so its spec is returned unchanged.
+    /// The same backend with `intersector` for its triangle tests; Embree and
+    /// the other libraries have their own tests, so their specs are returned
+    /// unchanged.
     pub const fn with_intersector(mut self, test: Intersector) -> Self {
         match &mut self {
             BackendSpec::Naive { intersector } | BackendSpec::Bvh { intersector, .. } => {
                 *intersector = test
             }
-            BackendSpec::Embree { .. } => {}
+            BackendSpec::Embree { .. } | BackendSpec::Library { .. } => {}
         }
         self
     }
@@ -327,11 +405,38 @@ pub fn build_backend<'a>(spec: &BackendSpec, mesh: impl Into<MeshRef<'a>>) -> cr
         ),
         #[cfg(not(feature = "embree"))]
         BackendSpec::Embree { .. } => return Err(super::embree::unavailable()),
+        BackendSpec::Library { library, threads } => build_library(&library, &mesh, threads)?,
     };
     Ok(Built {
         spec: *spec,
         backend,
         build_time: start.elapsed(),
+    })
+}
+
+/// Another library's BVH over `mesh` (an error naming the cargo feature
+/// when this raylab was built without it).
+#[allow(unused_variables)] // without the library features
+fn build_library(
+    library: &Library,
+    mesh: &MeshRef,
+    threads: usize,
+) -> crate::Result<Box<dyn Backend>> {
+    Ok(match *library {
+        #[cfg(feature = "tinybvh")]
+        Library::Tinybvh { layout, hq } => Box::new(super::library::tinybvh::TinybvhBackend::new(
+            mesh, layout, hq,
+        )?),
+        #[cfg(feature = "obvhs")]
+        Library::Obvhs { layout, quality } => Box::new(super::library::obvhs::ObvhsBackend::new(
+            mesh, layout, quality, threads,
+        )),
+        #[cfg(feature = "bvh-crate")]
+        Library::BvhCrate => Box::new(super::library::bvh_crate::BvhCrateBackend::new(
+            mesh, threads,
+        )),
+        #[allow(unreachable_patterns)]
+        _ => return Err(super::library::unavailable(library)),
     })
 }
 
@@ -380,13 +485,14 @@ mod tests {
 
     #[test]
     fn build_threads_follow_the_spec() {
-        for kind in [BackendKind::Naive, BackendKind::Bvh, BackendKind::Embree] {
+        for kind in BackendKind::ALL {
             let spec = BackendSpec::default_for(kind, 3);
             assert_eq!(spec.kind(), kind);
-            let naive = kind == BackendKind::Naive;
-            assert_eq!(spec.build_threads(), if naive { 1 } else { 3 });
+            // The naive scan builds nothing; tinybvh-rs builds on one thread.
+            let serial = matches!(kind, BackendKind::Naive | BackendKind::Tinybvh);
+            assert_eq!(spec.build_threads(), if serial { 1 } else { 3 });
             let five = spec.with_build_threads(5);
-            assert_eq!(five.build_threads(), if naive { 1 } else { 5 });
+            assert_eq!(five.build_threads(), if serial { 1 } else { 5 });
             assert_eq!(five.kind(), kind);
         }
     }

@@ -497,6 +497,10 @@ pub fn expected_ms(
         }
         BackendKind::Bvh => 12.0 * levels + 50.0,
         BackendKind::Embree => 6.0 * levels + 50.0,
+        // Between the binary trees and Embree; the bvh crate's iterators
+        // allocate per ray.
+        BackendKind::Tinybvh | BackendKind::Obvhs => 10.0 * levels + 50.0,
+        BackendKind::BvhCrate => 60.0 * levels + 200.0,
     };
     let parallel = match variant.schedule {
         crate::render::Schedule::Serial => 1.0,

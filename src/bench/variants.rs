@@ -72,12 +72,13 @@ const fn rung(v: Variant, rung: Quality) -> Variant {
 }
 
 use crate::accel::bvh::params::Quality;
-use BackendKind::{Bvh, Embree, Naive};
+use crate::accel::library::{Library, ObvhsLayout, TinybvhLayout};
+use BackendKind::{Bvh, BvhCrate, Embree, Naive, Obvhs, Tinybvh};
 use BuilderKind::{Median, Sah};
 use Schedule::{Rayon, Rows, Serial, Tiles};
 
 /// Every variant, in the order tables list them. `naive-serial` is the baseline.
-pub const VARIANTS: [Variant; 29] = [
+pub const VARIANTS: [Variant; 35] = [
     v("naive-serial", Naive, Sah, Serial, false),
     v("naive-rows", Naive, Sah, Rows, false),
     v("naive-tiles", Naive, Sah, Tiles, false),
@@ -128,6 +129,18 @@ pub const VARIANTS: [Variant; 29] = [
         packets(v("embree-high-packet8-serial", Embree, Sah, Serial, false)),
         Quality::High,
     ),
+    // The other libraries, each with its own builder and kernels, one ray at
+    // a time (they have no packet path). `width` picks the layout: tinybvh's
+    // BVH8_CPU (8) or binary tree (2), obvhs's CwBvh (8) or Bvh2 (2).
+    wide(v("tinybvh-serial", Tinybvh, Sah, Serial, false), 8),
+    rung(
+        wide(v("tinybvh-hq-serial", Tinybvh, Sah, Serial, false), 8),
+        Quality::High,
+    ),
+    v("tinybvh-bvh-serial", Tinybvh, Sah, Serial, false),
+    wide(v("obvhs-serial", Obvhs, Sah, Serial, false), 8),
+    v("obvhs-bvh2-serial", Obvhs, Sah, Serial, false),
+    v("bvh-crate-serial", BvhCrate, Sah, Serial, false),
 ];
 
 /// The study's own combinations (naive, median BVH, rows, tiles, parallel build).
@@ -175,9 +188,42 @@ impl Variant {
                     .with_width(self.width),
             ),
             Embree => BackendSpec::embree_at(self.rung.unwrap_or(Quality::Medium), threads),
+            Tinybvh | Obvhs | BvhCrate => BackendSpec::library(self.library(), threads),
         };
         // Every variant's query path is one its backend has (a test checks).
         spec.with_query(self.query).unwrap_or(spec)
+    }
+
+    /// The library and layout of a `tinybvh`, `obvhs` or `bvh-crate` variant.
+    fn library(&self) -> Library {
+        match self.kind {
+            Tinybvh => Library::Tinybvh {
+                layout: if self.width == 8 {
+                    TinybvhLayout::Bvh8
+                } else {
+                    TinybvhLayout::Bvh
+                },
+                hq: self.rung == Some(Quality::High),
+            },
+            Obvhs => Library::Obvhs {
+                layout: if self.width == 8 {
+                    ObvhsLayout::CwBvh
+                } else {
+                    ObvhsLayout::Bvh2
+                },
+                quality: self.rung.unwrap_or(Quality::Medium),
+            },
+            _ => Library::BvhCrate,
+        }
+    }
+
+    /// Whether this raylab was built with the variant's backend.
+    pub fn available(&self) -> bool {
+        match self.kind {
+            Embree => crate::accel::embree::AVAILABLE,
+            Tinybvh | Obvhs | BvhCrate => self.library().available(),
+            Naive | Bvh => true,
+        }
     }
 
     /// A one-line description for reports.
@@ -202,6 +248,24 @@ impl Variant {
                 format!("Embree {embree}, rtcIntersect8/rtcOccluded8")
             }
             Embree => format!("Embree {embree}, rtcIntersect1/rtcOccluded1"),
+            Tinybvh => format!(
+                "tinybvh {} ({}), its own kernels",
+                if self.rung == Some(Quality::High) {
+                    "BuildHQ"
+                } else {
+                    "Build"
+                },
+                if self.width == 8 {
+                    "BVH8_CPU"
+                } else {
+                    "binary BVH"
+                }
+            ),
+            Obvhs => format!(
+                "obvhs PLOC medium_build, {}",
+                if self.width == 8 { "CwBvh" } else { "Bvh2" }
+            ),
+            BvhCrate => "bvh crate SAH, closest hit by its nearest-first iterator".into(),
         };
         let backend = match (self.kind, self.query) {
             (Bvh, Query::Packet(n)) => format!("{backend}, {n}-ray packets"),
@@ -230,7 +294,7 @@ pub fn parse_variants(list: &str) -> Result<Vec<Variant>> {
         match item {
             "all" => VARIANTS
                 .iter()
-                .filter(|v| v.kind != Embree || crate::accel::embree::AVAILABLE)
+                .filter(|v| v.available())
                 .for_each(|v| push(*v)),
             "paper" => PAPER
                 .iter()
@@ -247,8 +311,11 @@ pub fn parse_variants(list: &str) -> Result<Vec<Variant>> {
                         ),
                     )
                 })?;
-                if v.kind == Embree && !crate::accel::embree::AVAILABLE {
-                    return Err(crate::accel::embree::unavailable());
+                if !v.available() {
+                    return Err(match v.kind {
+                        Embree => crate::accel::embree::unavailable(),
+                        _ => crate::accel::library::unavailable(&v.library()),
+                    });
                 }
                 push(v);
             }
@@ -320,6 +387,19 @@ mod tests {
             ("bvh8-sbvh-opt-packet8-serial", "bvh8-sbvh-opt-packet8"),
             ("embree-low-packet8-serial", "embree-low-packet8"),
             ("embree-high-packet8-serial", "embree-high-packet8"),
+        ] {
+            let v = Variant::named(variant).unwrap();
+            assert_eq!(v.spec(2).name(), spec);
+            assert_eq!(v.spec(2).build_threads(), 1);
+        }
+        // The other libraries: the layout and build their names promise.
+        for (variant, spec) in [
+            ("tinybvh-serial", "tinybvh-bvh8"),
+            ("tinybvh-hq-serial", "tinybvh-bvh8-hq"),
+            ("tinybvh-bvh-serial", "tinybvh-bvh"),
+            ("obvhs-serial", "obvhs-cwbvh-medium"),
+            ("obvhs-bvh2-serial", "obvhs-bvh2-medium"),
+            ("bvh-crate-serial", "bvh-crate"),
         ] {
             let v = Variant::named(variant).unwrap();
             assert_eq!(v.spec(2).name(), spec);

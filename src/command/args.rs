@@ -182,12 +182,33 @@ pub struct BackendArgs {
     /// or --embree-quality.
     #[arg(long, value_enum, conflicts_with = "builder")]
     pub quality: Option<Quality>,
+    /// The tree layout of another library's BVH: for tinybvh bvh8 (its
+    /// BVH8_CPU, the default) or bvh (its binary tree); for obvhs cwbvh (the
+    /// default) or bvh2.
+    #[arg(long, value_enum)]
+    pub layout: Option<LibraryLayout>,
+}
+
+/// `--layout`: the tree layouts of the other libraries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum LibraryLayout {
+    /// tinybvh's 8-wide BVH8_CPU.
+    Bvh8,
+    /// tinybvh's binary tree.
+    Bvh,
+    /// obvhs's compressed 8-wide tree.
+    Cwbvh,
+    /// obvhs's binary tree.
+    Bvh2,
 }
 
 impl BackendArgs {
     /// The backend these flags describe, built on `threads`.
     pub fn spec(&self, threads: usize) -> Result<BackendSpec> {
-        let spec = backend_spec(self.backend, &self.bvh, &self.embree, self.quality, threads);
+        let spec = match self.backend {
+            kind if kind.is_library() => library_spec(kind, self.layout, self.quality, threads)?,
+            kind => backend_spec(kind, &self.bvh, &self.embree, self.quality, threads),
+        };
         match self.query {
             Some(q) => spec.with_query(q),
             None => Ok(spec.with_fastest_query()),
@@ -223,7 +244,73 @@ fn backend_spec(
             threads: params.threads,
             query: Query::Single,
         },
+        library => BackendSpec::default_for(library, params.threads),
     }
+}
+
+/// Another library's BVH as `--layout` and `--quality` describe it; a layout
+/// or rung the library does not have is a one-line error.
+fn library_spec(
+    kind: BackendKind,
+    layout: Option<LibraryLayout>,
+    quality: Option<Quality>,
+    threads: usize,
+) -> Result<BackendSpec> {
+    use crate::accel::library::{Library, ObvhsLayout, TinybvhLayout};
+    let no_layout = |have: &str| {
+        Error::usage(
+            "--layout",
+            format!(
+                "--backend {} has no {} layout (it has: {have})",
+                kind.name(),
+                layout.map_or(String::new(), |l| format!("{l:?}").to_lowercase())
+            ),
+        )
+    };
+    let library = match kind {
+        BackendKind::Tinybvh => {
+            let layout = match layout {
+                None | Some(LibraryLayout::Bvh8) => TinybvhLayout::Bvh8,
+                Some(LibraryLayout::Bvh) => TinybvhLayout::Bvh,
+                Some(_) => return Err(no_layout("bvh8, bvh")),
+            };
+            let hq = match quality {
+                None | Some(Quality::Medium) => false,
+                Some(Quality::High) => true,
+                Some(Quality::Low) => {
+                    return Err(Error::usage(
+                        "--quality",
+                        "tinybvh-rs has no low-quality build (it wraps Build, medium, and BuildHQ, high)",
+                    ))
+                }
+            };
+            Library::Tinybvh { layout, hq }
+        }
+        BackendKind::Obvhs => {
+            let layout = match layout {
+                None | Some(LibraryLayout::Cwbvh) => ObvhsLayout::CwBvh,
+                Some(LibraryLayout::Bvh2) => ObvhsLayout::Bvh2,
+                Some(_) => return Err(no_layout("cwbvh, bvh2")),
+            };
+            Library::Obvhs {
+                layout,
+                quality: quality.unwrap_or(Quality::Medium),
+            }
+        }
+        _ => {
+            if layout.is_some() {
+                return Err(no_layout("one binary tree, no --layout"));
+            }
+            if quality.is_some() {
+                return Err(Error::usage(
+                    "--quality",
+                    "the bvh crate has one builder (binned SAH): no quality ladder",
+                ));
+            }
+            Library::BvhCrate
+        }
+    };
+    Ok(BackendSpec::library(library, threads))
 }
 
 pub fn parse_leaf_size(s: &str) -> std::result::Result<usize, String> {
@@ -300,7 +387,12 @@ pub fn check_backend_flags(m: &clap::ArgMatches, backend: BackendKind) -> Result
         (
             "build_threads",
             "--build-threads",
-            &[BackendKind::Bvh, BackendKind::Embree],
+            &[
+                BackendKind::Bvh,
+                BackendKind::Embree,
+                BackendKind::Obvhs,
+                BackendKind::BvhCrate,
+            ],
         ),
         (
             "intersector",
@@ -311,11 +403,21 @@ pub fn check_backend_flags(m: &clap::ArgMatches, backend: BackendKind) -> Result
         (
             "quality",
             "--quality",
-            &[BackendKind::Bvh, BackendKind::Embree],
+            &[
+                BackendKind::Bvh,
+                BackendKind::Embree,
+                BackendKind::Tinybvh,
+                BackendKind::Obvhs,
+            ],
+        ),
+        (
+            "layout",
+            "--layout",
+            &[BackendKind::Tinybvh, BackendKind::Obvhs],
         ),
         ("embree_robust", "--embree-robust", &[BackendKind::Embree]),
     ];
-    let name = |k: &BackendKind| format!("{k:?}").to_lowercase();
+    let name = |k: &BackendKind| k.name();
     for (id, flag, applies) in FLAGS {
         let given = m.value_source(id) == Some(ValueSource::CommandLine);
         if given && !applies.contains(&backend) {

@@ -21,7 +21,8 @@ pub struct StressArgs {
     #[arg(long, value_name = "FILE")]
     mesh: Vec<PathBuf>,
     /// Backends of the leak suite, separated by commas: all, naive, bvh-median,
-    /// bvh-sah, embree (each with both intersectors or both Embree modes). The
+    /// bvh-sah, embree (each with both intersectors or both Embree modes),
+    /// libraries (tinybvh, obvhs and the bvh crate, each layout). The
     /// naive scan tests every triangle per ray: minutes on a mesh of 10^4.
     #[arg(long, value_name = "LIST", default_value = "all")]
     backends: String,

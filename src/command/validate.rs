@@ -116,11 +116,18 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
         let tested = build_backend(&spec, &scene)?;
         let reference = build_backend(&reference_spec, &scene)?;
         let triangles = scene.triangle_vertices();
-        // Record the render's rays with the faster of the two (naive is slow).
-        let recorder: &dyn crate::accel::Backend = if args.against == BackendKind::Naive {
-            tested.as_ref()
-        } else {
-            reference.as_ref()
+        // Record the render's rays with the faster of the two (naive is slow);
+        // rays of another library's image would carry its wrong answers, so
+        // against the naive scan those are recorded with raylab's tree.
+        let raylab_tree;
+        let recorder: &dyn crate::accel::Backend = match args.against {
+            BackendKind::Naive if spec.kind().is_library() => {
+                raylab_tree =
+                    build_backend(&BackendSpec::default_for(BackendKind::Bvh, threads), &scene)?;
+                raylab_tree.as_ref()
+            }
+            BackendKind::Naive => tested.as_ref(),
+            _ => reference.as_ref(),
         };
         let set_rays = ray_sets(
             &scene,

@@ -28,6 +28,7 @@ pub mod wide;
 
 pub use backend::BvhBackend;
 pub use builder::build;
+pub(crate) use builder::pool::in_pool;
 pub use node::{Bvh, Node};
 pub use params::{BuildParams, BuilderKind};
 pub use prim::Triangles;

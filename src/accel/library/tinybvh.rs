@@ -1,0 +1,185 @@
+//! tinybvh through tinybvh-rs 0.1.0-beta.3: `Build` or `BuildHQ` (spatial
+//! splits), traversed as its 8-wide `BVH8_CPU` (leaves split to 4 triangles,
+//! as the conversion requires) or as the binary tree it builds.
+//!
+//! Two things about the wrapper shape this file:
+//! - Its Rust `Ray` is 64 bytes, but the C++ `Ray` it stands for is 128 (the
+//!   C++ intersection record carries 64 more bytes of user data). Every ray
+//!   handed over here therefore sits at the start of a 128-byte, 64-aligned
+//!   [`RayRoom`], so whatever the C++ side reads or writes of its `Ray` is
+//!   memory this file owns. `Ray::new` is never called: it returns the C++
+//!   `Ray` by value into the 64-byte Rust one.
+//! - The binary tree borrows the vertex array it was built from, so
+//!   [`WaldTree`] keeps both and extends the borrow (see its SAFETY).
+//!
+//! Rays are not normalised (tinybvh's `Ray` constructor would), so `t` is in
+//! the caller's units; the inverse direction is made as tinybvh makes it
+//! (`tinybvh_safercp`: ±1e30 for components within 1e-12 of zero).
+
+use std::mem::ManuallyDrop;
+
+use tinybvh_rs::{bvh, bvh8_cpu, mbvh, Intersector as _};
+
+use super::{started_at_tmin, TinybvhLayout};
+use crate::accel::Backend;
+use crate::error::Error;
+use crate::geometry::{Hit, Ray};
+use crate::scene::MeshRef;
+
+/// tinybvh's "no hit" distance.
+const BVH_FAR: f32 = tinybvh_rs::INFINITE;
+
+/// A tinybvh ray with the room its C++ definition takes (see the module note).
+#[repr(C, align(64))]
+struct RayRoom {
+    ray: tinybvh_rs::Ray,
+    _cpp_tail: [u8; 64],
+}
+
+// The C++ `Ray` (tiny_bvh.h 1.6.8, INST_IDX_BITS 32): O, mask, D, instIdx, rD
+// (44 bytes), then the packed Intersection (inst, t, u, v, prim, auxData,
+// 56 user bytes: 84), aligned to 64: 128 bytes.
+const _: () = assert!(std::mem::size_of::<RayRoom>() == 128);
+const _: () = assert!(std::mem::size_of::<tinybvh_rs::Ray>() == 64);
+
+impl RayRoom {
+    /// The ray from `origin` along `dir` with no hit nearer than `tmax`.
+    fn new(origin: glam::Vec3, dir: glam::Vec3, tmax: f32) -> Self {
+        let safe_rcp = |x: f32| {
+            if x.abs() > 1e-12 {
+                1.0 / x
+            } else if x >= 0.0 {
+                BVH_FAR
+            } else {
+                -BVH_FAR
+            }
+        };
+        let mut ray = tinybvh_rs::Ray {
+            origin: origin.to_array(),
+            // The C++ `mask` field: all instances (unused by a single BLAS).
+            padding_0: 0xFFFF,
+            dir: dir.to_array(),
+            r_d: [safe_rcp(dir.x), safe_rcp(dir.y), safe_rcp(dir.z)],
+            ..Default::default()
+        };
+        ray.hit.t = tmax.min(BVH_FAR);
+        RayRoom {
+            ray,
+            _cpp_tail: [0; 64],
+        }
+    }
+}
+
+/// tinybvh's binary tree and the vertices it reads.
+struct WaldTree {
+    // Declared first, so dropped before the vertices it borrows.
+    tree: ManuallyDrop<bvh::BVH<'static>>,
+    _vertices: Box<[[f32; 4]]>,
+}
+
+impl Drop for WaldTree {
+    fn drop(&mut self) {
+        // SAFETY: dropped once, here, while `_vertices` is still alive.
+        unsafe { ManuallyDrop::drop(&mut self.tree) }
+    }
+}
+
+enum Tree {
+    Bvh8(bvh8_cpu::BVH),
+    Wald(WaldTree),
+    /// No triangles: nothing to build (tinybvh needs at least one).
+    Empty,
+}
+
+pub struct TinybvhBackend {
+    tree: Tree,
+}
+
+impl TinybvhBackend {
+    pub fn new(mesh: &MeshRef, layout: TinybvhLayout, hq: bool) -> crate::Result<Self> {
+        if mesh.triangle_count() == 0 {
+            return Ok(TinybvhBackend { tree: Tree::Empty });
+        }
+        let vertices: Box<[[f32; 4]]> = (0..mesh.triangle_count())
+            .flat_map(|i| mesh.triangle(i).map(|v| v.extend(0.0).to_array()))
+            .collect();
+        let failed = |e: tinybvh_rs::Error| Error::Other(format!("tinybvh build: {e}"));
+        let tree = match layout {
+            TinybvhLayout::Bvh8 => {
+                let mut wald = if hq {
+                    bvh::BVH::new_hq(vertices.as_ref().into())
+                } else {
+                    bvh::BVH::new(vertices.as_ref().into())
+                }
+                .map_err(failed)?;
+                wald.split_leaves(4);
+                let wide = mbvh::BVH::new(&wald);
+                // BVH8_CPU copies the triangles into its leaves: it outlives
+                // the trees it was converted from and the vertex array.
+                Tree::Bvh8(bvh8_cpu::BVH::new(&wide).map_err(failed)?)
+            }
+            TinybvhLayout::Bvh => {
+                // SAFETY: the slice is the heap allocation of `vertices`,
+                // which is moved (not reallocated) into the same WaldTree,
+                // never mutated, and dropped after the tree (WaldTree's Drop
+                // drops the tree first), so the borrow the tree holds is valid
+                // for the tree's whole life.
+                let borrowed: &'static [[f32; 4]] =
+                    unsafe { &*(vertices.as_ref() as *const [[f32; 4]]) };
+                let tree = if hq {
+                    bvh::BVH::new_hq(borrowed.into())
+                } else {
+                    bvh::BVH::new(borrowed.into())
+                }
+                .map_err(failed)?;
+                Tree::Wald(WaldTree {
+                    tree: ManuallyDrop::new(tree),
+                    _vertices: vertices,
+                })
+            }
+        };
+        Ok(TinybvhBackend { tree })
+    }
+
+    /// tinybvh's closest hit within `(0, tmax)` of the ray started at tmin.
+    fn trace(&self, ray: &Ray) -> Option<Hit> {
+        if !ray.is_valid() {
+            return None;
+        }
+        let (origin, tmax, shift) = started_at_tmin(ray);
+        let mut room = RayRoom::new(origin, ray.dir, tmax);
+        match &self.tree {
+            Tree::Bvh8(tree) => tree.intersect(&mut room.ray),
+            Tree::Wald(wald) => wald.tree.intersect(&mut room.ray),
+            Tree::Empty => return None,
+        };
+        let hit = room.ray.hit;
+        (hit.t < tmax.min(BVH_FAR)).then_some(Hit {
+            t: hit.t + shift,
+            u: hit.u,
+            v: hit.v,
+            tri: hit.prim,
+        })
+    }
+}
+
+impl Backend for TinybvhBackend {
+    fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        self.trace(ray)
+    }
+
+    fn occluded(&self, ray: &Ray) -> bool {
+        // tinybvh-rs exposes no IsOccluded: the closest hit within tmax.
+        self.trace(ray).is_some()
+    }
+}
+
+// cxx marks opaque C++ types neither Send nor Sync. Both trees are owned
+// outright by this backend (no C++ state shared with anything else), and
+// after the build only `Intersect` is called, a `const` method of both
+// classes (tiny_bvh.h declares no `mutable` member) that reads the tree and
+// writes only the caller's ray.
+// SAFETY: see above; moving the owner to another thread moves sole ownership.
+unsafe impl Send for TinybvhBackend {}
+// SAFETY: see above; concurrent calls only read the tree.
+unsafe impl Sync for TinybvhBackend {}
