@@ -177,6 +177,17 @@ impl BackendSpec {
         matches!(self, BackendSpec::Embree { .. })
     }
 
+    /// Whether this is another library's BVH (with its own arithmetic).
+    pub const fn is_library(&self) -> bool {
+        matches!(self, BackendSpec::Library { .. })
+    }
+
+    /// Whether this is raylab's own (the naive scan or its BVH): the same
+    /// triangle test as the naive scan, so the same hits bit for bit.
+    pub const fn is_own(&self) -> bool {
+        !self.is_embree() && !self.is_library()
+    }
+
     /// The name reports use: `naive`, `bvh-<builder>` (`bvh4-`, `bvh8-` for the
     /// wide trees; `-opt` when reinsertion-optimised), `embree-<quality>` (`-robust`); raylab's backends add
     /// `-watertight` for the watertight triangle test; a query path other

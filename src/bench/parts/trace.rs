@@ -8,8 +8,9 @@
 //! A speed figure is only quoted for right answers (tinybvh's habit): before
 //! timing, every backend answers every ray once; raylab's own backends must
 //! give the reference's answers bit for bit (the bench fails otherwise), and
-//! Embree's differing answers are counted and reported (ties on shared edges,
-//! which `raylab validate` classifies).
+//! Embree's and the other libraries' differing answers (another triangle, or
+//! a hit against a miss) are counted and reported: ties on shared edges, and
+//! the libraries' own misses, which `raylab validate` classifies.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
@@ -111,6 +112,8 @@ pub struct TracePoint {
     pub query: String,
     /// Embree's (the reference the own backends' times are divided by).
     pub embree: bool,
+    /// Another library's (neither raylab's own nor Embree).
+    pub library: bool,
     /// `primary` or `diffuse` (closest hit), `shadow` or `ao` (any hit).
     pub kind: String,
     pub threads: usize,
@@ -305,7 +308,7 @@ pub fn trace_backends(
     }
     let reference = backends
         .iter()
-        .position(|(b, _)| !b.spec.is_embree())
+        .position(|(b, _)| b.spec.is_own())
         .unwrap_or(0);
     bar.set_message(format!("trace: recording the rays of {}", scene.name));
     let recorded = recorded_rays(scene, backends[reference].0.as_ref(), settings)?;
@@ -331,9 +334,9 @@ pub fn trace_backends(
         answers(backends[reference].0.as_ref(), closest, rays, &mut want);
         let mut differing = Vec::with_capacity(backends.len());
         for (b, _) in backends {
-            // Embree computes t with its own arithmetic: only the triangle hit
-            // is comparable.
-            let exact = !b.spec.is_embree();
+            // Embree and the other libraries compute t with their own
+            // arithmetic: only the triangle hit is comparable.
+            let exact = b.spec.is_own();
             let same = |a: Answer, w: Answer| match (a, w) {
                 (Answer::Closest(a), Answer::Closest(w)) if !exact => {
                     a.map(|h| h.0) == w.map(|h| h.0)
@@ -395,6 +398,7 @@ pub fn trace_backends(
                     structure: b.spec.structure_name(),
                     query: b.spec.query().name(),
                     embree: b.spec.is_embree(),
+                    library: b.spec.is_library(),
                     kind: kind.name().to_string(),
                     threads,
                     rays: rays.len(),
@@ -468,7 +472,8 @@ fn build_markdown(points: &[TracePoint]) -> String {
 
 /// The trace table: one row per scene, ray kind and thread count, Mrays/s per
 /// backend and query path, and the best own path's time over the best Embree
-/// path's (at most 1 means as fast as Embree at its best, or faster).
+/// path's and over the best other library's (at most 1 means as fast as that
+/// reference at its best, or faster).
 pub fn markdown(points: &[TracePoint]) -> String {
     let mut backends: Vec<&str> = Vec::new();
     for p in points {
@@ -486,10 +491,17 @@ pub fn markdown(points: &[TracePoint]) -> String {
     for b in &backends {
         table.column(*b, Right);
     }
-    if has_embree {
+    let has_library = points.iter().any(|p| p.library);
+    if has_embree || has_library {
         table.column("best own", Right);
+    }
+    if has_embree {
         table.column("best Embree", Right);
         table.column("own/Embree time", Right);
+    }
+    if has_library {
+        table.column("best library", Right);
+        table.column("own/library time", Right);
     }
     let mut rows: Vec<(&str, &str, usize)> = Vec::new();
     for p in points {
@@ -519,22 +531,33 @@ pub fn markdown(points: &[TracePoint]) -> String {
                 None => String::new(),
             });
         }
-        if has_embree {
-            let best = cell
-                .iter()
-                .filter(|p| !p.embree)
-                .max_by(|a, b| a.mrays.median.total_cmp(&b.mrays.median));
-            let embree = cell
-                .iter()
-                .filter(|p| p.embree)
-                .max_by(|a, b| a.mrays.median.total_cmp(&b.mrays.median));
-            match (best, embree) {
-                (Some(b), Some(e)) => {
-                    row.push(b.backend.clone());
-                    row.push(e.backend.clone());
-                    row.push(format!("{:.2}", e.mrays.median / b.mrays.median.max(1e-12)));
+        let fastest = |which: &dyn Fn(&TracePoint) -> bool| {
+            cell.iter()
+                .copied()
+                .filter(|p| which(p))
+                .max_by(|a, b| a.mrays.median.total_cmp(&b.mrays.median))
+        };
+        let own = fastest(&|p| !p.embree && !p.library);
+        if has_embree || has_library {
+            row.push(own.map_or(String::new(), |o| o.backend.clone()));
+        }
+        // The best of each reference and the best own path's time over its.
+        for (has, which) in [
+            (
+                has_embree,
+                &(|p: &TracePoint| p.embree) as &dyn Fn(&TracePoint) -> bool,
+            ),
+            (has_library, &|p: &TracePoint| p.library),
+        ] {
+            if !has {
+                continue;
+            }
+            match (own, fastest(which)) {
+                (Some(o), Some(r)) => {
+                    row.push(r.backend.clone());
+                    row.push(format!("{:.2}", r.mrays.median / o.mrays.median.max(1e-12)));
                 }
-                _ => row.extend([String::new(), String::new(), String::new()]),
+                _ => row.extend([String::new(), String::new()]),
             }
         }
         table.row(row);
