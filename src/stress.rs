@@ -386,6 +386,14 @@ pub enum StressBackend {
 }
 
 impl StressBackend {
+    /// raylab's backends and Embree (what the degenerate suite compares).
+    pub const OWN_AND_EMBREE: [StressBackend; 4] = [
+        StressBackend::Naive,
+        StressBackend::BvhMedian,
+        StressBackend::BvhSah,
+        StressBackend::Embree,
+    ];
+
     pub const ALL: [StressBackend; 5] = [
         StressBackend::Naive,
         StressBackend::BvhMedian,
@@ -755,8 +763,12 @@ pub fn degenerate_cases() -> Vec<DegenerateCase> {
         .collect()
 }
 
-/// The degenerate suite: every backend on every case with random rays, rays
-/// parallel to the triangles' plane, axis-aligned rays and NaN/inf rays.
+/// The degenerate suite: raylab's backends and Embree on every case with
+/// random rays, rays parallel to the triangles' plane, axis-aligned rays and
+/// NaN/inf rays. The other libraries are left out: tinybvh's BVH8_CPU
+/// conversion crashed the process on the `identical` case (now refused as an
+/// error at build time, which would end the suite), and the suite's
+/// "agrees with naive" column presumes raylab's arithmetic.
 pub fn degenerate_suite(rays_per_case: usize) -> Result<Vec<DegenerateRow>> {
     let mut rows = Vec::new();
     for DegenerateCase {
@@ -796,7 +808,8 @@ pub fn degenerate_suite(rays_per_case: usize) -> Result<Vec<DegenerateRow>> {
         let naive_mt = Naive::from_triangles(tris.clone());
         let naive_wt =
             Naive::from_triangles(tris.clone()).with_intersector(Intersector::Watertight);
-        for (backend, intersector) in stress_backends(&positions, &triangles, &StressBackend::ALL)?
+        for (backend, intersector) in
+            stress_backends(&positions, &triangles, &StressBackend::OWN_AND_EMBREE)?
         {
             let reference: &dyn Backend = if intersector == "watertight" {
                 &naive_wt

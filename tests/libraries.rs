@@ -251,3 +251,25 @@ fn library_renders_are_the_same_on_any_thread_count_and_name_the_layout() {
     }
     std::fs::remove_dir_all(&d).ok();
 }
+
+#[test]
+fn a_tree_tinybvh_cannot_convert_is_refused_not_a_crash() {
+    // 2000 copies of one triangle: tinybvh splits the leaf into a 500-deep
+    // chain, and its BVH8_CPU conversion used to crash the process on it.
+    let d = temp_dir("library-identical");
+    let obj = d.join("identical.obj");
+    let mut text = String::from("v 0 0 0\nv 1 0 0\nv 0 1 0\n");
+    text.push_str(&"f 1 2 3\n".repeat(2000));
+    std::fs::write(&obj, text).unwrap();
+    let png = d.join("x.png");
+    let (obj, png) = (obj.to_str().unwrap(), png.to_str().unwrap());
+    let args = ["render", obj, "--size", "16x12", "-q", "-o", png];
+    assert_one_line_error(
+        &[&args[..], &["--backend", "tinybvh"]].concat(),
+        "--layout bvh",
+    );
+    assert_success(&raylab(
+        &[&args[..], &["--backend", "tinybvh", "--layout", "bvh"]].concat(),
+    ));
+    std::fs::remove_dir_all(&d).ok();
+}

@@ -29,6 +29,29 @@ use crate::scene::MeshRef;
 /// tinybvh's "no hit" distance.
 const BVH_FAR: f32 = tinybvh_rs::INFINITE;
 
+/// The deepest binary tree raylab converts to `BVH8_CPU`. tinybvh's own
+/// tree walks use fixed stacks (64 entries in `SplitLeafs`, 256 in the
+/// conversions); a scene of 2000 identical triangles makes a 500-deep chain
+/// of split leaves, and the conversion then writes past them (a segfault, found
+/// by `raylab stress --suite degenerate`). Real scenes are under 40 deep.
+const BVH8_MAX_DEPTH: usize = 64;
+
+/// The depth of tinybvh's binary tree (root: 1).
+fn depth(nodes: &[bvh::Node]) -> usize {
+    let mut deepest = 0;
+    let mut stack = vec![(0usize, 1usize)];
+    while let Some((i, d)) = stack.pop() {
+        deepest = deepest.max(d);
+        let node = &nodes[i];
+        if !node.is_leaf() {
+            let first = node.left_first as usize;
+            stack.push((first, d + 1));
+            stack.push((first + 1, d + 1));
+        }
+    }
+    deepest
+}
+
 /// A tinybvh ray with the room its C++ definition takes (see the module note).
 #[repr(C, align(64))]
 struct RayRoom {
@@ -113,6 +136,15 @@ impl TinybvhBackend {
                 }
                 .map_err(failed)?;
                 wald.split_leaves(4);
+                let depth = depth(wald.nodes());
+                if depth > BVH8_MAX_DEPTH {
+                    return Err(Error::Other(format!(
+                        "tinybvh: its tree is {depth} levels deep here (many triangles with \
+                         one centroid, split into a chain of leaves); its BVH8_CPU conversion \
+                         crashes on such trees (its traversal stacks assume at most \
+                         {BVH8_MAX_DEPTH}): use --layout bvh"
+                    )));
+                }
                 let wide = mbvh::BVH::new(&wald);
                 // BVH8_CPU copies the triangles into its leaves: it outlives
                 // the trees it was converted from and the vertex array.
