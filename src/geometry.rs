@@ -371,8 +371,43 @@ impl TriangleTest for Watertight {
         if !(t > ray.tmin && t < ray.tmax) {
             return None;
         }
+        if t * ray.dir.abs().max_element() <= NEAR_ORIGIN * ray.origin.abs().max_element().max(1.0)
+            && !ahead_of_origin(ray, tri)
+        {
+            return None;
+        }
         Some((t, e1 * inv, e2 * inv))
     }
+}
+
+/// Hits nearer the origin than this (relative to the origin's magnitude) have
+/// their side of the origin decided exactly by [`ahead_of_origin`]: a ray
+/// that starts on a triangle's plane (a shadow ray leaving a wall at the
+/// corner with another) has t = 0 there, which f32 computes as about 1e-12
+/// and would count as a hit. Far above that rounding; far below where the
+/// renderer's offset rays meet real occluders often.
+const NEAR_ORIGIN: f32 = 1e-4;
+
+/// Whether the hit of `ray`'s line with the plane of `tri` (which it crosses)
+/// lies strictly ahead of the origin: the origin's side of the plane, exactly
+/// (Shewchuk's orient3d on the f32 inputs), against the direction's side
+/// (f64; a direction that grazes the plane within its rounding keeps the hit).
+fn ahead_of_origin(ray: &Ray, tri: &[Vec3; 3]) -> bool {
+    let c = |v: Vec3| robust::Coord3D {
+        x: v.x as f64,
+        y: v.y as f64,
+        z: v.z as f64,
+    };
+    // det[v0 - o; v1 - o; v2 - o] = n . (v0 - o), exactly: t * (n . d).
+    let side = robust::orient3d(c(tri[0]), c(tri[1]), c(tri[2]), c(ray.origin));
+    if side == 0.0 {
+        return false; // the origin lies on the plane: t = 0
+    }
+    let v = tri.map(|p| p.as_dvec3());
+    let n = (v[1] - v[0]).cross(v[2] - v[0]);
+    let n_dot_d = n.dot(ray.dir.as_dvec3());
+    let bound = 1e-12 * n.length() * ray.dir.as_dvec3().length();
+    n_dot_d.abs() <= bound || (side > 0.0) == (n_dot_d > 0.0)
 }
 
 /// Where secondary rays start, to avoid hitting the surface they leave

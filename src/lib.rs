@@ -15,6 +15,7 @@ pub mod camera;
 pub mod cli;
 pub mod command;
 pub mod error;
+pub mod exact;
 pub mod geometry;
 pub mod os;
 pub mod progress;

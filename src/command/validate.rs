@@ -23,9 +23,11 @@ pub struct ValidateArgs {
     scenes: Vec<String>,
     #[command(flatten)]
     pub accel: BackendArgs,
-    /// The reference backend (built with its defaults).
-    #[arg(long, value_enum, default_value_t = if crate::accel::embree::AVAILABLE { BackendKind::Embree } else { BackendKind::Naive })]
-    against: BackendKind,
+    /// The reference: a backend (built with its defaults), or `exact` (every
+    /// ray decided in exact arithmetic where double precision allows: each
+    /// answer right, wrong or undecidable).
+    #[arg(long, value_enum, default_value_t = if crate::accel::embree::AVAILABLE { Against::Embree } else { Against::Naive })]
+    against: Against,
     /// Ray sets to compare.
     #[arg(long, value_name = "SET", default_value = "all", value_parser = ["primary", "shadow", "ao", "diffuse", "random", "all"])]
     rays: String,
@@ -47,6 +49,49 @@ pub struct ValidateArgs {
     /// Print one JSON array with a report per scene on stdout.
     #[arg(long)]
     json: bool,
+}
+
+/// `--against`: a backend kind, or the exact reference.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Against {
+    /// The exact reference (`src/exact.rs`).
+    Exact,
+    Naive,
+    Bvh,
+    Embree,
+    Tinybvh,
+    Obvhs,
+    #[value(name = "bvh-crate")]
+    BvhCrate,
+}
+
+impl Against {
+    /// The backend kind, or `None` for the exact reference.
+    fn backend(self) -> Option<BackendKind> {
+        Some(match self {
+            Against::Exact => return None,
+            Against::Naive => BackendKind::Naive,
+            Against::Bvh => BackendKind::Bvh,
+            Against::Embree => BackendKind::Embree,
+            Against::Tinybvh => BackendKind::Tinybvh,
+            Against::Obvhs => BackendKind::Obvhs,
+            Against::BvhCrate => BackendKind::BvhCrate,
+        })
+    }
+}
+
+/// One scene judged against the exact reference.
+#[derive(Serialize)]
+struct ExactValidateReport {
+    scene: String,
+    backend: String,
+    against: &'static str,
+    wrong: usize,
+    undecidable: usize,
+    wrong_per_million: f64,
+    max_genuine: usize,
+    pass: bool,
+    sets: Vec<crate::exact::ExactReport>,
 }
 
 #[derive(Serialize)]
@@ -107,8 +152,11 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
     };
     let count = args.count as usize;
     let spec = args.accel.spec(threads)?;
+    let Some(against) = args.against.backend() else {
+        return run_exact(args, &names, &sets, spec, threads);
+    };
     // The reference with its defaults (Embree MEDIUM, SAH BVH, MT) on `threads`.
-    let reference_spec = BackendSpec::default_for(args.against, threads);
+    let reference_spec = BackendSpec::default_for(against, threads);
     let mut reports = Vec::new();
     for name in &names {
         let mut scene = load_scene(name)?;
@@ -120,7 +168,7 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
         // rays of another library's image would carry its wrong answers, so
         // against the naive scan those are recorded with raylab's tree.
         let raylab_tree;
-        let recorder: &dyn crate::accel::Backend = match args.against {
+        let recorder: &dyn crate::accel::Backend = match against {
             BackendKind::Naive if spec.kind().is_library() => {
                 raylab_tree =
                     build_backend(&BackendSpec::default_for(BackendKind::Bvh, threads), &scene)?;
@@ -212,6 +260,127 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
             failed.join(", ")
         )))
     }
+}
+
+/// `validate --against exact`: every answer of the backend under test judged
+/// against the exact reference, on rays recorded with raylab's tree.
+fn run_exact(
+    args: &ValidateArgs,
+    names: &[String],
+    sets: &[crate::validate::RaySet],
+    spec: BackendSpec,
+    threads: usize,
+) -> Result<()> {
+    use crate::exact::{judge, ExactReference};
+    use crate::validate::ray_sets;
+    if args.diff_image.is_some() {
+        return Err(Error::usage(
+            "--diff-image",
+            "draws agreement with a backend, not with --against exact",
+        ));
+    }
+    let count = args.count as usize;
+    let mut reports = Vec::new();
+    for name in names {
+        let mut scene = load_scene(name)?;
+        let settings = args.view.prepare(&mut scene)?;
+        let tested = build_backend(&spec, &scene)?;
+        // The rays of raylab's render (its tree is the naive scan's hits bit
+        // for bit), so that every backend is judged on the same rays.
+        let recorder = build_backend(&BackendSpec::default_for(BackendKind::Bvh, threads), &scene)?;
+        let reference = ExactReference::new(scene.triangle_vertices());
+        let set_rays = ray_sets(&scene, recorder.as_ref(), &settings, sets, count, false)?;
+        let set_reports: Vec<crate::exact::ExactReport> = set_rays
+            .iter()
+            .map(|(set, rays)| judge(set.name(), rays, tested.as_ref(), &reference))
+            .collect();
+        let wrong: usize = set_reports.iter().map(|r| r.wrong()).sum();
+        let undecidable: usize = set_reports
+            .iter()
+            .map(|r| r.undecidable + r.occlusion_undecidable)
+            .sum();
+        let queries: usize = set_reports.iter().map(|r| 2 * r.rays).sum();
+        let report = ExactValidateReport {
+            scene: scene.name.clone(),
+            backend: tested.name(),
+            against: "exact",
+            wrong,
+            undecidable,
+            wrong_per_million: wrong as f64 * 1e6 / queries.max(1) as f64,
+            max_genuine: args.max_genuine,
+            pass: wrong <= args.max_genuine,
+            sets: set_reports,
+        };
+        if !args.json {
+            println!(
+                "{} ({} triangles): {} against the exact reference",
+                scene.name,
+                scene.triangle_count(),
+                report.backend
+            );
+            print!("{}", exact_table(&report.sets).markdown());
+            println!(
+                "{}: {wrong} wrong answers ({:.1} per million queries, max {}), {undecidable} undecidable in double precision\n",
+                if report.pass { "ok" } else { "FAIL" },
+                report.wrong_per_million,
+                args.max_genuine
+            );
+        }
+        reports.push(report);
+    }
+    if args.json {
+        println!("{}", serde_json::to_string(&reports)?);
+    }
+    let failed: Vec<&str> = reports
+        .iter()
+        .filter(|r| !r.pass)
+        .map(|r| r.scene.as_str())
+        .collect();
+    if failed.is_empty() {
+        Ok(())
+    } else {
+        Err(Error::Other(format!(
+            "validate: wrong answers above --max-genuine {} in {}",
+            args.max_genuine,
+            failed.join(", ")
+        )))
+    }
+}
+
+/// One row per ray set: the backend's closest-hit and any-hit answers as the
+/// exact reference judges them.
+fn exact_table(sets: &[crate::exact::ExactReport]) -> Table {
+    let mut t = Table::new([
+        ("set", Left),
+        ("rays", Right),
+        ("right", Right),
+        ("false miss", Right),
+        ("false hit", Right),
+        ("wrong triangle", Right),
+        ("t error", Right),
+        ("undecidable", Right),
+        ("occlusion right", Right),
+        ("occl. false miss", Right),
+        ("occl. false hit", Right),
+        ("occl. undecidable", Right),
+    ]);
+    for r in sets {
+        t.row([
+            r.set.clone(),
+            r.rays.to_string(),
+            r.right.to_string(),
+            r.false_miss.to_string(),
+            r.false_hit.to_string(),
+            r.wrong_triangle.to_string(),
+            r.t_error.to_string(),
+            r.undecidable.to_string(),
+            r.occlusion_right.to_string(),
+            r.occlusion_false_miss.to_string(),
+            r.occlusion_false_hit.to_string(),
+            r.occlusion_undecidable.to_string(),
+        ]);
+    }
+    t
 }
 
 /// One row per ray set: how the backend under test agreed with the reference.
