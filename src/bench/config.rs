@@ -27,6 +27,8 @@ pub enum Part {
     Builders,
     /// Each rung of the build-quality ladder, raylab's and Embree's.
     Ladder,
+    /// Every CPU BVH side by side: speed against wrong answers.
+    Libraries,
     /// Rays that leak through closed meshes, per intersection method.
     Leaks,
     /// Every BVH's hits against Embree's (or naive's).
@@ -34,7 +36,7 @@ pub enum Part {
 }
 
 impl Part {
-    pub const ALL: [Part; 9] = [
+    pub const ALL: [Part; 10] = [
         Part::Tables,
         Part::Trace,
         Part::Scaling,
@@ -42,6 +44,7 @@ impl Part {
         Part::AoError,
         Part::Builders,
         Part::Ladder,
+        Part::Libraries,
         Part::Leaks,
         Part::Validate,
     ];
@@ -56,6 +59,7 @@ impl Part {
             Part::AoError => "ao-error",
             Part::Builders => "builders",
             Part::Ladder => "ladder",
+            Part::Libraries => "libraries",
             Part::Leaks => "leaks",
             Part::Validate => "validate",
         }

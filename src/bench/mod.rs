@@ -33,10 +33,13 @@ use parts::ao_error::AoErrorPoint;
 use parts::builders::BuilderPoint;
 use parts::growth::GrowthPoint;
 use parts::ladder::LadderPoint;
+use parts::libraries::LibraryPoint;
 use parts::scaling::ScalingPoint;
 use parts::trace::TracePoint;
 use parts::validate::ValidationRow;
-use parts::{ao_error, builders, growth, ladder, leaks, scaling, tables, trace, validate};
+use parts::{
+    ao_error, builders, growth, ladder, leaks, libraries, scaling, tables, trace, validate,
+};
 
 /// The machine a bench ran on.
 #[derive(Clone, Debug, Serialize)]
@@ -117,6 +120,7 @@ pub struct BenchReport {
     pub ao_error: Vec<AoErrorPoint>,
     pub builders: Vec<BuilderPoint>,
     pub ladder: Vec<LadderPoint>,
+    pub libraries: Vec<LibraryPoint>,
     pub leaks: Vec<crate::stress::LeakRow>,
     pub validation: Vec<ValidationRow>,
     pub images: Vec<SceneImages>,
@@ -174,6 +178,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
         + steps_of(Part::AoError, ao_error::steps)
         + steps_of(Part::Builders, builders::steps)
         + steps_of(Part::Ladder, ladder::steps)
+        + steps_of(Part::Libraries, libraries::steps)
         + steps_of(Part::Leaks, leaks::steps)
         + steps_of(Part::Validate, validate::steps);
     let mut units = steps * step;
@@ -207,6 +212,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
     let ao_error = run_part(cfg, Part::AoError, scenes, &bar, ao_error::run)?;
     let builders = run_part(cfg, Part::Builders, scenes, &bar, builders::run)?;
     let ladder = run_part(cfg, Part::Ladder, scenes, &bar, ladder::run)?;
+    let libraries = run_part(cfg, Part::Libraries, scenes, &bar, libraries::run)?;
     let leaks = run_part(cfg, Part::Leaks, scenes, &bar, leaks::run)?;
     let validation = run_part(cfg, Part::Validate, scenes, &bar, validate::run)?;
     bar.finish();
@@ -233,6 +239,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
         ao_error,
         builders,
         ladder,
+        libraries,
         leaks,
         validation,
         images,
@@ -325,6 +332,9 @@ fn write_charts(dir: &Path, r: &BenchReport) -> Result<Vec<String>> {
     if !r.builders.is_empty() {
         files.extend(builders::charts(dir, &r.builders)?);
     }
+    if !r.libraries.is_empty() {
+        files.extend(libraries::charts(dir, &r.libraries)?);
+    }
     if !r.ladder.is_empty() {
         files.extend(ladder::charts(dir, &r.ladder)?);
     }
@@ -398,6 +408,9 @@ pub fn markdown(r: &BenchReport) -> String {
     }
     if !r.builders.is_empty() {
         out.push_str(&builders::markdown(&r.builders));
+    }
+    if !r.libraries.is_empty() {
+        out.push_str(&libraries::markdown(&r.libraries));
     }
     if !r.ladder.is_empty() {
         out.push_str(&ladder::markdown(&r.ladder));

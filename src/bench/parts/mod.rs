@@ -11,6 +11,7 @@ pub mod builders;
 pub mod growth;
 pub mod ladder;
 pub mod leaks;
+pub mod libraries;
 pub mod scaling;
 pub mod tables;
 pub mod trace;
@@ -40,6 +41,7 @@ pub fn section(part: Part) -> &'static ChartSection {
         Part::AoError => &ao_error::SECTION,
         Part::Builders => &builders::SECTION,
         Part::Ladder => &ladder::SECTION,
+        Part::Libraries => &libraries::SECTION,
         Part::Leaks => &leaks::SECTION,
         Part::Validate => &validate::SECTION,
     }

@@ -1,0 +1,415 @@
+//! The `libraries` part: every CPU BVH side by side, raylab's, Embree and the
+//! other libraries (tinybvh, obvhs, the bvh crate), each on its fastest query
+//! path, on the same recorded rays in one process: build time on one thread,
+//! throughput per ray kind on one thread, and how many of its answers are
+//! wrong against the exact reference (`src/exact.rs`). Its chart is the
+//! design card's "chart one against the other": time per ray against wrong
+//! answers per million, one point per backend and intersector.
+
+use std::path::Path;
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use serde::Serialize;
+
+use super::trace::trace;
+use super::ChartSection;
+use crate::accel::bvh::BuildParams;
+use crate::accel::library::{Library, ObvhsLayout, TinybvhLayout};
+use crate::accel::{build_backend, BackendSpec, Built};
+use crate::bench::charts::{
+    color, log_label, log_range, save_chart, side_legend, DrawResult, Swatch, FONT, SIDE_LEGEND,
+};
+use crate::bench::config::BenchConfig;
+use crate::bench::measure::Stat;
+use crate::error::Result;
+use crate::exact::{judge, ExactReference};
+use crate::geometry::{Intersector, Ray};
+use crate::progress::StepBar;
+use crate::render::AoMode;
+use crate::scene::Scene;
+use crate::table::{
+    Align::{Left, Right},
+    Table,
+};
+use crate::validate::{recorded_rays, subsample};
+
+pub const SECTION: ChartSection = ChartSection {
+    title: "Every CPU BVH: speed against accuracy",
+    stem: "libraries",
+    caption: "Time per ray (one thread, mean over the ray kinds) against wrong answers per million against the exact reference, per scene; a backend with none sits on the bottom line (dot: raylab, triangle: Embree, cross: another library). Lower left is better.",
+};
+
+/// The ray kinds: (name, closest hit?).
+const KINDS: [(&str, bool); 4] = [
+    ("primary", true),
+    ("shadow", false),
+    ("ao", false),
+    ("diffuse", true),
+];
+
+/// One backend on one scene.
+#[derive(Clone, Debug, Serialize)]
+pub struct LibraryPoint {
+    pub scene: String,
+    pub triangles: usize,
+    pub backend: String,
+    /// `raylab`, `embree` or `library`.
+    pub family: String,
+    /// Median build ms on one thread (after an untimed build).
+    pub build_ms: Stat,
+    /// Mrays/s on one thread per kind, in [`KINDS`] order.
+    pub mrays: Vec<f64>,
+    /// Mean ns per ray over the kinds (each kind weighted alike).
+    pub ns_per_ray: f64,
+    pub rays: usize,
+    /// Wrong answers (the query each kind asks) against the exact reference.
+    pub wrong: usize,
+    pub undecidable: usize,
+    pub wrong_per_million: f64,
+    /// What the library lacks and raylab filled in (empty for raylab's own).
+    pub limits: Vec<String>,
+    /// Why it could not be built on this scene (then nothing was measured).
+    pub failed: Option<String>,
+}
+
+/// The backends compared, each on its fastest query path, built on one
+/// thread: raylab's 8-wide tree with both triangle tests, Embree plain and
+/// robust, and every layout of the other libraries built in.
+fn specs() -> Vec<BackendSpec> {
+    let bvh8 = BackendSpec::bvh(BuildParams::sah().with_width(8));
+    let mut out = vec![bvh8, bvh8.with_intersector(Intersector::Watertight)];
+    if crate::accel::embree::AVAILABLE {
+        for robust in [false, true] {
+            out.push(BackendSpec::Embree {
+                quality: crate::accel::embree::Quality::Medium,
+                robust,
+                threads: 1,
+                query: crate::accel::Query::Single,
+            });
+        }
+    }
+    let medium = crate::accel::embree::Quality::Medium;
+    out.extend(
+        [
+            Library::Tinybvh {
+                layout: TinybvhLayout::Bvh8,
+                hq: false,
+            },
+            Library::Tinybvh {
+                layout: TinybvhLayout::Bvh8,
+                hq: true,
+            },
+            Library::Tinybvh {
+                layout: TinybvhLayout::Bvh,
+                hq: false,
+            },
+            Library::Obvhs {
+                layout: ObvhsLayout::CwBvh,
+                quality: medium,
+            },
+            Library::Obvhs {
+                layout: ObvhsLayout::Bvh2,
+                quality: medium,
+            },
+            Library::BvhCrate,
+        ]
+        .into_iter()
+        .filter(Library::available)
+        .map(|l| BackendSpec::library(l, 1)),
+    );
+    out.into_iter()
+        .map(BackendSpec::with_fastest_query)
+        .collect()
+}
+
+/// Progress steps: one per scene and backend.
+pub fn steps(_cfg: &BenchConfig, scenes: &[Scene]) -> u64 {
+    (scenes.len() * specs().len()) as u64
+}
+
+/// Every backend on every scene, on the rays of its first view at half size.
+pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<LibraryPoint>> {
+    let size = cfg.smaller(2);
+    let reps = cfg.extra_reps();
+    let per_kind = if cfg.quick { 2_000 } else { 20_000 };
+    let mut out = Vec::new();
+    for scene in scenes {
+        let settings = cfg
+            .first_view(scene, size)
+            .settings(size, AoMode::Paper, 1)?;
+        bar.set_message(format!("libraries: recording the rays of {}", scene.name));
+        let recorder = build_backend(
+            &BackendSpec::bvh(BuildParams::sah().with_width(8)).with_fastest_query(),
+            scene,
+        )?;
+        let recorded = recorded_rays(scene, recorder.as_ref(), &settings)?;
+        let diffuse = recorded.diffuse(scene, settings.seed);
+        let rays: Vec<Vec<Ray>> = [&recorded.primary, &recorded.shadow, &recorded.ao, &diffuse]
+            .into_iter()
+            .map(|r| subsample(r.clone(), per_kind))
+            .collect();
+        let reference = ExactReference::new(scene.triangle_vertices());
+        for spec in specs() {
+            bar.set_message(format!("libraries: {} on {}", spec.name(), scene.name));
+            // An untimed build first (Embree's device, pages faulted in).
+            let built = match build_backend(&spec, scene) {
+                Ok(b) => b,
+                // A library that cannot build this scene is reported, not fatal.
+                Err(e) => {
+                    out.push(LibraryPoint {
+                        scene: scene.name.clone(),
+                        triangles: scene.triangle_count(),
+                        backend: spec.name(),
+                        family: "library".into(),
+                        build_ms: Stat::of(&[]),
+                        mrays: vec![f64::NAN; KINDS.len()],
+                        ns_per_ray: f64::NAN,
+                        rays: 0,
+                        wrong: 0,
+                        undecidable: 0,
+                        wrong_per_million: f64::NAN,
+                        limits: Vec::new(),
+                        failed: Some(e.to_string()),
+                    });
+                    bar.step();
+                    continue;
+                }
+            };
+            let mut times = Vec::new();
+            for _ in 0..reps.max(1) {
+                times.push(build_backend(&spec, scene)?.build_time.as_secs_f64() * 1e3);
+            }
+            out.push(measure(
+                scene,
+                &built,
+                Stat::of(&times),
+                &rays,
+                &reference,
+                reps,
+            ));
+            bar.step();
+        }
+    }
+    Ok(out)
+}
+
+/// Throughput per kind (one thread, median of `reps` after a warm-up) and
+/// the exact reference's verdicts on `built`'s answers.
+fn measure(
+    scene: &Scene,
+    built: &Built,
+    build_ms: Stat,
+    rays: &[Vec<Ray>],
+    reference: &ExactReference,
+    reps: usize,
+) -> LibraryPoint {
+    let mut mrays = Vec::new();
+    let (mut wrong, mut undecidable, mut total) = (0, 0, 0);
+    for ((name, closest), rays) in KINDS.iter().zip(rays) {
+        if rays.is_empty() {
+            mrays.push(f64::NAN);
+            continue;
+        }
+        trace(built.as_ref(), *closest, rays, 1);
+        let rates: Vec<f64> = (0..reps.max(1))
+            .map(|_| {
+                rays.len() as f64 / trace(built.as_ref(), *closest, rays, 1).0.max(1e-12) / 1e6
+            })
+            .collect();
+        mrays.push(Stat::of(&rates).median);
+        let r = judge(name, rays, built.as_ref(), reference);
+        // The query this kind asks.
+        if *closest {
+            wrong += r.false_miss + r.false_hit + r.wrong_triangle + r.t_error;
+            undecidable += r.undecidable;
+        } else {
+            wrong += r.occlusion_false_miss + r.occlusion_false_hit;
+            undecidable += r.occlusion_undecidable;
+        }
+        total += rays.len();
+    }
+    let measured: Vec<f64> = mrays.iter().copied().filter(|m| m.is_finite()).collect();
+    let ns_per_ray = measured.iter().map(|m| 1e3 / m).sum::<f64>() / measured.len().max(1) as f64;
+    let family = if built.spec.is_embree() {
+        "embree"
+    } else if built.spec.is_library() {
+        "library"
+    } else {
+        "raylab"
+    };
+    let limits = match built.spec {
+        BackendSpec::Library { library, .. } => {
+            library.limits().iter().map(|s| s.to_string()).collect()
+        }
+        _ => Vec::new(),
+    };
+    LibraryPoint {
+        scene: scene.name.clone(),
+        triangles: scene.triangle_count(),
+        backend: built.name(),
+        family: family.to_string(),
+        build_ms,
+        mrays,
+        ns_per_ray,
+        rays: total,
+        wrong,
+        undecidable,
+        wrong_per_million: wrong as f64 * 1e6 / total.max(1) as f64,
+        limits,
+        failed: None,
+    }
+}
+
+/// The part's table: per scene and backend, build ms, Mrays/s per kind, and
+/// wrong answers per million; then what each library lacks.
+pub fn markdown(points: &[LibraryPoint]) -> String {
+    let mut t = Table::new([
+        ("scene", Left),
+        ("backend", Left),
+        ("build ms", Right),
+        ("Mrays/s primary", Right),
+        ("shadow", Right),
+        ("ao", Right),
+        ("diffuse", Right),
+        ("wrong per million", Right),
+        ("undecidable", Right),
+    ]);
+    for p in points {
+        if let Some(why) = &p.failed {
+            let mut row = vec![p.scene.clone(), p.backend.clone()];
+            row.extend((0..6).map(|_| "-".to_string()));
+            row.push(format!("not built: {why}"));
+            t.row(row);
+            continue;
+        }
+        let mut row = vec![
+            p.scene.clone(),
+            p.backend.clone(),
+            format!("{:.2}", p.build_ms.median),
+        ];
+        row.extend(p.mrays.iter().map(|m| {
+            if m.is_finite() {
+                format!("{m:.2}")
+            } else {
+                "-".to_string()
+            }
+        }));
+        row.push(format!("{:.0} ({})", p.wrong_per_million, p.wrong));
+        row.push(p.undecidable.to_string());
+        t.row(row);
+    }
+    let mut limits: Vec<(String, Vec<String>)> = Vec::new();
+    for p in points.iter().filter(|p| !p.limits.is_empty()) {
+        if !limits.iter().any(|(b, _)| *b == p.backend) {
+            limits.push((p.backend.clone(), p.limits.clone()));
+        }
+    }
+    let limits: String = limits
+        .iter()
+        .map(|(b, l)| format!("- `{b}`: {}\n", l.join("; ")))
+        .collect();
+    format!(
+        "### Every CPU BVH side by side\n\nOne thread, each backend on its fastest query path, the same recorded rays (one render's primary, shadow and AO rays and a diffuse bounce per primary hit, at most 20000 of each). Wrong: answers (closest hit for primary and diffuse, any hit for shadow and AO) that the exact reference says are false misses, false hits, the wrong triangle or a t beyond its bound; undecidable: double precision could not say.\n\n{}\nWhat the other libraries lack, and what raylab does instead:\n\n{limits}",
+        t.markdown()
+    )
+}
+
+/// The part's chart.
+pub fn charts(dir: &Path, points: &[LibraryPoint]) -> Result<Vec<String>> {
+    let scenes = distinct(points.iter().map(|p| p.scene.as_str()))
+        .len()
+        .max(1) as u32;
+    let width = 460 * scenes.min(4) + SIDE_LEGEND + 60;
+    Ok(vec![save_chart!(
+        dir,
+        SECTION.stem,
+        (width, 520),
+        draw_libraries,
+        points
+    )?])
+}
+
+fn distinct<'a>(items: impl Iterator<Item = &'a str>) -> Vec<&'a str> {
+    let mut out: Vec<&str> = Vec::new();
+    for i in items {
+        if !out.contains(&i) {
+            out.push(i);
+        }
+    }
+    out
+}
+
+/// Where a count of zero wrong answers is drawn on the log axis.
+const ZERO_LINE: f64 = 0.1;
+
+fn draw_libraries<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    pts: &[LibraryPoint],
+) -> DrawResult
+where
+    DB::ErrorType: 'static,
+{
+    root.fill(&WHITE)?;
+    let (width, _) = root.dim_in_pixel();
+    let (panels, side) = root.split_horizontally(width.saturating_sub(SIDE_LEGEND + 60));
+    let scenes: Vec<&str> = distinct(pts.iter().map(|p| p.scene.as_str()))
+        .into_iter()
+        .take(4)
+        .collect();
+    let backends = distinct(pts.iter().map(|p| p.backend.as_str()));
+    let areas = panels.split_evenly((1, scenes.len().max(1)));
+    let y = |p: &LibraryPoint| p.wrong_per_million.max(ZERO_LINE);
+    for (area, scene) in areas.iter().zip(&scenes) {
+        let here: Vec<&LibraryPoint> = pts
+            .iter()
+            .filter(|p| p.scene == *scene && p.failed.is_none())
+            .collect();
+        let title = std::path::Path::new(scene)
+            .file_stem()
+            .map_or(scene.to_string(), |s| s.to_string_lossy().into_owned());
+        let y_range = log_range(here.iter().map(|p| y(p)).chain([ZERO_LINE, 1e3]));
+        let mut chart = ChartBuilder::on(area)
+            .caption(title, (FONT, 18))
+            .margin(12)
+            .x_label_area_size(45)
+            .y_label_area_size(60)
+            .build_cartesian_2d(
+                log_range(here.iter().map(|p| p.ns_per_ray.max(1e-3))).log_scale(),
+                y_range.log_scale(),
+            )?;
+        chart
+            .configure_mesh()
+            .x_desc("ns per ray, 1 thread (log)")
+            .y_desc("wrong per million (log; 0 at bottom)")
+            .x_label_formatter(&log_label)
+            .y_label_formatter(&|v| {
+                if *v <= ZERO_LINE * 1.01 {
+                    "0".to_string()
+                } else {
+                    log_label(v)
+                }
+            })
+            .draw()?;
+        for p in &here {
+            let ci = backends.iter().position(|b| *b == p.backend).unwrap_or(0);
+            let c = color(ci);
+            let at = (p.ns_per_ray.max(1e-3), y(p));
+            if p.family == "raylab" {
+                chart.draw_series(std::iter::once(Circle::new(at, 6, c.filled())))?;
+            } else if p.family == "embree" {
+                chart.draw_series(std::iter::once(TriangleMarker::new(at, 7, c.filled())))?;
+            } else {
+                chart.draw_series(std::iter::once(Cross::new(at, 6, c.stroke_width(2))))?;
+            }
+        }
+    }
+    let entries: Vec<(String, RGBAColor)> = backends
+        .iter()
+        .enumerate()
+        .map(|(i, b)| (b.to_string(), color(i)))
+        .collect();
+    side_legend(&side, &entries, Swatch::Dot)?;
+    root.present()?;
+    Ok(())
+}
