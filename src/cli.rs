@@ -4,7 +4,7 @@
 
 use clap::{Parser, Subcommand};
 
-use crate::command::{bench, render, stats, stress, validate};
+use crate::command::{bench, rays, render, stats, stress, validate};
 use crate::scene::builtin::{BUILTIN_SCENES, PROCEDURAL_SCENES};
 
 #[derive(Parser, Debug)]
@@ -33,6 +33,9 @@ enum Command {
     /// The study's tables (times and speedups of every variant over scenes,
     /// views and AO modes), scaling and accuracy charts, and an HTML report.
     Bench(bench::BenchArgs),
+    /// Write a scene's recorded rays (primary, shadow, AO, diffuse) to a ray
+    /// file for `validate --rays`, `bench --rays` or another tool.
+    Rays(rays::RaysArgs),
     /// List the built-in scenes.
     Scenes,
 }
@@ -91,6 +94,7 @@ pub fn main() -> i32 {
             .and_then(|()| validate::run(args)),
         Command::Stress(args) => stress::run(args),
         Command::Bench(args) => bench::run(args),
+        Command::Rays(args) => rays::run(args),
         Command::Scenes => {
             for (name, about) in BUILTIN_SCENES.iter().chain(PROCEDURAL_SCENES) {
                 println!("{name:18} {about}");

@@ -19,6 +19,7 @@ pub mod exact;
 pub mod geometry;
 pub mod os;
 pub mod progress;
+pub mod rayfile;
 pub mod render;
 pub mod scene;
 pub mod stats;

@@ -64,3 +64,107 @@ fn exact_validation_refuses_a_diff_image() {
     );
     std::fs::remove_dir_all(&d).ok();
 }
+
+#[test]
+fn ray_files_round_trip_through_validate_and_bench() {
+    let d = temp_dir("rayfile");
+    let file = d.join("box.rays");
+    let f = file.to_str().unwrap();
+    let out = raylab(&[
+        "rays",
+        "cornell-sphere",
+        "--out",
+        f,
+        "--count",
+        "500",
+        "--size",
+        "32x24",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let bytes = std::fs::read(&file).unwrap();
+    assert_eq!(&bytes[..8], b"RAYLABRY");
+    let n = u64::from_le_bytes(bytes[16..24].try_into().unwrap()) as usize;
+    assert!(n > 500, "primary, shadow, ao and diffuse rays: {n}");
+    assert_eq!(bytes.len(), 64 + 36 * n);
+    // Traced and judged as a user would.
+    let out = raylab(&[
+        "validate",
+        "cornell-sphere",
+        "--rays",
+        f,
+        "--against",
+        "exact",
+        "--intersector",
+        "watertight",
+        "--json",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let traced: u64 = report[0]["sets"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["rays"].as_u64().unwrap())
+        .sum();
+    assert_eq!(traced as usize, n, "every ray of the file, none recorded");
+    let bench_out = d.join("bench");
+    let out = raylab(&[
+        "bench",
+        "cornell-sphere",
+        "--rays",
+        f,
+        "--quick",
+        "-q",
+        "--json",
+        "--out",
+        bench_out.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let points = report["libraries"].as_array().unwrap();
+    assert!(!points.is_empty());
+    for p in points {
+        assert_eq!(p["rays"].as_u64().unwrap() as usize, n, "{p}");
+    }
+    // Bad uses and bad files: one line each.
+    assert_one_line_error(
+        &["validate", "cornell-sphere", "cornell-empty", "--rays", f],
+        "--rays",
+    );
+    assert_one_line_error(
+        &["validate", "cornell-sphere", "--rays", "nope.rays"],
+        "--rays",
+    );
+    assert_one_line_error(
+        &["bench", "cornell-sphere", "--rays", f, "--parts", "trace"],
+        "--rays",
+    );
+    let short = d.join("short.rays");
+    std::fs::write(&short, &bytes[..bytes.len() - 7]).unwrap();
+    assert_one_line_error(
+        &[
+            "validate",
+            "cornell-sphere",
+            "--rays",
+            short.to_str().unwrap(),
+        ],
+        "offset",
+    );
+    assert_one_line_error(
+        &["rays", "cornell-sphere", "--out", d.to_str().unwrap()],
+        "--out",
+    );
+    std::fs::remove_dir_all(&d).ok();
+}

@@ -94,6 +94,9 @@ pub struct BenchConfig {
     pub parts: Vec<Part>,
     pub out: PathBuf,
     pub quiet: bool,
+    /// Rays from a ray file (`--rays`), traced by the `libraries` part
+    /// instead of the first view's recorded rays.
+    pub rays: Option<crate::rayfile::RaySets>,
 }
 
 impl BenchConfig {

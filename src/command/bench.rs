@@ -67,9 +67,14 @@ pub struct BenchArgs {
     #[arg(long, value_name = "S", default_value_t = 60.0)]
     max_variant_s: f64,
     /// Parts to run, separated by commas: all, or tables, trace, scaling,
-    /// growth, ao-error, builders, leaks, validate.
+    /// growth, ao-error, builders, ladder, libraries, leaks, validate.
     #[arg(long, value_name = "LIST", default_value = "all")]
     parts: String,
+    /// A ray file (`raylab rays`) for the `libraries` part to trace instead
+    /// of a render's rays: every backend side by side on these rays (one
+    /// scene; runs the `libraries` part only).
+    #[arg(long, value_name = "FILE")]
+    rays: Option<PathBuf>,
     /// Folder for bench.md, bench.csv, bench.json, charts/, images/ and index.html.
     #[arg(long, value_name = "DIR", default_value = "bench-report")]
     out: PathBuf,
@@ -193,7 +198,25 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         parts: parse_parts(&args.parts)?,
         out: args.out.clone(),
         quiet: args.quiet,
+        rays: None,
     };
+    let mut cfg = cfg;
+    if let Some(path) = &args.rays {
+        if args.scenes.len() != 1 {
+            return Err(Error::usage(
+                "--rays",
+                "a ray file is traced in one scene: give exactly one",
+            ));
+        }
+        if args.parts != "all" && cfg.parts != [crate::bench::config::Part::Libraries] {
+            return Err(Error::usage(
+                "--rays",
+                "a ray file is traced by the libraries part only (--parts libraries)",
+            ));
+        }
+        cfg.parts = vec![crate::bench::config::Part::Libraries];
+        cfg.rays = Some(crate::rayfile::read(path)?);
+    }
     let names: Vec<String> = if cfg.scenes.is_empty() {
         BUILTIN_SCENES.iter().map(|(n, _)| n.to_string()).collect()
     } else {

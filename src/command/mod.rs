@@ -3,6 +3,7 @@
 
 pub mod args;
 pub mod bench;
+pub mod rays;
 pub mod render;
 pub mod stats;
 pub mod stress;

@@ -8,6 +8,7 @@ use serde::Serialize;
 use super::args::{parse_threads, BackendArgs, ViewArgs};
 use crate::accel::{build_backend, BackendKind, BackendSpec};
 use crate::error::{Error, Result};
+use crate::rayfile::RaySets;
 use crate::render::output;
 use crate::render::schedule::default_threads;
 use crate::scene::builtin::BUILTIN_SCENES;
@@ -16,6 +17,7 @@ use crate::table::{
     Align::{Left, Right},
     Table,
 };
+use crate::validate::RaySet;
 
 #[derive(Args, Debug)]
 pub struct ValidateArgs {
@@ -28,8 +30,10 @@ pub struct ValidateArgs {
     /// answer right, wrong or undecidable).
     #[arg(long, value_enum, default_value_t = if crate::accel::embree::AVAILABLE { Against::Embree } else { Against::Naive })]
     against: Against,
-    /// Ray sets to compare.
-    #[arg(long, value_name = "SET", default_value = "all", value_parser = ["primary", "shadow", "ao", "diffuse", "random", "all"])]
+    /// Ray sets to compare: primary, shadow, ao, diffuse, random or all; or
+    /// a ray file (`raylab rays`, format in docs/reference.md) whose rays are
+    /// traced instead of a render's (one scene).
+    #[arg(long, value_name = "SET|FILE", default_value = "all")]
     rays: String,
     /// At most this many rays per set (evenly subsampled).
     #[arg(long, value_name = "N", default_value_t = 100_000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
@@ -107,6 +111,46 @@ struct ValidateReport {
     diff_image: Option<String>,
 }
 
+/// The rays of `--rays FILE`, or `None` when `--rays` names a set. A file
+/// applies to one scene, and has no raster for `--diff-image`.
+fn file_rays(args: &ValidateArgs, names: &[String]) -> Result<Option<RaySets>> {
+    const SETS: [&str; 6] = ["primary", "shadow", "ao", "diffuse", "random", "all"];
+    if SETS.contains(&args.rays.as_str()) {
+        return Ok(None);
+    }
+    let path = Path::new(&args.rays);
+    if !path.is_file() {
+        return Err(Error::usage(
+            "--rays",
+            format!(
+                "'{}' is neither a ray set ({}) nor a ray file",
+                args.rays,
+                SETS.join(", ")
+            ),
+        ));
+    }
+    if names.len() != 1 {
+        return Err(Error::usage(
+            "--rays",
+            "a ray file is traced in one scene: give exactly one",
+        ));
+    }
+    if args.diff_image.is_some() {
+        return Err(Error::usage(
+            "--diff-image",
+            "draws a render's primary rays, not a ray file's",
+        ));
+    }
+    crate::rayfile::read(path).map(Some)
+}
+
+/// Each set of `rays` evenly subsampled to at most `count`.
+fn subsampled(rays: &RaySets, count: usize) -> RaySets {
+    rays.iter()
+        .map(|(set, r)| (*set, crate::validate::subsample(r.clone(), count)))
+        .collect()
+}
+
 fn diff_image_path(base: &Path, scene: &str, several: bool) -> PathBuf {
     if !several {
         return base.to_path_buf();
@@ -132,7 +176,7 @@ fn diff_image_path(base: &Path, scene: &str, several: bool) -> PathBuf {
 }
 
 pub fn run(args: &ValidateArgs) -> Result<()> {
-    use crate::validate::{compare, mismatch_image, ray_sets, RaySet};
+    use crate::validate::{compare, mismatch_image, ray_sets};
     let threads = args.threads.unwrap_or_else(default_threads);
     let names: Vec<String> = if args.scenes.is_empty() {
         BUILTIN_SCENES.iter().map(|(n, _)| n.to_string()).collect()
@@ -150,10 +194,11 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
         "random" => vec![RaySet::Random],
         _ => RaySet::ALL.to_vec(),
     };
+    let file_rays = file_rays(args, &names)?;
     let count = args.count as usize;
     let spec = args.accel.spec(threads)?;
     let Some(against) = args.against.backend() else {
-        return run_exact(args, &names, &sets, spec, threads);
+        return run_exact(args, &names, &sets, file_rays, spec, threads);
     };
     // The reference with its defaults (Embree MEDIUM, SAH BVH, MT) on `threads`.
     let reference_spec = BackendSpec::default_for(against, threads);
@@ -177,14 +222,17 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
             BackendKind::Naive => tested.as_ref(),
             _ => reference.as_ref(),
         };
-        let set_rays = ray_sets(
-            &scene,
-            recorder,
-            &settings,
-            &sets,
-            count,
-            args.diff_image.is_some(),
-        )?;
+        let set_rays = match &file_rays {
+            Some(rays) => subsampled(rays, count),
+            None => ray_sets(
+                &scene,
+                recorder,
+                &settings,
+                &sets,
+                count,
+                args.diff_image.is_some(),
+            )?,
+        };
         let mut set_reports = Vec::new();
         let mut diff_written = None;
         for (set, rays) in &set_rays {
@@ -268,6 +316,7 @@ fn run_exact(
     args: &ValidateArgs,
     names: &[String],
     sets: &[crate::validate::RaySet],
+    file_rays: Option<RaySets>,
     spec: BackendSpec,
     threads: usize,
 ) -> Result<()> {
@@ -289,7 +338,10 @@ fn run_exact(
         // for bit), so that every backend is judged on the same rays.
         let recorder = build_backend(&BackendSpec::default_for(BackendKind::Bvh, threads), &scene)?;
         let reference = ExactReference::new(scene.triangle_vertices());
-        let set_rays = ray_sets(&scene, recorder.as_ref(), &settings, sets, count, false)?;
+        let set_rays = match &file_rays {
+            Some(rays) => subsampled(rays, count),
+            None => ray_sets(&scene, recorder.as_ref(), &settings, sets, count, false)?,
+        };
         let set_reports: Vec<crate::exact::ExactReport> = set_rays
             .iter()
             .map(|(set, rays)| judge(set.name(), rays, tested.as_ref(), &reference))

@@ -67,6 +67,18 @@ pub fn check_writable(path: &Path) -> Result<()> {
             ),
         ));
     }
+    check_creatable(path, "-o")
+}
+
+/// Fails early if no file can be made at `path` (a folder, or a folder that
+/// does not exist or cannot be written); `flag` names the flag in the error.
+pub fn check_creatable(path: &Path, flag: &str) -> Result<()> {
+    if path.is_dir() {
+        return Err(Error::usage(
+            flag,
+            format!("{} is a directory: give a file name", path.display()),
+        ));
+    }
     let probe = temp_path(path);
     std::fs::File::create(&probe).map_err(|e| Error::io(path, e))?;
     std::fs::remove_file(&probe).ok();

@@ -32,7 +32,7 @@ use crate::table::{
     Align::{Left, Right},
     Table,
 };
-use crate::validate::{recorded_rays, subsample};
+use crate::validate::{recorded_rays, subsample, RaySet};
 
 pub const SECTION: ChartSection = ChartSection {
     title: "Every CPU BVH: speed against accuracy",
@@ -40,12 +40,14 @@ pub const SECTION: ChartSection = ChartSection {
     caption: "Time per ray (one thread, mean over the ray kinds) against wrong answers per million against the exact reference, per scene; a backend with none sits on the bottom line (dot: raylab, triangle: Embree, cross: another library). Lower left is better.",
 };
 
-/// The ray kinds: (name, closest hit?).
-const KINDS: [(&str, bool); 4] = [
-    ("primary", true),
-    ("shadow", false),
-    ("ao", false),
-    ("diffuse", true),
+/// The ray kinds: a render's, its diffuse bounces, and random rays (only
+/// from a ray file, `bench --rays`).
+const KINDS: [RaySet; 5] = [
+    RaySet::Primary,
+    RaySet::Shadow,
+    RaySet::Ao,
+    RaySet::Diffuse,
+    RaySet::Random,
 ];
 
 /// One backend on one scene.
@@ -138,17 +140,37 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lib
         let settings = cfg
             .first_view(scene, size)
             .settings(size, AoMode::Paper, 1)?;
-        bar.set_message(format!("libraries: recording the rays of {}", scene.name));
-        let recorder = build_backend(
-            &BackendSpec::bvh(BuildParams::sah().with_width(8)).with_fastest_query(),
-            scene,
-        )?;
-        let recorded = recorded_rays(scene, recorder.as_ref(), &settings)?;
-        let diffuse = recorded.diffuse(scene, settings.seed);
-        let rays: Vec<Vec<Ray>> = [&recorded.primary, &recorded.shadow, &recorded.ao, &diffuse]
-            .into_iter()
-            .map(|r| subsample(r.clone(), per_kind))
-            .collect();
+        let rays: Vec<Vec<Ray>> = match &cfg.rays {
+            // A ray file (`--rays`): its rays, whole.
+            Some(file) => KINDS
+                .iter()
+                .map(|k| {
+                    file.iter()
+                        .filter(|(set, _)| set == k)
+                        .flat_map(|(_, r)| r.iter().copied())
+                        .collect()
+                })
+                .collect(),
+            None => {
+                bar.set_message(format!("libraries: recording the rays of {}", scene.name));
+                let recorder = build_backend(
+                    &BackendSpec::bvh(BuildParams::sah().with_width(8)).with_fastest_query(),
+                    scene,
+                )?;
+                let recorded = recorded_rays(scene, recorder.as_ref(), &settings)?;
+                let diffuse = recorded.diffuse(scene, settings.seed);
+                [
+                    &recorded.primary,
+                    &recorded.shadow,
+                    &recorded.ao,
+                    &diffuse,
+                    &Vec::new(),
+                ]
+                .into_iter()
+                .map(|r| subsample(r.clone(), per_kind))
+                .collect()
+            }
+        };
         let reference = ExactReference::new(scene.triangle_vertices());
         for spec in specs() {
             bar.set_message(format!("libraries: {} on {}", spec.name(), scene.name));
@@ -206,7 +228,8 @@ fn measure(
 ) -> LibraryPoint {
     let mut mrays = Vec::new();
     let (mut wrong, mut undecidable, mut total) = (0, 0, 0);
-    for ((name, closest), rays) in KINDS.iter().zip(rays) {
+    for (kind, rays) in KINDS.iter().zip(rays) {
+        let (name, closest) = (kind.name(), &kind.closest());
         if rays.is_empty() {
             mrays.push(f64::NAN);
             continue;
@@ -264,21 +287,24 @@ fn measure(
 /// The part's table: per scene and backend, build ms, Mrays/s per kind, and
 /// wrong answers per million; then what each library lacks.
 pub fn markdown(points: &[LibraryPoint]) -> String {
-    let mut t = Table::new([
-        ("scene", Left),
-        ("backend", Left),
-        ("build ms", Right),
-        ("Mrays/s primary", Right),
-        ("shadow", Right),
-        ("ao", Right),
-        ("diffuse", Right),
-        ("wrong per million", Right),
-        ("undecidable", Right),
-    ]);
+    // The kinds measured anywhere (random rays come only from ray files).
+    let kinds: Vec<usize> = (0..KINDS.len())
+        .filter(|&k| {
+            points
+                .iter()
+                .any(|p| p.mrays.get(k).is_some_and(|m| m.is_finite()))
+        })
+        .collect();
+    let mut t = Table::new([("scene", Left), ("backend", Left), ("build ms", Right)]);
+    for &k in &kinds {
+        t.column(format!("Mrays/s {}", KINDS[k].name()), Right);
+    }
+    t.column("wrong per million", Right);
+    t.column("undecidable", Right);
     for p in points {
         if let Some(why) = &p.failed {
             let mut row = vec![p.scene.clone(), p.backend.clone()];
-            row.extend((0..6).map(|_| "-".to_string()));
+            row.extend((0..kinds.len() + 2).map(|_| "-".to_string()));
             row.push(format!("not built: {why}"));
             t.row(row);
             continue;
@@ -288,12 +314,9 @@ pub fn markdown(points: &[LibraryPoint]) -> String {
             p.backend.clone(),
             format!("{:.2}", p.build_ms.median),
         ];
-        row.extend(p.mrays.iter().map(|m| {
-            if m.is_finite() {
-                format!("{m:.2}")
-            } else {
-                "-".to_string()
-            }
+        row.extend(kinds.iter().map(|&k| match p.mrays.get(k) {
+            Some(m) if m.is_finite() => format!("{m:.2}"),
+            _ => "-".to_string(),
         }));
         row.push(format!("{:.0} ({})", p.wrong_per_million, p.wrong));
         row.push(p.undecidable.to_string());
