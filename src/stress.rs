@@ -469,31 +469,12 @@ fn stress_specs(kinds: &[StressBackend]) -> Vec<BackendSpec> {
         }
     }
     if kinds.contains(&StressBackend::Libraries) {
-        use crate::accel::library::{Library, ObvhsLayout, TinybvhLayout};
-        let medium = Quality::Medium;
+        use crate::accel::library::Library;
         out.extend(
-            [
-                Library::Tinybvh {
-                    layout: TinybvhLayout::Bvh8,
-                    hq: false,
-                },
-                Library::Tinybvh {
-                    layout: TinybvhLayout::Bvh,
-                    hq: false,
-                },
-                Library::Obvhs {
-                    layout: ObvhsLayout::CwBvh,
-                    quality: medium,
-                },
-                Library::Obvhs {
-                    layout: ObvhsLayout::Bvh2,
-                    quality: medium,
-                },
-                Library::BvhCrate,
-            ]
-            .into_iter()
-            .filter(Library::available)
-            .map(|library| BackendSpec::library(library, 1)),
+            Library::ALL
+                .into_iter()
+                .filter(Library::available)
+                .map(|library| BackendSpec::library(library, 1)),
         );
     }
     out

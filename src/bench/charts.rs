@@ -307,6 +307,18 @@ where
     Ok(())
 }
 
+/// The distinct values of `items`, in first-seen order (the scenes or
+/// series of a chart).
+pub(super) fn distinct<'a>(items: impl Iterator<Item = &'a str>) -> Vec<&'a str> {
+    let mut out: Vec<&str> = Vec::new();
+    for i in items {
+        if !out.contains(&i) {
+            out.push(i);
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     #[test]

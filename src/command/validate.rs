@@ -291,19 +291,27 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
             diff_image: diff_written,
         });
     }
+    let failed = reports.iter().filter(|r| !r.pass).map(|r| r.scene.as_str());
+    finish(args, &reports, failed, "genuine disagreements")
+}
+
+/// Prints the JSON reports when asked, and fails naming the scenes with
+/// more `what` than `--max-genuine`.
+fn finish<'a>(
+    args: &ValidateArgs,
+    reports: &impl Serialize,
+    failed: impl Iterator<Item = &'a str>,
+    what: &str,
+) -> Result<()> {
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&reports)?);
+        println!("{}", serde_json::to_string_pretty(reports)?);
     }
-    let failed: Vec<&str> = reports
-        .iter()
-        .filter(|r| !r.pass)
-        .map(|r| r.scene.as_str())
-        .collect();
+    let failed: Vec<&str> = failed.collect();
     if failed.is_empty() {
         Ok(())
     } else {
         Err(Error::Other(format!(
-            "validate: genuine disagreements above --max-genuine {} in {}",
+            "validate: {what} above --max-genuine {} in {}",
             args.max_genuine,
             failed.join(", ")
         )))
@@ -380,23 +388,8 @@ fn run_exact(
         }
         reports.push(report);
     }
-    if args.json {
-        println!("{}", serde_json::to_string(&reports)?);
-    }
-    let failed: Vec<&str> = reports
-        .iter()
-        .filter(|r| !r.pass)
-        .map(|r| r.scene.as_str())
-        .collect();
-    if failed.is_empty() {
-        Ok(())
-    } else {
-        Err(Error::Other(format!(
-            "validate: wrong answers above --max-genuine {} in {}",
-            args.max_genuine,
-            failed.join(", ")
-        )))
-    }
+    let failed = reports.iter().filter(|r| !r.pass).map(|r| r.scene.as_str());
+    finish(args, &reports, failed, "wrong answers")
 }
 
 /// One row per ray set: the backend's closest-hit and any-hit answers as the

@@ -52,6 +52,33 @@ pub enum Library {
 }
 
 impl Library {
+    /// Every library and layout raylab wraps, at each library's default
+    /// build, plus tinybvh's BuildHQ: what `stress` and the bench's
+    /// `libraries` part compare.
+    pub const ALL: [Library; 6] = [
+        Library::Tinybvh {
+            layout: TinybvhLayout::Bvh8,
+            hq: false,
+        },
+        Library::Tinybvh {
+            layout: TinybvhLayout::Bvh8,
+            hq: true,
+        },
+        Library::Tinybvh {
+            layout: TinybvhLayout::Bvh,
+            hq: false,
+        },
+        Library::Obvhs {
+            layout: ObvhsLayout::CwBvh,
+            quality: Quality::Medium,
+        },
+        Library::Obvhs {
+            layout: ObvhsLayout::Bvh2,
+            quality: Quality::Medium,
+        },
+        Library::BvhCrate,
+    ];
+
     /// The name reports use.
     pub fn name(&self) -> String {
         match self {

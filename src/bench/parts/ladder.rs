@@ -18,7 +18,8 @@ use crate::accel::bvh::quality::TreeStats;
 use crate::accel::bvh::{build, BuildParams};
 use crate::accel::{build_backend, BackendSpec};
 use crate::bench::charts::{
-    color, log_label, log_range, save_chart, side_legend, DrawResult, Swatch, FONT, SIDE_LEGEND,
+    color, distinct, log_label, log_range, save_chart, side_legend, DrawResult, Swatch, FONT,
+    SIDE_LEGEND,
 };
 use crate::bench::config::BenchConfig;
 use crate::bench::measure::Stat;
@@ -270,16 +271,6 @@ pub fn charts(dir: &Path, points: &[LadderPoint]) -> Result<Vec<String>> {
         draw_ladder,
         points
     )?])
-}
-
-fn distinct<'a>(items: impl Iterator<Item = &'a str>) -> Vec<&'a str> {
-    let mut out: Vec<&str> = Vec::new();
-    for i in items {
-        if !out.contains(&i) {
-            out.push(i);
-        }
-    }
-    out
 }
 
 fn draw_ladder<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, pts: &[LadderPoint]) -> DrawResult

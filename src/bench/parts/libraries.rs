@@ -15,10 +15,11 @@ use serde::Serialize;
 use super::trace::trace;
 use super::ChartSection;
 use crate::accel::bvh::BuildParams;
-use crate::accel::library::{Library, ObvhsLayout, TinybvhLayout};
+use crate::accel::library::Library;
 use crate::accel::{build_backend, BackendSpec, Built};
 use crate::bench::charts::{
-    color, log_label, log_range, save_chart, side_legend, DrawResult, Swatch, FONT, SIDE_LEGEND,
+    color, distinct, log_label, log_range, save_chart, side_legend, DrawResult, Swatch, FONT,
+    SIDE_LEGEND,
 };
 use crate::bench::config::BenchConfig;
 use crate::bench::measure::Stat;
@@ -91,34 +92,11 @@ fn specs() -> Vec<BackendSpec> {
             });
         }
     }
-    let medium = crate::accel::embree::Quality::Medium;
     out.extend(
-        [
-            Library::Tinybvh {
-                layout: TinybvhLayout::Bvh8,
-                hq: false,
-            },
-            Library::Tinybvh {
-                layout: TinybvhLayout::Bvh8,
-                hq: true,
-            },
-            Library::Tinybvh {
-                layout: TinybvhLayout::Bvh,
-                hq: false,
-            },
-            Library::Obvhs {
-                layout: ObvhsLayout::CwBvh,
-                quality: medium,
-            },
-            Library::Obvhs {
-                layout: ObvhsLayout::Bvh2,
-                quality: medium,
-            },
-            Library::BvhCrate,
-        ]
-        .into_iter()
-        .filter(Library::available)
-        .map(|l| BackendSpec::library(l, 1)),
+        Library::ALL
+            .into_iter()
+            .filter(Library::available)
+            .map(|l| BackendSpec::library(l, 1)),
     );
     out.into_iter()
         .map(BackendSpec::with_fastest_query)
@@ -351,16 +329,6 @@ pub fn charts(dir: &Path, points: &[LibraryPoint]) -> Result<Vec<String>> {
         draw_libraries,
         points
     )?])
-}
-
-fn distinct<'a>(items: impl Iterator<Item = &'a str>) -> Vec<&'a str> {
-    let mut out: Vec<&str> = Vec::new();
-    for i in items {
-        if !out.contains(&i) {
-            out.push(i);
-        }
-    }
-    out
 }
 
 /// Where a count of zero wrong answers is drawn on the log axis.
