@@ -13,38 +13,26 @@ mod common;
 use common::{assert_one_line_error, assert_success, raylab, temp_dir, TestRng};
 use glam::Vec3;
 use raylab::accel::embree::Quality;
-use raylab::accel::library::{Library, ObvhsLayout, TinybvhLayout};
+use raylab::accel::library::{Library, ObvhsLayout};
 use raylab::accel::{build_backend, Backend, BackendSpec};
 use raylab::geometry::{Hit, Ray};
 use raylab::scene::builtin::builtin;
 
-const LIBRARIES: [Library; 7] = [
-    Library::Tinybvh {
-        layout: TinybvhLayout::Bvh8,
-        hq: false,
-    },
-    Library::Tinybvh {
-        layout: TinybvhLayout::Bvh8,
-        hq: true,
-    },
-    Library::Tinybvh {
-        layout: TinybvhLayout::Bvh,
-        hq: false,
-    },
-    Library::Obvhs {
-        layout: ObvhsLayout::CwBvh,
-        quality: Quality::Medium,
-    },
-    Library::Obvhs {
-        layout: ObvhsLayout::Bvh2,
-        quality: Quality::High,
-    },
-    Library::Obvhs {
-        layout: ObvhsLayout::CwBvh,
-        quality: Quality::Low,
-    },
-    Library::BvhCrate,
-];
+/// Every layout raylab wraps, and obvhs's other presets.
+fn libraries() -> Vec<Library> {
+    let mut all = Library::ALL.to_vec();
+    all.extend([
+        Library::Obvhs {
+            layout: ObvhsLayout::Bvh2,
+            quality: Quality::High,
+        },
+        Library::Obvhs {
+            layout: ObvhsLayout::CwBvh,
+            quality: Quality::Low,
+        },
+    ]);
+    all
+}
 
 /// Rays from random points at random triangles' interior points (barycentrics
 /// at least 0.1 from every edge), kept where the naive scan's closest hit is
@@ -89,7 +77,7 @@ fn check(scene: &str, seed: u64) {
     let scene = builtin(scene).unwrap();
     let tris = scene.triangle_vertices();
     let rays = clear_rays(&tris, 3000, seed);
-    for library in LIBRARIES {
+    for library in libraries() {
         let built = build_backend(&BackendSpec::library(library, 2), &scene).unwrap();
         let name = built.name();
         let mut wrong = Vec::new();
@@ -163,7 +151,7 @@ fn libraries_return_nothing_for_invalid_rays_and_empty_scenes() {
         positions: &[],
         triangles: &[],
     };
-    for library in LIBRARIES {
+    for library in libraries() {
         let built = build_backend(&BackendSpec::library(library, 1), &scene).unwrap();
         for ray in &bad {
             assert!(built.intersect(ray).is_none(), "{}: {ray:?}", built.name());
