@@ -77,11 +77,16 @@ pub struct LibraryPoint {
 }
 
 /// The backends compared, each on its fastest query path, built on one
-/// thread: raylab's 8-wide tree with both triangle tests, Embree plain and
-/// robust, and every layout of the other libraries built in.
+/// thread: raylab's 8-wide tree with both triangle tests and at its high
+/// rung, Embree plain and robust, and every layout of the other libraries
+/// built in.
 fn specs() -> Vec<BackendSpec> {
     let bvh8 = BackendSpec::bvh(BuildParams::sah().with_width(8));
-    let mut out = vec![bvh8, bvh8.with_intersector(Intersector::Watertight)];
+    // raylab's high rung too (SBVH with reinsertion), beside tinybvh's BuildHQ.
+    let high = BackendSpec::bvh(
+        BuildParams::for_quality(crate::accel::bvh::params::Quality::High).with_width(8),
+    );
+    let mut out = vec![bvh8, bvh8.with_intersector(Intersector::Watertight), high];
     if crate::accel::embree::AVAILABLE {
         for robust in [false, true] {
             out.push(BackendSpec::Embree {
