@@ -342,13 +342,16 @@ fn run_exact(
         let mut scene = load_scene(name)?;
         let settings = args.view.prepare(&mut scene)?;
         let tested = build_backend(&spec, &scene)?;
-        // The rays of raylab's render (its tree is the naive scan's hits bit
-        // for bit), so that every backend is judged on the same rays.
-        let recorder = build_backend(&BackendSpec::default_for(BackendKind::Bvh, threads), &scene)?;
         let reference = ExactReference::new(scene.triangle_vertices());
         let set_rays = match &file_rays {
             Some(rays) => subsampled(rays, count),
-            None => ray_sets(&scene, recorder.as_ref(), &settings, sets, count, false)?,
+            None => {
+                // The rays of raylab's render (its tree is the naive scan's
+                // hits bit for bit), so every backend is judged on the same rays.
+                let recorder =
+                    build_backend(&BackendSpec::default_for(BackendKind::Bvh, threads), &scene)?;
+                ray_sets(&scene, recorder.as_ref(), &settings, sets, count, false)?
+            }
         };
         let set_reports: Vec<crate::exact::ExactReport> = set_rays
             .iter()
