@@ -23,6 +23,18 @@
 //!
 //! Candidate triangles come from a binary BVH in f64 whose boxes are padded,
 //! so culling never drops a triangle the exact test would hit.
+//!
+//! **Edge ties.** A ray through (or within rounding of) a triangle's edge is
+//! decided exactly here, but no f32 test can be right about it every time:
+//! moving the inputs by a few f32 ulps flips the answer. So the reference
+//! also notes, per ray, which hits lie within [`EDGE_ULPS`] ulps of the
+//! inputs' magnitude of their triangle's boundary, and which triangles it
+//! misses by no more than that (grazes), measured across the ray. An answer
+//! that differs from the exact one only there is an **edge tie**, not
+//! wrong: the neighbour across a shared edge at the same t, or a hit on or a
+//! miss of an edge no other triangle shares. A miss where the ray passes
+//! through an edge two triangles share stays a false miss: that is a leak,
+//! which a watertight test never makes.
 
 use glam::{DVec3, Vec3};
 use robust::{orient3d, Coord3D};
@@ -31,11 +43,18 @@ use serde::Serialize;
 use crate::geometry::{Hit, Ray};
 
 /// How far a backend's `t` may be from the exact interval, relative to the
-/// query's scale (the larger of `t` and the origin's distance from 0 in units
-/// of the direction, since f32 translates the triangle to the origin first):
-/// f32 arithmetic on a few operations is within 1e-6 of it on sane inputs;
-/// 1e-5 leaves room for the libraries' fast reciprocals.
+/// query's scale: the largest input coordinate (origin or vertex; f32 tests
+/// translate the triangle to the origin first) or the hit's distance, in
+/// units of the direction, and divided by the cosine of the ray's angle to
+/// the triangle's normal (a rounding error across the plane moves t by
+/// 1 / cos along a slanting ray). f32 arithmetic on a few operations is
+/// within 1e-6 of it; 1e-5 leaves room for the libraries' fast reciprocals.
 pub const T_TOLERANCE: f64 = 1e-5;
+
+/// How near (across the ray, in f32 ulps of the largest input coordinate) a
+/// triangle's boundary must pass for an answer there to be an edge tie.
+/// Measured: raylab's watertight test needs 4 on rays aimed at edges.
+pub const EDGE_ULPS: f64 = 4.0;
 
 /// Bound on the error of a 3x3 determinant evaluated in f64, relative to its
 /// permanent (Shewchuk's `o3derrboundA` is (7 + 56 eps) eps; inexact inputs
@@ -52,6 +71,47 @@ pub struct ExactHit {
     /// The hit, and its lying within `(tmin, tmax)`, are certain (else only
     /// possible: double precision could not decide).
     pub sure: bool,
+    /// The ray passes within [`EDGE_ULPS`] of the triangle's boundary.
+    pub near_edge: bool,
+    /// How far an f32 test's t may be from the interval (see [`T_TOLERANCE`]).
+    pub t_slack: f64,
+    /// Missing it is an edge tie, not a leak: the ray passes within
+    /// rounding of one of its edges (not exactly through it: inclusive
+    /// tests hit that) that no triangle it misses continues across (an
+    /// open edge), or at a fold: another such hit at the same t, such as a
+    /// box's edge or a mesh's silhouette the ray clips (in and out at once:
+    /// rounding may drop both). A ray crossing the surface at an
+    /// edge shared with a grazed neighbour must hit one of the two: a miss
+    /// there is a leak, which a watertight test never makes.
+    pub tie_if_missed: bool,
+}
+
+/// A triangle the ray misses, but within [`EDGE_ULPS`] of its boundary,
+/// at about `t` (within the range).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Graze {
+    pub tri: u32,
+    pub t: f64,
+    pub t_slack: f64,
+}
+
+/// What the exact test says of one triangle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Contact {
+    /// Hit within the range: t in `[t_lo, t_hi]`, surely or possibly.
+    Hit {
+        t_lo: f64,
+        t_hi: f64,
+        sure: bool,
+        near_edge: bool,
+        t_slack: f64,
+        /// The ray passes exactly through an edge or vertex.
+        on_edge: bool,
+        /// Bit i: edge i (`v_i` to `v_i+1`) passes within rounding.
+        near_edges: u8,
+    },
+    /// Missed by no more than rounding, at about `t`.
+    Graze { t: f64, t_slack: f64 },
 }
 
 /// What the exact test says of one ray: every triangle it surely or possibly
@@ -59,6 +119,8 @@ pub struct ExactHit {
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ExactAnswer {
     pub hits: Vec<ExactHit>,
+    /// Triangles missed within rounding of their boundary (edge ties).
+    pub grazes: Vec<Graze>,
 }
 
 /// Whether something lies within a ray's range.
@@ -85,11 +147,17 @@ pub enum Verdict {
     TError,
     /// Double precision could not decide.
     Undecidable,
+    /// Differs from the exact answer only at a triangle's edge, within
+    /// rounding of the inputs (not a leak: see the module's notes).
+    EdgeTie,
 }
 
 impl Verdict {
     pub fn is_wrong(self) -> bool {
-        !matches!(self, Verdict::Right | Verdict::Undecidable)
+        !matches!(
+            self,
+            Verdict::Right | Verdict::Undecidable | Verdict::EdgeTie
+        )
     }
 }
 
@@ -117,16 +185,42 @@ impl ExactAnswer {
         self.hits.iter().filter(move |h| h.t_lo <= nearest_sure)
     }
 
+    /// A miss of every sure hit is an edge tie when each is (see
+    /// [`ExactHit::tie_if_missed`]).
+    fn miss_is_edge_tie(&self) -> bool {
+        self.hits.iter().filter(|h| h.sure).all(|h| h.tie_if_missed)
+    }
+
     /// Judges a closest-hit answer to `ray`.
-    pub fn judge_closest(&self, ray: &Ray, got: Option<Hit>) -> Verdict {
+    pub fn judge_closest(&self, got: Option<Hit>) -> Verdict {
         let Some(got) = got else {
             return match self.occluder() {
+                Occluder::Surely if self.miss_is_edge_tie() => Verdict::EdgeTie,
                 Occluder::Surely => Verdict::FalseMiss,
                 Occluder::Possibly => Verdict::Undecidable,
                 Occluder::SurelyNot => Verdict::Right,
             };
         };
+        let t = got.t as f64;
+        // A sure hit nearer than `t_lo` by more than rounding, and one a
+        // miss of which is not an edge tie.
+        let clearly_nearer = |t_lo: f64| {
+            self.hits
+                .iter()
+                .any(|h| h.sure && h.t_hi + h.t_slack < t_lo && !h.tie_if_missed)
+        };
         let Some(mine) = self.hits.iter().find(|h| h.tri == got.tri) else {
+            if let Some(g) = self.grazes.iter().find(|g| g.tri == got.tri) {
+                // A triangle missed by rounding: defensible unless something
+                // is clearly nearer.
+                return if clearly_nearer(g.t - g.t_slack) {
+                    Verdict::WrongTriangle
+                } else if (t - g.t).abs() > g.t_slack {
+                    Verdict::TError
+                } else {
+                    Verdict::EdgeTie
+                };
+            }
             return if self.hits.iter().any(|h| h.sure) {
                 Verdict::WrongTriangle
             } else if self.hits.is_empty() {
@@ -137,16 +231,17 @@ impl ExactAnswer {
                 Verdict::Undecidable
             };
         };
+        if t < mine.t_lo - mine.t_slack || t > mine.t_hi + mine.t_slack {
+            return Verdict::TError;
+        }
         // Another hit surely nearer?
         if self.hits.iter().any(|h| h.sure && h.t_hi < mine.t_lo) {
-            return Verdict::WrongTriangle;
-        }
-        let t = got.t as f64;
-        let origin_scale =
-            ray.origin.abs().max_element() as f64 / ray.dir.abs().max_element() as f64;
-        let slack = T_TOLERANCE * t.abs().max(origin_scale).max(f64::MIN_POSITIVE);
-        if t < mine.t_lo - slack || t > mine.t_hi + slack {
-            return Verdict::TError;
+            return if clearly_nearer(mine.t_lo - mine.t_slack) {
+                Verdict::WrongTriangle
+            } else {
+                // Only hits at the same t, or at an edge, are nearer.
+                Verdict::EdgeTie
+            };
         }
         let nearer_possible = self
             .hits
@@ -163,7 +258,9 @@ impl ExactAnswer {
     pub fn judge_occluded(&self, got: bool) -> Verdict {
         match (self.occluder(), got) {
             (Occluder::Surely, true) | (Occluder::SurelyNot, false) => Verdict::Right,
+            (Occluder::Surely, false) if self.miss_is_edge_tie() => Verdict::EdgeTie,
             (Occluder::Surely, false) => Verdict::FalseMiss,
+            (Occluder::SurelyNot, true) if !self.grazes.is_empty() => Verdict::EdgeTie,
             (Occluder::SurelyNot, true) => Verdict::FalseHit,
             (Occluder::Possibly, _) => Verdict::Undecidable,
         }
@@ -230,8 +327,9 @@ fn sign_within(x: f64, bound: f64) -> Sign {
 }
 
 /// The exact test of one triangle against one ray: a hit within the range
-/// (sure or possible), or `None` (surely none).
-pub fn exact_test(tri: &[Vec3; 3], ray: &Ray) -> Option<(f64, f64, bool)> {
+/// (sure or possible), a graze (missed within rounding of its boundary), or
+/// `None` (surely missed, by more than rounding).
+pub fn exact_test(tri: &[Vec3; 3], ray: &Ray) -> Option<Contact> {
     let o = ray.origin.as_dvec3();
     let d = ray.dir.as_dvec3();
     let v = tri.map(|p| p.as_dvec3());
@@ -245,11 +343,13 @@ pub fn exact_test(tri: &[Vec3; 3], ray: &Ray) -> Option<(f64, f64, bool)> {
     });
     // Edge functions: their signs, and their f64 values for t.
     let mut signs = [Sign::Unknown; 3];
+    let mut values = [0.0; 3];
     let mut edge_sum = 0.0;
     let mut edge_error = 0.0;
     for i in 0..3 {
         let (a, b) = (u[i], u[(i + 1) % 3]);
         let (e, perm) = det3(a, b, d);
+        values[i] = e;
         edge_sum += e;
         edge_error += DET_ERROR * perm;
         signs[i] = if exact {
@@ -260,9 +360,45 @@ pub fn exact_test(tri: &[Vec3; 3], ray: &Ray) -> Option<(f64, f64, bool)> {
         };
     }
     edge_error += 3.0 * f64::EPSILON * edge_sum.abs();
+    // Distances across the ray from the line to each edge (signed like the
+    // edge function): e_i / |(v_i+1 - v_i) x d|.
+    let across = |i: usize| {
+        let len = (u[(i + 1) % 3] - u[i]).cross(d).length();
+        if len > 0.0 {
+            values[i] / len
+        } else {
+            0.0
+        }
+    };
+    let scale = v
+        .iter()
+        .fold(o.abs().max_element(), |m, p| m.max(p.abs().max_element()));
+    let near = EDGE_ULPS * f32::EPSILON as f64 * scale;
+    let (num, num_perm) = det3(u[0], u[1], u[2]);
+    // An f32 test's t is good to a few ulps of the inputs' magnitude across
+    // the plane, which along a ray at an angle to it is 1 / cos longer.
+    let normal = (u[1] - u[0]).cross(u[2] - u[0]);
+    let cos = normal.dot(d).abs() / (normal.length() * d.length());
+    // And a sliver's plane turns under rounding of its vertices by its
+    // aspect ratio (longest edge over height): about 1 for a well-shaped one.
+    let longest = (0..3)
+        .map(|i| (u[(i + 1) % 3] - u[i]).length_squared())
+        .fold(0.0, f64::max);
+    let aspect = (longest / normal.length()).max(1.0);
+    let t_slack = |t: f64| {
+        T_TOLERANCE * aspect * scale.max(t.abs() * d.length()) / (d.length() * cos.max(1e-9))
+    };
     let has = |s: Sign| signs.contains(&s);
     if has(Sign::Pos) && has(Sign::Neg) {
-        return None; // surely outside an edge
+        // Surely outside an edge: a graze when no edge is further than `near`
+        // on the wrong side (the side of the edge functions' sum).
+        let side = edge_sum.signum();
+        let t = num / edge_sum;
+        let grazes = edge_sum != 0.0 && (0..3).all(|i| side * across(i) >= -near);
+        return (grazes && t > ray.tmin as f64 && t < ray.tmax as f64).then_some(Contact::Graze {
+            t,
+            t_slack: t_slack(t),
+        });
     }
     if signs.iter().all(|&s| s == Sign::Zero) {
         return None; // the ray lies in the triangle's plane (or it has no area)
@@ -271,7 +407,6 @@ pub fn exact_test(tri: &[Vec3; 3], ray: &Ray) -> Option<(f64, f64, bool)> {
     // The side of the plane the origin is on: exact from the f32 inputs.
     // det[v0 - o; v1 - o; v2 - o] = det[u0; u1; u2], t's numerator.
     let plane = sign_of(orient3d(coord(v[0]), coord(v[1]), coord(v[2]), coord(o)));
-    let (num, num_perm) = det3(u[0], u[1], u[2]);
     // t = det[u0, u1, u2] / sum(e_i): an interval.
     let num_error = DET_ERROR * num_perm;
     let direction = if has(Sign::Pos) {
@@ -301,7 +436,16 @@ pub fn exact_test(tri: &[Vec3; 3], ray: &Ray) -> Option<(f64, f64, bool)> {
         return None;
     }
     let in_range = (t_lo > tmin || (tmin == 0.0 && ahead == Sign::Pos)) && t_hi < tmax;
-    Some((t_lo, t_hi, line_sure && ahead == Sign::Pos && in_range))
+    let side = edge_sum.signum();
+    Some(Contact::Hit {
+        t_lo,
+        t_hi,
+        sure: line_sure && ahead == Sign::Pos && in_range,
+        near_edge: (0..3).any(|i| side * across(i) <= near),
+        t_slack: t_slack(if t_hi.is_finite() { t_hi } else { t_lo }),
+        on_edge: has(Sign::Zero),
+        near_edges: (0..3).fold(0, |m, i| m | (((side * across(i) <= near) as u8) << i)),
+    })
 }
 
 /// The exact reference over a scene's triangles.
@@ -356,10 +500,16 @@ impl ExactReference {
             triangles,
             nodes,
             order,
-            // Far above f64 rounding of the slab test, far below any gap a
-            // backend could be right about.
-            pad: extent * 1e-9 + 1e-30,
+            // Above f64 rounding of the slab test and above the reach of
+            // a graze (EDGE_ULPS f32 ulps of the largest coordinate).
+            pad: extent * (4.0 * EDGE_ULPS * f32::EPSILON as f64) + 1e-30,
         }
+    }
+
+    /// The exact answer to each of `rays`, in parallel.
+    pub fn answers(&self, rays: &[Ray]) -> Vec<ExactAnswer> {
+        use rayon::prelude::*;
+        rays.par_iter().map(|r| self.answer(r)).collect()
     }
 
     /// Every triangle `ray` surely or possibly hits within its range.
@@ -371,6 +521,7 @@ impl ExactReference {
         let o = ray.origin.as_dvec3();
         let inv = DVec3::ONE / ray.dir.as_dvec3();
         let (tmin, tmax) = (ray.tmin as f64, ray.tmax as f64);
+        let mut edges_near = Vec::new();
         let mut stack = vec![0u32];
         while let Some(i) = stack.pop() {
             let node = &self.nodes[i as usize];
@@ -387,20 +538,71 @@ impl ExactReference {
             if node.count > 0 {
                 let range = node.first as usize..(node.first + node.count) as usize;
                 for &tri in &self.order[range] {
-                    if let Some((t_lo, t_hi, sure)) = exact_test(&self.triangles[tri as usize], ray)
-                    {
-                        out.hits.push(ExactHit {
-                            tri,
+                    match exact_test(&self.triangles[tri as usize], ray) {
+                        Some(Contact::Hit {
                             t_lo,
                             t_hi,
                             sure,
-                        });
+                            near_edge,
+                            t_slack,
+                            on_edge,
+                            near_edges,
+                        }) => {
+                            out.hits.push(ExactHit {
+                                tri,
+                                t_lo,
+                                t_hi,
+                                sure,
+                                near_edge,
+                                t_slack,
+                                // Settled below, once the grazes are known.
+                                tie_if_missed: near_edge && !on_edge,
+                            });
+                            edges_near.push(near_edges);
+                        }
+                        Some(Contact::Graze { t, t_slack }) => {
+                            out.grazes.push(Graze { tri, t, t_slack })
+                        }
+                        None => {}
                     }
                 }
             } else {
                 stack.push(node.first);
                 stack.push(node.first + 1);
             }
+        }
+        // A fold: two hits near an edge, not exactly on it, at one t (the
+        // ray clips the surface's silhouette, in and out at once).
+        let folds: Vec<bool> = out
+            .hits
+            .iter()
+            .map(|h| {
+                h.sure
+                    && h.tie_if_missed
+                    && out.hits.iter().any(|o| {
+                        o.tri != h.tri
+                            && o.sure
+                            && o.tie_if_missed
+                            && o.t_lo <= h.t_hi + h.t_slack
+                            && o.t_hi >= h.t_lo - h.t_slack
+                    })
+            })
+            .collect();
+        // Elsewhere a near edge is covered when a grazed triangle shares it
+        // (both vertices bit-identical): the surface continues across it.
+        for ((h, near), fold) in out.hits.iter_mut().zip(edges_near).zip(folds) {
+            if !h.tie_if_missed || fold {
+                continue;
+            }
+            let tri = &self.triangles[h.tri as usize];
+            let covered = |i: usize| {
+                let (a, b) = (tri[i], tri[(i + 1) % 3]);
+                out.grazes.iter().any(|g| {
+                    let other = &self.triangles[g.tri as usize];
+                    other.contains(&a) && other.contains(&b)
+                })
+            };
+            h.tie_if_missed = (0..3).any(|i| near & (1 << i) != 0 && !covered(i));
         }
         out
     }
@@ -462,11 +664,15 @@ pub struct ExactReport {
     pub wrong_triangle: usize,
     pub t_error: usize,
     pub undecidable: usize,
+    /// Answers that differ from the exact one only within rounding of an
+    /// edge (not wrong).
+    pub edge_tie: usize,
     /// Any-hit answers.
     pub occlusion_right: usize,
     pub occlusion_false_miss: usize,
     pub occlusion_false_hit: usize,
     pub occlusion_undecidable: usize,
+    pub occlusion_edge_tie: usize,
     /// The first few wrong answers, to reproduce them.
     pub examples: Vec<WrongAnswer>,
 }
@@ -502,6 +708,9 @@ pub struct WrongAnswer {
     pub got_occluded: bool,
     /// (triangle, t_lo, t_hi, sure) of the exact hits, nearest first (at most 4).
     pub exact: Vec<(u32, f64, f64, bool)>,
+    /// (triangle, t) of the triangles missed within rounding of an edge,
+    /// nearest first (at most 4).
+    pub grazes: Vec<(u32, f64)>,
 }
 
 /// Judges `backend`'s closest and any-hit answers on `rays` (asked in
@@ -512,21 +721,33 @@ pub fn judge(
     backend: &dyn crate::accel::Backend,
     reference: &ExactReference,
 ) -> ExactReport {
+    judge_answers(name, rays, &reference.answers(rays), backend)
+}
+
+/// [`judge`] with the exact answers worked out already (`answers[i]` is
+/// `rays[i]`'s), for judging several backends on the same rays.
+pub fn judge_answers(
+    name: &str,
+    rays: &[Ray],
+    answers: &[ExactAnswer],
+    backend: &dyn crate::accel::Backend,
+) -> ExactReport {
     use rayon::prelude::*;
+    assert_eq!(rays.len(), answers.len(), "one exact answer per ray");
     let per_ray: Vec<(Verdict, Verdict, Option<Hit>, bool)> = rays
         .par_chunks(256)
-        .flat_map_iter(|chunk| {
+        .zip(answers.par_chunks(256))
+        .flat_map_iter(|(chunk, exact)| {
             let mut hits = vec![None; chunk.len()];
             let mut occluded = vec![false; chunk.len()];
             backend.intersect_stream(chunk, &mut hits);
             backend.occluded_stream(chunk, &mut occluded);
-            chunk
+            exact
                 .iter()
                 .zip(hits.into_iter().zip(occluded))
-                .map(|(ray, (hit, occ))| {
-                    let exact = reference.answer(ray);
+                .map(|(exact, (hit, occ))| {
                     (
-                        exact.judge_closest(ray, hit),
+                        exact.judge_closest(hit),
                         exact.judge_occluded(occ),
                         hit,
                         occ,
@@ -540,7 +761,7 @@ pub fn judge(
         rays: rays.len(),
         ..ExactReport::default()
     };
-    for (ray, &(closest, any, hit, occ)) in rays.iter().zip(&per_ray) {
+    for ((ray, answer), &(closest, any, hit, occ)) in rays.iter().zip(answers).zip(&per_ray) {
         match closest {
             Verdict::Right => r.right += 1,
             Verdict::FalseMiss => r.false_miss += 1,
@@ -548,11 +769,13 @@ pub fn judge(
             Verdict::WrongTriangle => r.wrong_triangle += 1,
             Verdict::TError => r.t_error += 1,
             Verdict::Undecidable => r.undecidable += 1,
+            Verdict::EdgeTie => r.edge_tie += 1,
         }
         match any {
             Verdict::Right => r.occlusion_right += 1,
             Verdict::FalseMiss => r.occlusion_false_miss += 1,
             Verdict::FalseHit => r.occlusion_false_hit += 1,
+            Verdict::EdgeTie => r.occlusion_edge_tie += 1,
             _ => r.occlusion_undecidable += 1,
         }
         let wrong = [("closest", closest), ("any", any)]
@@ -561,7 +784,7 @@ pub fn judge(
         if let (Some((query, verdict)), true) =
             (wrong, r.examples.len() < crate::validate::EXAMPLES)
         {
-            let mut exact = reference.answer(ray).hits;
+            let mut exact = answer.hits.clone();
             exact.sort_by(|a, b| a.t_lo.total_cmp(&b.t_lo));
             r.examples.push(WrongAnswer {
                 origin: ray.origin.to_array(),
@@ -577,6 +800,13 @@ pub fn judge(
                     .take(4)
                     .map(|h| (h.tri, h.t_lo, h.t_hi, h.sure))
                     .collect(),
+                grazes: {
+                    let mut g: Vec<(u32, f64)> =
+                        answer.grazes.iter().map(|g| (g.tri, g.t)).collect();
+                    g.sort_by(|a, b| a.1.total_cmp(&b.1));
+                    g.truncate(4);
+                    g
+                },
             });
         }
     }
@@ -597,13 +827,23 @@ mod tests {
         Vec3::new(0.0, 1.0, 0.0),
     ];
 
+    /// The hit's (t_lo, t_hi, sure), or None for a miss or a graze.
+    fn hit_of(tri: &[Vec3; 3], r: &Ray) -> Option<(f64, f64, bool)> {
+        match exact_test(tri, r)? {
+            Contact::Hit {
+                t_lo, t_hi, sure, ..
+            } => Some((t_lo, t_hi, sure)),
+            Contact::Graze { .. } => None,
+        }
+    }
+
     #[test]
     fn inside_hits_surely_at_the_right_t_from_either_side() {
         for (o, d) in [
             ([0.25, 0.25, 2.0], [0.0, 0.0, -1.0]),
             ([0.25, 0.25, -2.0], [0.0, 0.0, 0.5]),
         ] {
-            let (lo, hi, sure) = exact_test(&TRI, &ray(o, d)).unwrap();
+            let (lo, hi, sure) = hit_of(&TRI, &ray(o, d)).unwrap();
             let want = if d[2] < 0.0 { 2.0 } else { 4.0 };
             assert!(
                 sure && lo <= want && want <= hi && hi - lo < 1e-12,
@@ -632,8 +872,8 @@ mod tests {
             Vec3::new(0.0, 1.0, 0.0),
         ];
         let r = ray([0.5, 0.5, 3.0], [0.0, 0.0, -1.0]);
-        assert!(exact_test(&TRI, &r).unwrap().2);
-        assert!(exact_test(&other, &r).unwrap().2);
+        assert!(hit_of(&TRI, &r).unwrap().2);
+        assert!(hit_of(&other, &r).unwrap().2);
         let reference = ExactReference::new(vec![TRI, other]);
         let answer = reference.answer(&r);
         assert_eq!(answer.closest_candidates().count(), 2);
@@ -644,11 +884,91 @@ mod tests {
                 v: 0.5,
                 tri,
             };
-            assert_eq!(answer.judge_closest(&r, Some(hit)), Verdict::Right);
+            assert_eq!(answer.judge_closest(Some(hit)), Verdict::Right);
         }
-        assert_eq!(answer.judge_closest(&r, None), Verdict::FalseMiss);
+        assert_eq!(answer.judge_closest(None), Verdict::FalseMiss);
         assert_eq!(answer.judge_occluded(false), Verdict::FalseMiss);
         assert_eq!(answer.judge_occluded(true), Verdict::Right);
+    }
+
+    /// The square of TRI and its neighbour across the diagonal x + y = 1.
+    const OTHER: [Vec3; 3] = [
+        Vec3::new(1.0, 0.0, 0.0),
+        Vec3::new(1.0, 1.0, 0.0),
+        Vec3::new(0.0, 1.0, 0.0),
+    ];
+
+    fn at(tri: u32, t: f32) -> Option<Hit> {
+        Some(Hit {
+            t,
+            u: 0.0,
+            v: 0.0,
+            tri,
+        })
+    }
+
+    #[test]
+    fn the_neighbour_within_rounding_of_a_shared_edge_is_a_tie_and_a_miss_a_leak() {
+        // One ulp inside TRI, just off the shared diagonal.
+        let x = 0.5f32;
+        let y = f32::from_bits(0.5f32.to_bits() - 1);
+        let r = ray([x, y, 3.0], [0.0, 0.0, -1.0]);
+        let reference = ExactReference::new(vec![TRI, OTHER]);
+        let a = reference.answer(&r);
+        assert_eq!(a.hits.len(), 1);
+        assert!(a.hits[0].near_edge && a.hits[0].tri == 0);
+        assert_eq!(a.grazes.len(), 1);
+        assert_eq!(a.judge_closest(at(0, 3.0)), Verdict::Right);
+        assert_eq!(a.judge_closest(at(1, 3.0)), Verdict::EdgeTie);
+        assert_eq!(a.judge_closest(at(1, 3.5)), Verdict::TError);
+        // The edge is shared: missing both triangles is a leak.
+        assert_eq!(a.judge_closest(None), Verdict::FalseMiss);
+        assert_eq!(a.judge_occluded(false), Verdict::FalseMiss);
+    }
+
+    #[test]
+    fn an_open_edge_within_rounding_is_a_tie_either_way_and_far_from_it_is_not() {
+        let reference = ExactReference::new(vec![TRI]);
+        let just_in = f32::from_bits(0.5f32.to_bits() - 1);
+        let just_out = f32::from_bits(0.5f32.to_bits() + 1);
+        // Inside by an ulp: a miss is a tie (no neighbour shares the edge).
+        let r = ray([0.5, just_in, 3.0], [0.0, 0.0, -1.0]);
+        let a = reference.answer(&r);
+        assert_eq!(a.judge_closest(None), Verdict::EdgeTie);
+        assert_eq!(a.judge_occluded(false), Verdict::EdgeTie);
+        // Outside by an ulp: a hit is a tie.
+        let r = ray([0.5, just_out, 3.0], [0.0, 0.0, -1.0]);
+        let a = reference.answer(&r);
+        assert!(a.hits.is_empty() && a.grazes.len() == 1);
+        assert_eq!(a.judge_closest(at(0, 3.0)), Verdict::EdgeTie);
+        assert_eq!(a.judge_occluded(true), Verdict::EdgeTie);
+        // Outside by 1e-3: a hit is false; deep inside a miss is false.
+        let r = ray([0.5, 0.501, 3.0], [0.0, 0.0, -1.0]);
+        let a = reference.answer(&r);
+        assert!(a.grazes.is_empty());
+        assert_eq!(a.judge_closest(at(0, 3.0)), Verdict::FalseHit);
+        assert_eq!(a.judge_occluded(true), Verdict::FalseHit);
+        let r = ray([0.25, 0.25, 3.0], [0.0, 0.0, -1.0]);
+        let a = reference.answer(&r);
+        assert_eq!(a.judge_closest(None), Verdict::FalseMiss);
+    }
+
+    #[test]
+    fn a_hit_behind_one_at_an_edge_is_a_tie_and_behind_a_clear_one_is_wrong() {
+        // TRI at z = 0, and a big triangle behind it at z = -1.
+        let far = [
+            Vec3::new(-5.0, -5.0, -1.0),
+            Vec3::new(5.0, -5.0, -1.0),
+            Vec3::new(0.0, 5.0, -1.0),
+        ];
+        let reference = ExactReference::new(vec![TRI, far]);
+        let just_in = f32::from_bits(0.5f32.to_bits() - 1);
+        let r = ray([0.5, just_in, 3.0], [0.0, 0.0, -1.0]);
+        let a = reference.answer(&r);
+        assert_eq!(a.judge_closest(at(1, 4.0)), Verdict::EdgeTie);
+        let r = ray([0.25, 0.25, 3.0], [0.0, 0.0, -1.0]);
+        let a = reference.answer(&r);
+        assert_eq!(a.judge_closest(at(1, 4.0)), Verdict::WrongTriangle);
     }
 
     #[test]
@@ -669,13 +989,13 @@ mod tests {
                 tri,
             })
         };
-        assert_eq!(a.judge_closest(&r, hit(0, 2.0)), Verdict::Right);
-        assert_eq!(a.judge_closest(&r, hit(1, 3.0)), Verdict::WrongTriangle);
-        assert_eq!(a.judge_closest(&r, hit(0, 2.1)), Verdict::TError);
+        assert_eq!(a.judge_closest(hit(0, 2.0)), Verdict::Right);
+        assert_eq!(a.judge_closest(hit(1, 3.0)), Verdict::WrongTriangle);
+        assert_eq!(a.judge_closest(hit(0, 2.1)), Verdict::TError);
         let miss = reference.answer(&ray([9.0, 9.0, 2.0], [0.0, 0.0, -1.0]));
-        assert_eq!(miss.judge_closest(&r, hit(0, 2.0)), Verdict::FalseHit);
+        assert_eq!(miss.judge_closest(hit(0, 2.0)), Verdict::FalseHit);
         assert_eq!(miss.judge_occluded(true), Verdict::FalseHit);
-        assert_eq!(miss.judge_closest(&r, None), Verdict::Right);
+        assert_eq!(miss.judge_closest(None), Verdict::Right);
     }
 
     #[test]
@@ -695,7 +1015,13 @@ mod tests {
         let reference = ExactReference::new(tris.clone());
         for _ in 0..500 {
             let ray = Ray::new(Vec3::new(r(), r(), r()) * 5.0, Vec3::new(r(), r(), r()));
-            let mut got: Vec<u32> = reference.answer(&ray).hits.iter().map(|h| h.tri).collect();
+            let answer = reference.answer(&ray);
+            let mut got: Vec<u32> = answer
+                .hits
+                .iter()
+                .map(|h| h.tri)
+                .chain(answer.grazes.iter().map(|g| g.tri))
+                .collect();
             got.sort_unstable();
             let want: Vec<u32> = (0..tris.len() as u32)
                 .filter(|&i| exact_test(&tris[i as usize], &ray).is_some())
@@ -714,7 +1040,7 @@ mod tests {
             Vec3::new(0.1, 1.3, 1.4),
         ];
         let r = ray([0.5, 0.4, -2.0], [0.05, 0.02, 1.0]);
-        let (lo, hi, sure) = exact_test(&tri, &r).unwrap();
+        let (lo, hi, sure) = hit_of(&tri, &r).unwrap();
         let naive = raylab_mt(&tri, &r).unwrap() as f64;
         assert!(sure && (lo - naive).abs() < 1e-5 && (hi - naive).abs() < 1e-5);
     }

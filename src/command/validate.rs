@@ -30,7 +30,9 @@ pub struct ValidateArgs {
     /// answer right, wrong or undecidable).
     #[arg(long, value_enum, default_value_t = if crate::accel::embree::AVAILABLE { Against::Embree } else { Against::Naive })]
     against: Against,
-    /// Ray sets to compare: primary, shadow, ao, diffuse, random or all; or
+    /// Ray sets to compare: primary, shadow, ao, diffuse, random, all (those
+    /// five) or edges (aimed at vertices and edges: best judged with
+    /// `--against exact`, since two f32 tests disagree there by design); or
     /// a ray file (`raylab rays`, format in docs/reference.md) whose rays are
     /// traced instead of a render's (one scene).
     #[arg(long, value_name = "SET|FILE", default_value = "all")]
@@ -114,7 +116,9 @@ struct ValidateReport {
 /// The rays of `--rays FILE`, or `None` when `--rays` names a set. A file
 /// applies to one scene, and has no raster for `--diff-image`.
 fn file_rays(args: &ValidateArgs, names: &[String]) -> Result<Option<RaySets>> {
-    const SETS: [&str; 6] = ["primary", "shadow", "ao", "diffuse", "random", "all"];
+    const SETS: [&str; 7] = [
+        "primary", "shadow", "ao", "diffuse", "random", "edges", "all",
+    ];
     if SETS.contains(&args.rays.as_str()) {
         return Ok(None);
     }
@@ -192,6 +196,7 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
         "ao" => vec![RaySet::Ao],
         "diffuse" => vec![RaySet::Diffuse],
         "random" => vec![RaySet::Random],
+        "edges" => vec![RaySet::Edges],
         _ => RaySet::ALL.to_vec(),
     };
     let file_rays = file_rays(args, &names)?;
@@ -407,10 +412,12 @@ fn exact_table(sets: &[crate::exact::ExactReport]) -> Table {
         ("wrong triangle", Right),
         ("t error", Right),
         ("undecidable", Right),
+        ("edge ties", Right),
         ("occlusion right", Right),
         ("occl. false miss", Right),
         ("occl. false hit", Right),
         ("occl. undecidable", Right),
+        ("occl. edge ties", Right),
     ]);
     for r in sets {
         t.row([
@@ -422,10 +429,12 @@ fn exact_table(sets: &[crate::exact::ExactReport]) -> Table {
             r.wrong_triangle.to_string(),
             r.t_error.to_string(),
             r.undecidable.to_string(),
+            r.edge_tie.to_string(),
             r.occlusion_right.to_string(),
             r.occlusion_false_miss.to_string(),
             r.occlusion_false_hit.to_string(),
             r.occlusion_undecidable.to_string(),
+            r.occlusion_edge_tie.to_string(),
         ]);
     }
     t
