@@ -24,7 +24,7 @@ use crate::bench::charts::{
 use crate::bench::config::BenchConfig;
 use crate::bench::measure::Stat;
 use crate::error::Result;
-use crate::exact::{judge, ExactReference};
+use crate::exact::{judge_answers, ExactAnswer, ExactReference, ExactReport};
 use crate::geometry::{Intersector, Ray};
 use crate::progress::StepBar;
 use crate::render::AoMode;
@@ -33,22 +33,25 @@ use crate::table::{
     Align::{Left, Right},
     Table,
 };
-use crate::validate::{recorded_rays, RaySet};
+use crate::validate::{edge_rays, recorded_rays, RaySet};
 
 pub const SECTION: ChartSection = ChartSection {
     title: "Every CPU BVH: speed against accuracy",
     stem: "libraries",
-    caption: "Time per ray (one thread, mean over the ray kinds) against wrong answers per million against the exact reference, per scene; a backend with none sits on the bottom line (dot: raylab, triangle: Embree, cross: another library). Lower left is better.",
+    caption: "Time per ray (one thread, mean over the render's ray kinds) against wrong answers per million against the exact reference, per scene: top row on the render's rays, bottom row on rays aimed at the scene's vertices and edges. A backend with none sits on the bottom line (dot: raylab, triangle: Embree, cross: another library). Lower left is better.",
 };
 
-/// The ray kinds: a render's, its diffuse bounces, and random rays (only
-/// from a ray file, `bench --rays`).
-const KINDS: [RaySet; 5] = [
+/// The ray kinds: a render's, its diffuse bounces, random rays (only from a
+/// ray file, `bench --rays`), and rays aimed at the scene's vertices and
+/// edges (the leak suite's, judged apart: they are adversarial, not work a
+/// renderer does, so they stay out of the mean time per ray).
+const KINDS: [RaySet; 6] = [
     RaySet::Primary,
     RaySet::Shadow,
     RaySet::Ao,
     RaySet::Diffuse,
     RaySet::Random,
+    RaySet::Edges,
 ];
 
 /// One backend on one scene.
@@ -63,13 +66,20 @@ pub struct LibraryPoint {
     pub build_ms: Stat,
     /// Mrays/s on one thread per kind, in [`KINDS`] order.
     pub mrays: Vec<f64>,
-    /// Mean ns per ray over the kinds (each kind weighted alike).
+    /// Mean ns per ray over the kinds but edges (each kind weighted alike).
     pub ns_per_ray: f64,
     pub rays: usize,
-    /// Wrong answers (the query each kind asks) against the exact reference.
+    /// Wrong answers (the query each kind asks) against the exact reference,
+    /// on every kind but edges.
     pub wrong: usize,
     pub undecidable: usize,
     pub wrong_per_million: f64,
+    /// The same on the edge and vertex rays, closest hit and any hit both
+    /// asked (per million answers).
+    pub edge_rays: usize,
+    pub edge_wrong: usize,
+    pub edge_undecidable: usize,
+    pub edge_wrong_per_million: f64,
     /// What the library lacks and raylab filled in (empty for raylab's own).
     pub limits: Vec<String>,
     /// Why it could not be built on this scene (then nothing was measured).
@@ -123,7 +133,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lib
         let settings = cfg
             .first_view(scene, size)
             .settings(size, AoMode::Paper, 1)?;
-        let rays: Vec<Vec<Ray>> = match &cfg.rays {
+        let mut rays: Vec<Vec<Ray>> = match &cfg.rays {
             // A ray file (`--rays`): its rays, whole.
             Some(file) => KINDS
                 .iter()
@@ -148,13 +158,20 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lib
                     &recorded.ao,
                     &diffuse,
                     &Vec::new(),
+                    &Vec::new(),
                 ]
                 .into_iter()
                 .map(|r| window(r, per_kind))
                 .collect()
             }
         };
-        let reference = ExactReference::new(scene.triangle_vertices());
+        // The scene's own edge and vertex rays, with a ray file too.
+        let triangles = scene.triangle_vertices();
+        rays[KINDS.len() - 1] = edge_rays(&triangles, per_kind, settings.seed);
+        bar.set_message(format!("libraries: exact answers on {}", scene.name));
+        let reference = ExactReference::new(triangles);
+        // Worked out once, for every backend.
+        let answers: Vec<Vec<ExactAnswer>> = rays.iter().map(|r| reference.answers(r)).collect();
         for spec in specs() {
             bar.set_message(format!("libraries: {} on {}", spec.name(), scene.name));
             // An untimed build first (Embree's device, pages faulted in).
@@ -174,6 +191,10 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lib
                         wrong: 0,
                         undecidable: 0,
                         wrong_per_million: f64::NAN,
+                        edge_rays: 0,
+                        edge_wrong: 0,
+                        edge_undecidable: 0,
+                        edge_wrong_per_million: f64::NAN,
                         limits: Vec::new(),
                         failed: Some(e.to_string()),
                     });
@@ -190,7 +211,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lib
                 &built,
                 Stat::of(&times),
                 &rays,
-                &reference,
+                &answers,
                 reps,
             ));
             bar.step();
@@ -216,12 +237,13 @@ fn measure(
     built: &Built,
     build_ms: Stat,
     rays: &[Vec<Ray>],
-    reference: &ExactReference,
+    answers: &[Vec<ExactAnswer>],
     reps: usize,
 ) -> LibraryPoint {
     let mut mrays = Vec::new();
     let (mut wrong, mut undecidable, mut total) = (0, 0, 0);
-    for (kind, rays) in KINDS.iter().zip(rays) {
+    let mut edges = ExactReport::default();
+    for ((kind, rays), answers) in KINDS.iter().zip(rays).zip(answers) {
         let (name, closest) = (kind.name(), &kind.closest());
         if rays.is_empty() {
             mrays.push(f64::NAN);
@@ -234,8 +256,12 @@ fn measure(
             })
             .collect();
         mrays.push(Stat::of(&rates).median);
-        let r = judge(name, rays, built.as_ref(), reference);
-        // The query this kind asks.
+        let r = judge_answers(name, rays, answers, built.as_ref());
+        // The query this kind asks (both on edge rays).
+        if *kind == RaySet::Edges {
+            edges = r;
+            continue;
+        }
         if *closest {
             wrong += r.false_miss + r.false_hit + r.wrong_triangle + r.t_error;
             undecidable += r.undecidable;
@@ -245,7 +271,12 @@ fn measure(
         }
         total += rays.len();
     }
-    let measured: Vec<f64> = mrays.iter().copied().filter(|m| m.is_finite()).collect();
+    let measured: Vec<f64> = KINDS
+        .iter()
+        .zip(&mrays)
+        .filter(|(k, m)| **k != RaySet::Edges && m.is_finite())
+        .map(|(_, m)| *m)
+        .collect();
     let ns_per_ray = measured.iter().map(|m| 1e3 / m).sum::<f64>() / measured.len().max(1) as f64;
     let family = if built.spec.is_embree() {
         "embree"
@@ -272,6 +303,14 @@ fn measure(
         wrong,
         undecidable,
         wrong_per_million: wrong as f64 * 1e6 / total.max(1) as f64,
+        edge_rays: edges.rays,
+        edge_wrong: edges.wrong(),
+        edge_undecidable: edges.undecidable + edges.occlusion_undecidable,
+        edge_wrong_per_million: if edges.rays > 0 {
+            edges.wrong_per_million()
+        } else {
+            f64::NAN
+        },
         limits,
         failed: None,
     }
@@ -294,10 +333,12 @@ pub fn markdown(points: &[LibraryPoint]) -> String {
     }
     t.column("wrong per million", Right);
     t.column("undecidable", Right);
+    t.column("edge rays: wrong per million", Right);
+    t.column("undecidable", Right);
     for p in points {
         if let Some(why) = &p.failed {
             let mut row = vec![p.scene.clone(), p.backend.clone()];
-            row.extend((0..kinds.len() + 2).map(|_| "-".to_string()));
+            row.extend((0..kinds.len() + 4).map(|_| "-".to_string()));
             row.push(format!("not built: {why}"));
             t.row(row);
             continue;
@@ -313,6 +354,15 @@ pub fn markdown(points: &[LibraryPoint]) -> String {
         }));
         row.push(format!("{:.0} ({})", p.wrong_per_million, p.wrong));
         row.push(p.undecidable.to_string());
+        if p.edge_rays > 0 {
+            row.push(format!(
+                "{:.0} ({})",
+                p.edge_wrong_per_million, p.edge_wrong
+            ));
+            row.push(p.edge_undecidable.to_string());
+        } else {
+            row.extend(["-".to_string(), "-".to_string()]);
+        }
         t.row(row);
     }
     let mut limits: Vec<(String, Vec<String>)> = Vec::new();
@@ -326,7 +376,7 @@ pub fn markdown(points: &[LibraryPoint]) -> String {
         .map(|(b, l)| format!("- `{b}`: {}\n", l.join("; ")))
         .collect();
     format!(
-        "### Every CPU BVH side by side\n\nOne thread, each backend on its fastest query path, the same recorded rays (one render's primary, shadow and AO rays and a diffuse bounce per primary hit: at most 50000 consecutive rays of each from the middle of the render's stream, so that packets hold neighbouring rays). Wrong: answers (closest hit for primary and diffuse, any hit for shadow and AO) that the exact reference says are false misses, false hits, the wrong triangle or a t beyond its bound; undecidable: double precision could not say.\n\n{}\nWhat the other libraries lack, and what raylab does instead:\n\n{limits}",
+        "### Every CPU BVH side by side\n\nOne thread, each backend on its fastest query path, the same recorded rays (one render's primary, shadow and AO rays and a diffuse bounce per primary hit: at most 50000 consecutive rays of each from the middle of the render's stream, so that packets hold neighbouring rays). Wrong: answers (closest hit for primary and diffuse, any hit for shadow and AO) that the exact reference says are false misses, false hits, the wrong triangle or a t beyond its bound; undecidable: double precision could not say. Edge rays: as many rays aimed exactly at the scene's vertices and at points on its edges, from 1e-4 to 0.5 of the scene's size away (`validate --rays edges`), each asked for its closest hit and for any hit; they are timed but kept out of the time per ray in the chart.\n\n{}\nWhat the other libraries lack, and what raylab does instead:\n\n{limits}",
         t.markdown()
     )
 }
@@ -335,16 +385,19 @@ pub fn markdown(points: &[LibraryPoint]) -> String {
 pub fn charts(dir: &Path, points: &[LibraryPoint]) -> Result<Vec<String>> {
     let scenes = distinct(points.iter().map(|p| p.scene.as_str()))
         .len()
-        .max(1) as u32;
-    let width = 460 * scenes.min(4) + SIDE_LEGEND + 60;
+        .clamp(1, MAX_SCENES) as u32;
+    let width = 420 * scenes + SIDE_LEGEND + 60;
     Ok(vec![save_chart!(
         dir,
         SECTION.stem,
-        (width, 520),
+        (width, 900),
         draw_libraries,
         points
     )?])
 }
+
+/// Scenes drawn side by side (the table has them all).
+const MAX_SCENES: usize = 6;
 
 /// Where a count of zero wrong answers is drawn on the log axis.
 const ZERO_LINE: f64 = 0.1;
@@ -361,52 +414,61 @@ where
     let (panels, side) = root.split_horizontally(width.saturating_sub(SIDE_LEGEND + 60));
     let scenes: Vec<&str> = distinct(pts.iter().map(|p| p.scene.as_str()))
         .into_iter()
-        .take(4)
+        .take(MAX_SCENES)
         .collect();
     let backends = distinct(pts.iter().map(|p| p.backend.as_str()));
-    let areas = panels.split_evenly((1, scenes.len().max(1)));
-    let y = |p: &LibraryPoint| p.wrong_per_million.max(ZERO_LINE);
-    for (area, scene) in areas.iter().zip(&scenes) {
-        let here: Vec<&LibraryPoint> = pts
-            .iter()
-            .filter(|p| p.scene == *scene && p.failed.is_none())
-            .collect();
-        let title = std::path::Path::new(scene)
-            .file_stem()
-            .map_or(scene.to_string(), |s| s.to_string_lossy().into_owned());
-        let y_range = log_range(here.iter().map(|p| y(p)).chain([ZERO_LINE, 1e3]));
-        let mut chart = ChartBuilder::on(area)
-            .caption(title, (FONT, 18))
-            .margin(12)
-            .x_label_area_size(45)
-            .y_label_area_size(60)
-            .build_cartesian_2d(
-                log_range(here.iter().map(|p| p.ns_per_ray.max(1e-3))).log_scale(),
-                y_range.log_scale(),
-            )?;
-        chart
-            .configure_mesh()
-            .x_desc("ns per ray, 1 thread (log)")
-            .y_desc("wrong per million (log; 0 at bottom)")
-            .x_label_formatter(&log_label)
-            .y_label_formatter(&|v| {
-                if *v <= ZERO_LINE * 1.01 {
-                    "0".to_string()
+    let areas = panels.split_evenly((2, scenes.len().max(1)));
+    // Top row: the render's rays; bottom row: the edge and vertex rays.
+    type WrongOf = fn(&LibraryPoint) -> f64;
+    let rows: [(&str, WrongOf); 2] = [
+        ("render rays", |p| p.wrong_per_million),
+        ("edge rays", |p| p.edge_wrong_per_million),
+    ];
+    for (row, (label, wrong)) in rows.iter().enumerate() {
+        for (col, scene) in scenes.iter().enumerate() {
+            let area = &areas[row * scenes.len() + col];
+            let here: Vec<&LibraryPoint> = pts
+                .iter()
+                .filter(|p| p.scene == *scene && p.failed.is_none() && wrong(p).is_finite())
+                .collect();
+            let y = |p: &LibraryPoint| wrong(p).max(ZERO_LINE);
+            let name = std::path::Path::new(scene)
+                .file_stem()
+                .map_or(scene.to_string(), |s| s.to_string_lossy().into_owned());
+            let y_range = log_range(here.iter().map(|p| y(p)).chain([ZERO_LINE, 1e3]));
+            let mut chart = ChartBuilder::on(area)
+                .caption(format!("{name}: {label}"), (FONT, 17))
+                .margin(12)
+                .x_label_area_size(45)
+                .y_label_area_size(60)
+                .build_cartesian_2d(
+                    log_range(here.iter().map(|p| p.ns_per_ray.max(1e-3))).log_scale(),
+                    y_range.log_scale(),
+                )?;
+            chart
+                .configure_mesh()
+                .x_desc("ns per render ray, 1 thread (log)")
+                .y_desc(format!("wrong per million, {label} (log; 0 at bottom)"))
+                .x_label_formatter(&log_label)
+                .y_label_formatter(&|v| {
+                    if *v <= ZERO_LINE * 1.01 {
+                        "0".to_string()
+                    } else {
+                        log_label(v)
+                    }
+                })
+                .draw()?;
+            for p in &here {
+                let ci = backends.iter().position(|b| *b == p.backend).unwrap_or(0);
+                let c = color(ci);
+                let at = (p.ns_per_ray.max(1e-3), y(p));
+                if p.family == "raylab" {
+                    chart.draw_series(std::iter::once(Circle::new(at, 6, c.filled())))?;
+                } else if p.family == "embree" {
+                    chart.draw_series(std::iter::once(TriangleMarker::new(at, 7, c.filled())))?;
                 } else {
-                    log_label(v)
+                    chart.draw_series(std::iter::once(Cross::new(at, 6, c.stroke_width(2))))?;
                 }
-            })
-            .draw()?;
-        for p in &here {
-            let ci = backends.iter().position(|b| *b == p.backend).unwrap_or(0);
-            let c = color(ci);
-            let at = (p.ns_per_ray.max(1e-3), y(p));
-            if p.family == "raylab" {
-                chart.draw_series(std::iter::once(Circle::new(at, 6, c.filled())))?;
-            } else if p.family == "embree" {
-                chart.draw_series(std::iter::once(TriangleMarker::new(at, 7, c.filled())))?;
-            } else {
-                chart.draw_series(std::iter::once(Cross::new(at, 6, c.stroke_width(2))))?;
             }
         }
     }
