@@ -26,6 +26,7 @@ use crate::accel::embree::Quality;
 use crate::accel::naive::Naive;
 use crate::accel::{build_backend, Backend, BackendSpec, Built};
 use crate::error::{Error, Result};
+use crate::exact::{judge_answers, ExactReference};
 use crate::geometry::{Aabb, Intersector, OffsetStrategy, Ray};
 use crate::render::rng::Rng;
 use crate::scene::MeshRef;
@@ -366,6 +367,10 @@ pub struct LeakRow {
     pub leak_rate: f64,
     /// Tracing time per ray (closest hit), for the leak-against-speed chart.
     pub ns_per_ray: f64,
+    /// Closest-hit and any-hit answers the exact reference judges wrong
+    /// (leaks, false hits, wrong triangles, t errors), and edge ties.
+    pub exact_wrong: usize,
+    pub edge_ties: usize,
 }
 
 /// The backends the leak and degenerate suites compare, built over raw arrays.
@@ -386,14 +391,6 @@ pub enum StressBackend {
 }
 
 impl StressBackend {
-    /// raylab's backends and Embree (what the degenerate suite compares).
-    pub const OWN_AND_EMBREE: [StressBackend; 4] = [
-        StressBackend::Naive,
-        StressBackend::BvhMedian,
-        StressBackend::BvhSah,
-        StressBackend::Embree,
-    ];
-
     pub const ALL: [StressBackend; 5] = [
         StressBackend::Naive,
         StressBackend::BvhMedian,
@@ -488,12 +485,25 @@ fn stress_backends(
     triangles: &[[u32; 3]],
     kinds: &[StressBackend],
 ) -> Result<Vec<(Built, String)>> {
+    built_or_not(positions, triangles, kinds)
+        .into_iter()
+        .map(|(_, built, test)| Ok((built?, test)))
+        .collect()
+}
+
+/// Each backend `kinds` names, built, or why it could not be: a library
+/// refusing an input is a finding, not the end of the suite.
+fn built_or_not(
+    positions: &[Vec3],
+    triangles: &[[u32; 3]],
+    kinds: &[StressBackend],
+) -> Vec<(BackendSpec, Result<Built>, String)> {
     let mesh = MeshRef {
         positions,
         triangles,
     };
     stress_specs(kinds)
-        .iter()
+        .into_iter()
         .map(|spec| {
             let test = match spec {
                 BackendSpec::Naive { intersector } | BackendSpec::Bvh { intersector, .. } => {
@@ -502,7 +512,8 @@ fn stress_backends(
                 BackendSpec::Embree { .. } => "embree",
                 BackendSpec::Library { .. } => "its own",
             };
-            Ok((build_backend(spec, mesh)?, test.to_string()))
+            let built = build_backend(&spec, mesh);
+            (spec, built, test.to_string())
         })
         .collect()
 }
@@ -521,6 +532,13 @@ pub fn leak_suite_with(
     let mut rows = Vec::new();
     for (k, mesh) in meshes.iter().enumerate() {
         let rays = leak_rays(mesh, outside, 17 + k as u64);
+        let reference = ExactReference::new(
+            mesh.triangles
+                .iter()
+                .map(|t| t.map(|i| mesh.positions[i as usize]))
+                .collect(),
+        );
+        let answers = reference.answers(&rays);
         for (backend, intersector) in stress_backends(&mesh.positions, &mesh.triangles, kinds)? {
             let start = Instant::now();
             let leaks = rays
@@ -528,6 +546,7 @@ pub fn leak_suite_with(
                 .filter(|r| backend.intersect(r).is_none())
                 .count();
             let elapsed = start.elapsed();
+            let judged = judge_answers("leaks", &rays, &answers, backend.as_ref());
             rows.push(LeakRow {
                 mesh: mesh.name.clone(),
                 triangles: mesh.triangles.len(),
@@ -538,6 +557,8 @@ pub fn leak_suite_with(
                 leaks,
                 leak_rate: leaks as f64 / rays.len().max(1) as f64,
                 ns_per_ray: elapsed.as_secs_f64() * 1e9 / rays.len().max(1) as f64,
+                exact_wrong: judged.wrong(),
+                edge_ties: judged.edge_tie + judged.occlusion_edge_tie,
             });
         }
     }
@@ -663,8 +684,18 @@ pub struct DegenerateRow {
     pub rays: usize,
     /// Hits with a non-finite t, u or v.
     pub nan_results: usize,
-    /// Genuine disagreements with naive (same triangle test; Embree against MT).
+    /// Genuine disagreements with naive (same triangle test; Embree and
+    /// the other libraries against MT).
     pub genuine_vs_naive: usize,
+    /// Closest-hit and any-hit answers the exact reference judges wrong,
+    /// and those it cannot decide in double precision.
+    pub exact_wrong: usize,
+    pub undecidable: usize,
+    /// Another library's (tinybvh, obvhs, the bvh crate), not raylab's or
+    /// Embree's: its NaN results do not fail `stress`.
+    pub library: bool,
+    /// Why the backend could not be built on this case (nothing measured).
+    pub not_built: Option<String>,
 }
 
 /// One degenerate input: a name, vertex positions and index triples.
@@ -744,13 +775,15 @@ pub fn degenerate_cases() -> Vec<DegenerateCase> {
         .collect()
 }
 
-/// The degenerate suite: raylab's backends and Embree on every case with
-/// random rays, rays parallel to the triangles' plane, axis-aligned rays and
-/// NaN/inf rays. The other libraries are left out: tinybvh's BVH8_CPU
-/// conversion crashed the process on the `identical` case (now refused as an
-/// error at build time, which would end the suite), and the suite's
-/// "agrees with naive" column presumes raylab's arithmetic.
-pub fn degenerate_suite(rays_per_case: usize) -> Result<Vec<DegenerateRow>> {
+/// The degenerate suite: every backend on every case with random rays,
+/// rays parallel to the triangles' plane, axis-aligned rays and NaN/inf
+/// rays, judged against naive and against the exact reference. A library
+/// that refuses a case (tinybvh's BVH8_CPU conversion on `identical`, which
+/// once crashed the process) gets a "not built" row.
+pub fn degenerate_suite(
+    rays_per_case: usize,
+    kinds: &[StressBackend],
+) -> Result<Vec<DegenerateRow>> {
     let mut rows = Vec::new();
     for DegenerateCase {
         name,
@@ -789,9 +822,27 @@ pub fn degenerate_suite(rays_per_case: usize) -> Result<Vec<DegenerateRow>> {
         let naive_mt = Naive::from_triangles(tris.clone());
         let naive_wt =
             Naive::from_triangles(tris.clone()).with_intersector(Intersector::Watertight);
-        for (backend, intersector) in
-            stress_backends(&positions, &triangles, &StressBackend::OWN_AND_EMBREE)?
-        {
+        let reference = ExactReference::new(tris.clone());
+        let answers = reference.answers(&rays);
+        for (spec, built, intersector) in built_or_not(&positions, &triangles, kinds) {
+            let backend = match built {
+                Ok(b) => b,
+                Err(e) => {
+                    rows.push(DegenerateRow {
+                        case: name.to_string(),
+                        triangles: tris.len(),
+                        backend: spec.name(),
+                        rays: 0,
+                        nan_results: 0,
+                        genuine_vs_naive: 0,
+                        exact_wrong: 0,
+                        undecidable: 0,
+                        library: spec.is_library(),
+                        not_built: Some(e.to_string()),
+                    });
+                    continue;
+                }
+            };
             let reference: &dyn Backend = if intersector == "watertight" {
                 &naive_wt
             } else {
@@ -807,6 +858,7 @@ pub fn degenerate_suite(rays_per_case: usize) -> Result<Vec<DegenerateRow>> {
                 let agreement = classify(ray, h, reference.intersect(ray), &tris);
                 genuine += (agreement == Agreement::Genuine) as usize;
             }
+            let judged = judge_answers(name, &rays, &answers, backend.as_ref());
             rows.push(DegenerateRow {
                 case: name.to_string(),
                 triangles: tris.len(),
@@ -814,6 +866,10 @@ pub fn degenerate_suite(rays_per_case: usize) -> Result<Vec<DegenerateRow>> {
                 rays: rays.len(),
                 nan_results: nan,
                 genuine_vs_naive: genuine,
+                exact_wrong: judged.wrong(),
+                undecidable: judged.undecidable + judged.occlusion_undecidable,
+                library: spec.is_library(),
+                not_built: None,
             });
         }
     }
@@ -985,6 +1041,8 @@ pub fn leak_table(rows: &[LeakRow]) -> Table {
         ("rays", Right),
         ("leaks", Right),
         ("leak rate", Right),
+        ("wrong vs exact", Right),
+        ("edge ties", Right),
         ("ns/ray", Right),
     ]);
     for r in rows {
@@ -995,6 +1053,8 @@ pub fn leak_table(rows: &[LeakRow]) -> Table {
             r.rays.to_string(),
             r.leaks.to_string(),
             format!("{:.2e}", r.leak_rate),
+            r.exact_wrong.to_string(),
+            r.edge_ties.to_string(),
             format!("{:.0}", r.ns_per_ray),
         ]);
     }
@@ -1041,7 +1101,7 @@ impl StressReport {
         }
         if !self.degenerate.is_empty() {
             out.push_str(
-                "## Degenerate input: NaN results and genuine disagreements with naive\n\n",
+                "## Degenerate input: NaN results, genuine disagreements with naive, wrong answers against the exact reference\n\n",
             );
             let mut t = Table::new([
                 ("case", Left),
@@ -1050,8 +1110,23 @@ impl StressReport {
                 ("rays", Right),
                 ("NaN results", Right),
                 ("genuine vs naive", Right),
+                ("wrong vs exact", Right),
+                ("undecidable", Right),
             ]);
             for r in &self.degenerate {
+                if let Some(why) = &r.not_built {
+                    t.row([
+                        r.case.to_string(),
+                        r.triangles.to_string(),
+                        r.backend.clone(),
+                        "-".into(),
+                        "-".into(),
+                        "-".into(),
+                        "-".into(),
+                        format!("not built: {why}"),
+                    ]);
+                    continue;
+                }
                 t.row([
                     r.case.to_string(),
                     r.triangles.to_string(),
@@ -1059,6 +1134,8 @@ impl StressReport {
                     r.rays.to_string(),
                     r.nan_results.to_string(),
                     r.genuine_vs_naive.to_string(),
+                    r.exact_wrong.to_string(),
+                    r.undecidable.to_string(),
                 ]);
             }
             out.push_str(&t.markdown());

@@ -107,6 +107,57 @@ impl Drop for WaldTree {
     }
 }
 
+/// Runs `f` with the process's stdout (fd 1) going to a temporary file,
+/// and returns what was printed there: tinybvh prints warnings ("failed to
+/// split large node") with printf, which would land in the middle of
+/// `--json` output. Nothing else writes to stdout while a backend is built.
+/// Without a temporary file, `f` runs as is.
+fn capture_stdout<T>(f: impl FnOnce() -> T) -> (T, String) {
+    use std::io::{Read, Seek, Write};
+    use std::os::fd::AsRawFd;
+    let path = std::env::temp_dir().join(format!(
+        "raylab-tinybvh-stdout-{}-{:?}",
+        std::process::id(),
+        std::thread::current().id()
+    ));
+    let Ok(mut file) = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(true)
+        .read(true)
+        .write(true)
+        .open(&path)
+    else {
+        return (f(), String::new());
+    };
+    std::fs::remove_file(&path).ok();
+    std::io::stdout().flush().ok();
+    // SAFETY: fflush(NULL) flushes every C stream; dup and dup2 act on fd 1
+    // (open for the process's life) and on `file`'s descriptor, which
+    // outlives the swap. A failed dup (-1) skips the swap.
+    let saved = unsafe {
+        libc::fflush(std::ptr::null_mut());
+        let saved = libc::dup(1);
+        if saved >= 0 {
+            libc::dup2(file.as_raw_fd(), 1);
+        }
+        saved
+    };
+    let out = f();
+    // SAFETY: as above; `saved` is the descriptor dup returned, closed once.
+    unsafe {
+        libc::fflush(std::ptr::null_mut());
+        if saved >= 0 {
+            libc::dup2(saved, 1);
+            libc::close(saved);
+        }
+    }
+    let mut printed = String::new();
+    if file.rewind().is_ok() {
+        file.read_to_string(&mut printed).ok();
+    }
+    (out, printed)
+}
+
 enum Tree {
     Bvh8(bvh8_cpu::BVH),
     Wald(WaldTree),
@@ -127,49 +178,58 @@ impl TinybvhBackend {
             .flat_map(|i| mesh.triangle(i).map(|v| v.extend(0.0).to_array()))
             .collect();
         let failed = |e: tinybvh_rs::Error| Error::Other(format!("tinybvh build: {e}"));
-        let tree = match layout {
-            TinybvhLayout::Bvh8 => {
-                let mut wald = if hq {
-                    bvh::BVH::new_hq(vertices.as_ref().into())
-                } else {
-                    bvh::BVH::new(vertices.as_ref().into())
-                }
-                .map_err(failed)?;
-                wald.split_leaves(4);
-                let depth = depth(wald.nodes());
-                if depth > BVH8_MAX_DEPTH {
-                    return Err(Error::Other(format!(
-                        "tinybvh: its tree is {depth} levels deep here (many triangles with \
+        let (tree, printed) = capture_stdout(|| -> crate::Result<Tree> {
+            Ok(match layout {
+                TinybvhLayout::Bvh8 => {
+                    let mut wald = if hq {
+                        bvh::BVH::new_hq(vertices.as_ref().into())
+                    } else {
+                        bvh::BVH::new(vertices.as_ref().into())
+                    }
+                    .map_err(failed)?;
+                    wald.split_leaves(4);
+                    let depth = depth(wald.nodes());
+                    if depth > BVH8_MAX_DEPTH {
+                        return Err(Error::Other(format!(
+                            "tinybvh: its tree is {depth} levels deep here (many triangles with \
                          one centroid, split into a chain of leaves); its BVH8_CPU conversion \
                          crashes on such trees (its traversal stacks assume at most \
                          {BVH8_MAX_DEPTH}): use --layout bvh"
-                    )));
+                        )));
+                    }
+                    let wide = mbvh::BVH::new(&wald);
+                    // BVH8_CPU copies the triangles into its leaves: it outlives
+                    // the trees it was converted from and the vertex array.
+                    Tree::Bvh8(bvh8_cpu::BVH::new(&wide).map_err(failed)?)
                 }
-                let wide = mbvh::BVH::new(&wald);
-                // BVH8_CPU copies the triangles into its leaves: it outlives
-                // the trees it was converted from and the vertex array.
-                Tree::Bvh8(bvh8_cpu::BVH::new(&wide).map_err(failed)?)
-            }
-            TinybvhLayout::Bvh => {
-                // SAFETY: the slice is the heap allocation of `vertices`,
-                // which is moved (not reallocated) into the same WaldTree,
-                // never mutated, and dropped after the tree (WaldTree's Drop
-                // drops the tree first), so the borrow the tree holds is valid
-                // for the tree's whole life.
-                let borrowed: &'static [[f32; 4]] =
-                    unsafe { &*(vertices.as_ref() as *const [[f32; 4]]) };
-                let tree = if hq {
-                    bvh::BVH::new_hq(borrowed.into())
-                } else {
-                    bvh::BVH::new(borrowed.into())
+                TinybvhLayout::Bvh => {
+                    // SAFETY: the slice is the heap allocation of `vertices`,
+                    // which is moved (not reallocated) into the same WaldTree,
+                    // never mutated, and dropped after the tree (WaldTree's Drop
+                    // drops the tree first), so the borrow the tree holds is valid
+                    // for the tree's whole life.
+                    let borrowed: &'static [[f32; 4]] =
+                        unsafe { &*(vertices.as_ref() as *const [[f32; 4]]) };
+                    let tree = if hq {
+                        bvh::BVH::new_hq(borrowed.into())
+                    } else {
+                        bvh::BVH::new(borrowed.into())
+                    }
+                    .map_err(failed)?;
+                    Tree::Wald(WaldTree {
+                        tree: ManuallyDrop::new(tree),
+                        _vertices: vertices,
+                    })
                 }
-                .map_err(failed)?;
-                Tree::Wald(WaldTree {
-                    tree: ManuallyDrop::new(tree),
-                    _vertices: vertices,
-                })
-            }
-        };
+            })
+        });
+        // On success its warnings are passed on as one line on stderr; on
+        // failure the error says what went wrong.
+        let tree = tree?;
+        let printed = printed.split_whitespace().collect::<Vec<_>>().join(" ");
+        if !printed.is_empty() {
+            eprintln!("raylab: tinybvh printed: {printed}");
+        }
         Ok(TinybvhBackend { tree })
     }
 
