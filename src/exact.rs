@@ -590,6 +590,34 @@ impl ExactReference {
             .collect();
         // Elsewhere a near edge is covered when a grazed triangle shares it
         // (both vertices bit-identical): the surface continues across it.
+        // Near a vertex (two near edges meet there) the surface must also
+        // close around it: every edge at the vertex, among the triangles
+        // the ray hits or grazes (all that hold the vertex), used twice.
+        // A vertex on a boundary, or at a crack between parts that do not
+        // share it, leaves the ray room to pass: a tie.
+        let near_tris: Vec<u32> = out
+            .hits
+            .iter()
+            .map(|h| h.tri)
+            .chain(out.grazes.iter().map(|g| g.tri))
+            .collect();
+        let fan_closed = |v: Vec3| {
+            let key = |p: Vec3| p.to_array().map(|x| (x + 0.0).to_bits());
+            let mut uses: Vec<([u32; 3], u32)> = Vec::new();
+            for &t in &near_tris {
+                let tri = &self.triangles[t as usize];
+                if !tri.contains(&v) {
+                    continue;
+                }
+                for w in tri.iter().filter(|&&w| w != v) {
+                    match uses.iter_mut().find(|(k, _)| *k == key(*w)) {
+                        Some((_, n)) => *n += 1,
+                        None => uses.push((key(*w), 1)),
+                    }
+                }
+            }
+            uses.iter().all(|&(_, n)| n == 2)
+        };
         for ((h, near), fold) in out.hits.iter_mut().zip(edges_near).zip(folds) {
             if !h.tie_if_missed || fold {
                 continue;
@@ -602,7 +630,11 @@ impl ExactReference {
                     other.contains(&a) && other.contains(&b)
                 })
             };
-            h.tie_if_missed = (0..3).any(|i| near & (1 << i) != 0 && !covered(i));
+            let is_near = |i: usize| near & (1 << i) != 0;
+            // Vertex k is where edges k - 1 and k meet.
+            let open_vertex =
+                (0..3).any(|k| is_near((k + 2) % 3) && is_near(k) && !fan_closed(tri[k]));
+            h.tie_if_missed = open_vertex || (0..3).any(|i| is_near(i) && !covered(i));
         }
         out
     }
@@ -951,6 +983,26 @@ mod tests {
         let r = ray([0.25, 0.25, 3.0], [0.0, 0.0, -1.0]);
         let a = reference.answer(&r);
         assert_eq!(a.judge_closest(None), Verdict::FalseMiss);
+    }
+
+    #[test]
+    fn near_a_vertex_a_miss_leaks_inside_a_closed_fan_and_ties_on_an_open_one() {
+        let v = Vec3::ZERO;
+        let p = |x: f32, y: f32| Vec3::new(x, y, 0.0);
+        let (a, b, c, d) = (p(1.0, 0.0), p(0.0, 1.0), p(-1.0, 0.0), p(0.0, -1.0));
+        // Within rounding of the vertex, inside the second quadrant's
+        // triangle, whose two edges there are both shared.
+        let r = ray([-2e-8, 5e-8, 3.0], [0.0, 0.0, -1.0]);
+        let closed = ExactReference::new(vec![[v, a, b], [v, b, c], [v, c, d], [v, d, a]]);
+        let answer = closed.answer(&r);
+        assert_eq!(answer.hits.len(), 1);
+        assert_eq!(answer.hits[0].tri, 1);
+        assert_eq!(answer.judge_closest(None), Verdict::FalseMiss);
+        // Three quarters of the fan: the vertex is on the surface's boundary.
+        let open = ExactReference::new(vec![[v, a, b], [v, b, c], [v, c, d]]);
+        let answer = open.answer(&r);
+        assert_eq!(answer.hits[0].tri, 1);
+        assert_eq!(answer.judge_closest(None), Verdict::EdgeTie);
     }
 
     #[test]
