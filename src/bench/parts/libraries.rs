@@ -16,7 +16,7 @@ use super::trace::trace;
 use super::ChartSection;
 use crate::accel::bvh::BuildParams;
 use crate::accel::library::Library;
-use crate::accel::{build_backend, BackendSpec, Built};
+use crate::accel::{build_backend, BackendSpec, Built, Query};
 use crate::bench::charts::{
     color, distinct, log_label, log_range, save_chart, side_legend, DrawResult, Swatch, FONT,
     SIDE_LEGEND,
@@ -64,8 +64,11 @@ pub struct LibraryPoint {
     pub family: String,
     /// Median build ms on one thread (after an untimed build).
     pub build_ms: Stat,
-    /// Mrays/s on one thread per kind, in [`KINDS`] order.
+    /// Mrays/s on one thread per kind, in [`KINDS`] order, on the query
+    /// path that was fastest for that kind.
     pub mrays: Vec<f64>,
+    /// That path per kind (`single`, `packet8`; empty where not measured).
+    pub paths: Vec<String>,
     /// Mean ns per ray over the kinds but edges (each kind weighted alike).
     pub ns_per_ray: f64,
     pub rays: usize,
@@ -117,6 +120,9 @@ fn specs() -> Vec<BackendSpec> {
         .map(BackendSpec::with_fastest_query)
         .collect()
 }
+
+/// The query paths each backend is timed on, where it has them.
+const PATHS: [Query; 2] = [Query::Single, Query::Packet(8)];
 
 /// Progress steps: one per scene and backend.
 pub fn steps(_cfg: &BenchConfig, scenes: &[Scene]) -> u64 {
@@ -172,32 +178,22 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lib
         let reference = ExactReference::new(triangles);
         // Worked out once, for every backend.
         let answers: Vec<Vec<ExactAnswer>> = rays.iter().map(|r| reference.answers(r)).collect();
+        // Every backend built first (an untimed build, then the timed ones),
+        // with its other query paths: packets win on coherent rays and may
+        // lose on incoherent ones, so each kind is timed on every path and
+        // the fastest counts (Embree's too).
+        let mut backends: Vec<(Built, Vec<Built>, Stat)> = Vec::new();
         for spec in specs() {
-            bar.set_message(format!("libraries: {} on {}", spec.name(), scene.name));
-            // An untimed build first (Embree's device, pages faulted in).
+            bar.set_message(format!(
+                "libraries: building {} on {}",
+                spec.name(),
+                scene.name
+            ));
             let built = match build_backend(&spec, scene) {
                 Ok(b) => b,
                 // A library that cannot build this scene is reported, not fatal.
                 Err(e) => {
-                    out.push(LibraryPoint {
-                        scene: scene.name.clone(),
-                        triangles: scene.triangle_count(),
-                        backend: spec.name(),
-                        family: "library".into(),
-                        build_ms: Stat::of(&[]),
-                        mrays: vec![f64::NAN; KINDS.len()],
-                        ns_per_ray: f64::NAN,
-                        rays: 0,
-                        wrong: 0,
-                        undecidable: 0,
-                        wrong_per_million: f64::NAN,
-                        edge_rays: 0,
-                        edge_wrong: 0,
-                        edge_undecidable: 0,
-                        edge_wrong_per_million: f64::NAN,
-                        limits: Vec::new(),
-                        failed: Some(e.to_string()),
-                    });
+                    out.push(not_built(scene, &spec, e.to_string()));
                     bar.step();
                     continue;
                 }
@@ -206,18 +202,98 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lib
             for _ in 0..reps.max(1) {
                 times.push(build_backend(&spec, scene)?.build_time.as_secs_f64() * 1e3);
             }
-            out.push(measure(
-                scene,
-                &built,
-                Stat::of(&times),
-                &rays,
-                &answers,
-                reps,
+            let others = PATHS
+                .iter()
+                .filter(|&&q| q != spec.query() && spec.queries().contains(&q))
+                .map(|&q| build_backend(&spec.with_query(q)?, scene))
+                .collect::<Result<Vec<Built>>>()?;
+            backends.push((built, others, Stat::of(&times)));
+        }
+        bar.set_message(format!("libraries: tracing on {}", scene.name));
+        let timed = time_interleaved(&backends, &rays, reps);
+        for ((built, _, build_ms), (mrays, paths)) in backends.iter().zip(timed) {
+            out.push(judged(
+                scene, built, *build_ms, mrays, paths, &rays, &answers,
             ));
             bar.step();
         }
     }
     Ok(out)
+}
+
+/// The row of a backend that could not be built on `scene`.
+fn not_built(scene: &Scene, spec: &BackendSpec, why: String) -> LibraryPoint {
+    LibraryPoint {
+        scene: scene.name.clone(),
+        triangles: scene.triangle_count(),
+        backend: spec.structure_name(),
+        family: "library".into(),
+        build_ms: Stat::of(&[]),
+        mrays: vec![f64::NAN; KINDS.len()],
+        paths: vec![String::new(); KINDS.len()],
+        ns_per_ray: f64::NAN,
+        rays: 0,
+        wrong: 0,
+        undecidable: 0,
+        wrong_per_million: f64::NAN,
+        edge_rays: 0,
+        edge_wrong: 0,
+        edge_undecidable: 0,
+        edge_wrong_per_million: f64::NAN,
+        limits: Vec::new(),
+        failed: Some(why),
+    }
+}
+
+/// Mrays/s on one thread per backend and kind, on the backend's fastest
+/// path for that kind, and that path's name. Per kind every backend and
+/// path is traced once untimed, then `reps` rounds each tracing all of
+/// them in turn (so drift on a shared machine hits all alike); the median
+/// of each counts.
+fn time_interleaved(
+    backends: &[(Built, Vec<Built>, Stat)],
+    rays: &[Vec<Ray>],
+    reps: usize,
+) -> Vec<(Vec<f64>, Vec<String>)> {
+    let mut out = vec![(Vec::new(), Vec::new()); backends.len()];
+    for (kind, rays) in KINDS.iter().zip(rays) {
+        let closest = kind.closest();
+        let candidates: Vec<Vec<&Built>> = backends
+            .iter()
+            .map(|(b, others, _)| std::iter::once(b).chain(others).collect())
+            .collect();
+        if rays.is_empty() {
+            for o in &mut out {
+                o.0.push(f64::NAN);
+                o.1.push(String::new());
+            }
+            continue;
+        }
+        for c in candidates.iter().flatten() {
+            trace(c.as_ref(), closest, rays, 1);
+        }
+        let mut rates: Vec<Vec<Vec<f64>>> = candidates
+            .iter()
+            .map(|c| vec![Vec::new(); c.len()])
+            .collect();
+        for _ in 0..reps.max(1) {
+            for (c, r) in candidates.iter().zip(&mut rates) {
+                for (path, r) in c.iter().zip(r) {
+                    let secs = trace(path.as_ref(), closest, rays, 1).0.max(1e-12);
+                    r.push(rays.len() as f64 / secs / 1e6);
+                }
+            }
+        }
+        for ((c, r), o) in candidates.iter().zip(&rates).zip(&mut out) {
+            let (best, rate) = r.iter().map(|r| Stat::of(r).median).enumerate().fold(
+                (0, f64::NEG_INFINITY),
+                |a, (i, m)| if m > a.1 { (i, m) } else { a },
+            );
+            o.0.push(rate);
+            o.1.push(c[best].spec.query().name());
+        }
+    }
+    out
 }
 
 /// At most `n` consecutive rays from the middle of `rays`, in the order the
@@ -230,39 +306,29 @@ fn window(rays: &[Ray], n: usize) -> Vec<Ray> {
     rays[start..(start + n).min(rays.len())].to_vec()
 }
 
-/// Throughput per kind (one thread, median of `reps` after a warm-up) and
-/// the exact reference's verdicts on `built`'s answers.
-fn measure(
+/// `built`'s point: its timings, and the exact reference's verdicts on its
+/// answers (the query each kind asks; both queries on the edge rays).
+fn judged(
     scene: &Scene,
     built: &Built,
     build_ms: Stat,
+    mrays: Vec<f64>,
+    paths: Vec<String>,
     rays: &[Vec<Ray>],
     answers: &[Vec<ExactAnswer>],
-    reps: usize,
 ) -> LibraryPoint {
-    let mut mrays = Vec::new();
     let (mut wrong, mut undecidable, mut total) = (0, 0, 0);
     let mut edges = ExactReport::default();
     for ((kind, rays), answers) in KINDS.iter().zip(rays).zip(answers) {
-        let (name, closest) = (kind.name(), &kind.closest());
         if rays.is_empty() {
-            mrays.push(f64::NAN);
             continue;
         }
-        trace(built.as_ref(), *closest, rays, 1);
-        let rates: Vec<f64> = (0..reps.max(1))
-            .map(|_| {
-                rays.len() as f64 / trace(built.as_ref(), *closest, rays, 1).0.max(1e-12) / 1e6
-            })
-            .collect();
-        mrays.push(Stat::of(&rates).median);
-        let r = judge_answers(name, rays, answers, built.as_ref());
-        // The query this kind asks (both on edge rays).
+        let r = judge_answers(kind.name(), rays, answers, built.as_ref());
         if *kind == RaySet::Edges {
             edges = r;
             continue;
         }
-        if *closest {
+        if kind.closest() {
             wrong += r.false_miss + r.false_hit + r.wrong_triangle + r.t_error;
             undecidable += r.undecidable;
         } else {
@@ -294,10 +360,11 @@ fn measure(
     LibraryPoint {
         scene: scene.name.clone(),
         triangles: scene.triangle_count(),
-        backend: built.name(),
+        backend: built.spec.structure_name(),
         family: family.to_string(),
         build_ms,
         mrays,
+        paths,
         ns_per_ray,
         rays: total,
         wrong,
@@ -331,6 +398,7 @@ pub fn markdown(points: &[LibraryPoint]) -> String {
     for &k in &kinds {
         t.column(format!("Mrays/s {}", KINDS[k].name()), Right);
     }
+    t.column("fastest path per kind", Left);
     t.column("wrong per million", Right);
     t.column("undecidable", Right);
     t.column("edge rays: wrong per million", Right);
@@ -338,7 +406,7 @@ pub fn markdown(points: &[LibraryPoint]) -> String {
     for p in points {
         if let Some(why) = &p.failed {
             let mut row = vec![p.scene.clone(), p.backend.clone()];
-            row.extend((0..kinds.len() + 4).map(|_| "-".to_string()));
+            row.extend((0..kinds.len() + 5).map(|_| "-".to_string()));
             row.push(format!("not built: {why}"));
             t.row(row);
             continue;
@@ -352,6 +420,11 @@ pub fn markdown(points: &[LibraryPoint]) -> String {
             Some(m) if m.is_finite() => format!("{m:.2}"),
             _ => "-".to_string(),
         }));
+        let paths: Vec<&str> = kinds
+            .iter()
+            .map(|&k| p.paths.get(k).map_or("-", |s| s.as_str()))
+            .collect();
+        row.push(paths.join("/"));
         row.push(format!("{:.0} ({})", p.wrong_per_million, p.wrong));
         row.push(p.undecidable.to_string());
         if p.edge_rays > 0 {
@@ -376,7 +449,7 @@ pub fn markdown(points: &[LibraryPoint]) -> String {
         .map(|(b, l)| format!("- `{b}`: {}\n", l.join("; ")))
         .collect();
     format!(
-        "### Every CPU BVH side by side\n\nOne thread, each backend on its fastest query path, the same recorded rays (one render's primary, shadow and AO rays and a diffuse bounce per primary hit: at most 50000 consecutive rays of each from the middle of the render's stream, so that packets hold neighbouring rays). Wrong: answers (closest hit for primary and diffuse, any hit for shadow and AO) that the exact reference says are false misses, false hits, the wrong triangle or a t beyond its bound; undecidable: double precision could not say. Edge rays: as many rays aimed exactly at the scene's vertices and at points on its edges, from 1e-4 to 0.5 of the scene's size away (`validate --rays edges`), each asked for its closest hit and for any hit; they are timed but kept out of the time per ray in the chart.\n\n{}\nWhat the other libraries lack, and what raylab does instead:\n\n{limits}",
+        "### Every CPU BVH side by side\n\nOne thread, each backend on its fastest query path per ray kind (raylab's 8-wide trees and Embree are timed on single rays and on packets of 8, interleaved, and the faster counts; the path is listed), the same recorded rays (one render's primary, shadow and AO rays and a diffuse bounce per primary hit: at most 50000 consecutive rays of each from the middle of the render's stream, so that packets hold neighbouring rays). Wrong: answers (closest hit for primary and diffuse, any hit for shadow and AO) that the exact reference says are false misses, false hits, the wrong triangle or a t beyond its bound; undecidable: double precision could not say. Edge rays: as many rays aimed exactly at the scene's vertices and at points on its edges, from 1e-4 to 0.5 of the scene's size away (`validate --rays edges`), each asked for its closest hit and for any hit; they are timed but kept out of the time per ray in the chart.\n\n{}\nWhat the other libraries lack, and what raylab does instead:\n\n{limits}",
         t.markdown()
     )
 }
