@@ -216,10 +216,16 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
         let triangles = scene.triangle_vertices();
         // Record the render's rays with the faster of the two (naive is slow);
         // rays of another library's image would carry its wrong answers, so
-        // against the naive scan those are recorded with raylab's tree.
+        // against the naive scan those are recorded with raylab's tree, built
+        // only when a render is recorded (not for a ray file, primary,
+        // random or edge rays).
+        let records = file_rays.is_none()
+            && sets
+                .iter()
+                .any(|s| matches!(s, RaySet::Shadow | RaySet::Ao | RaySet::Diffuse));
         let raylab_tree;
         let recorder: &dyn crate::accel::Backend = match against {
-            BackendKind::Naive if spec.kind().is_library() => {
+            BackendKind::Naive if spec.kind().is_library() && records => {
                 raylab_tree =
                     build_backend(&BackendSpec::default_for(BackendKind::Bvh, threads), &scene)?;
                 raylab_tree.as_ref()
