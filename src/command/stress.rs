@@ -88,6 +88,8 @@ pub fn run(args: &StressArgs) -> Result<()> {
                 "rays",
                 "leaks",
                 "leak_rate",
+                "exact_wrong",
+                "edge_ties",
                 "ns_per_ray",
             ]
             .map(|c| (c, Align::Left)),
@@ -101,6 +103,8 @@ pub fn run(args: &StressArgs) -> Result<()> {
                 r.rays.to_string(),
                 r.leaks.to_string(),
                 r.leak_rate.to_string(),
+                r.exact_wrong.to_string(),
+                r.edge_ties.to_string(),
                 r.ns_per_ray.to_string(),
             ]);
         }
