@@ -183,6 +183,9 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lib
         // lose on incoherent ones, so each kind is timed on every path and
         // the fastest counts (Embree's too).
         let mut backends: Vec<(Built, Vec<Built>, Stat)> = Vec::new();
+        // Rows in `specs` order: the one saying why a backend was not built,
+        // or None for a built one (filled in once traced).
+        let mut rows: Vec<Option<LibraryPoint>> = Vec::new();
         for spec in specs() {
             bar.set_message(format!(
                 "libraries: building {} on {}",
@@ -193,7 +196,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lib
                 Ok(b) => b,
                 // A library that cannot build this scene is reported, not fatal.
                 Err(e) => {
-                    out.push(not_built(scene, &spec, e.to_string()));
+                    rows.push(Some(not_built(scene, &spec, e.to_string())));
                     bar.step();
                     continue;
                 }
@@ -208,14 +211,23 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lib
                 .map(|&q| build_backend(&spec.with_query(q)?, scene))
                 .collect::<Result<Vec<Built>>>()?;
             backends.push((built, others, Stat::of(&times)));
+            rows.push(None);
         }
         bar.set_message(format!("libraries: tracing on {}", scene.name));
         let timed = time_interleaved(&backends, &rays, reps);
-        for ((built, _, build_ms), (mrays, paths)) in backends.iter().zip(timed) {
-            out.push(judged(
-                scene, built, *build_ms, mrays, paths, &rays, &answers,
-            ));
-            bar.step();
+        let mut measured = backends.iter().zip(timed);
+        for row in rows {
+            match row {
+                Some(failed) => out.push(failed),
+                None => {
+                    if let Some(((built, _, build_ms), (mrays, paths))) = measured.next() {
+                        out.push(judged(
+                            scene, built, *build_ms, mrays, paths, &rays, &answers,
+                        ));
+                        bar.step();
+                    }
+                }
+            }
         }
     }
     Ok(out)
