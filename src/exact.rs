@@ -103,11 +103,11 @@ pub enum Contact {
         t_lo: f64,
         t_hi: f64,
         sure: bool,
-        near_edge: bool,
         t_slack: f64,
         /// The ray passes exactly through an edge or vertex.
         on_edge: bool,
-        /// Bit i: edge i (`v_i` to `v_i+1`) passes within rounding.
+        /// Bit i: edge i (`v_i` to `v_i+1`) passes within rounding (any
+        /// bit set: the ray passes near the triangle's boundary).
         near_edges: u8,
     },
     /// Missed by no more than rounding, at about `t`.
@@ -374,28 +374,30 @@ pub fn exact_test(tri: &[Vec3; 3], ray: &Ray) -> Option<Contact> {
         .iter()
         .fold(o.abs().max_element(), |m, p| m.max(p.abs().max_element()));
     let near = EDGE_ULPS * f32::EPSILON as f64 * scale;
-    let (num, num_perm) = det3(u[0], u[1], u[2]);
     // An f32 test's t is good to a few ulps of the inputs' magnitude across
-    // the plane, which along a ray at an angle to it is 1 / cos longer.
-    let normal = (u[1] - u[0]).cross(u[2] - u[0]);
-    let cos = normal.dot(d).abs() / (normal.length() * d.length());
-    // And a sliver's plane turns under rounding of its vertices by its
-    // aspect ratio (longest edge over height): about 1 for a well-shaped one.
-    let longest = (0..3)
-        .map(|i| (u[(i + 1) % 3] - u[i]).length_squared())
-        .fold(0.0, f64::max);
-    let aspect = (longest / normal.length()).max(1.0);
+    // the plane, which along a ray at an angle to it is 1 / cos longer; and
+    // a sliver's plane turns under rounding of its vertices by its aspect
+    // ratio (longest edge over height): about 1 for a well-shaped one.
+    // Worked out only for a hit or a graze, never for a plain miss.
     let t_slack = |t: f64| {
+        let normal = (u[1] - u[0]).cross(u[2] - u[0]);
+        let cos = normal.dot(d).abs() / (normal.length() * d.length());
+        let longest = (0..3)
+            .map(|i| (u[(i + 1) % 3] - u[i]).length_squared())
+            .fold(0.0, f64::max);
+        let aspect = (longest / normal.length()).max(1.0);
         T_TOLERANCE * aspect * scale.max(t.abs() * d.length()) / (d.length() * cos.max(1e-9))
     };
+    let side = edge_sum.signum();
     let has = |s: Sign| signs.contains(&s);
     if has(Sign::Pos) && has(Sign::Neg) {
         // Surely outside an edge: a graze when no edge is further than `near`
         // on the wrong side (the side of the edge functions' sum).
-        let side = edge_sum.signum();
-        let t = num / edge_sum;
-        let grazes = edge_sum != 0.0 && (0..3).all(|i| side * across(i) >= -near);
-        return (grazes && t > ray.tmin as f64 && t < ray.tmax as f64).then_some(Contact::Graze {
+        if edge_sum == 0.0 || !(0..3).all(|i| side * across(i) >= -near) {
+            return None;
+        }
+        let t = det3(u[0], u[1], u[2]).0 / edge_sum;
+        return (t > ray.tmin as f64 && t < ray.tmax as f64).then_some(Contact::Graze {
             t,
             t_slack: t_slack(t),
         });
@@ -408,6 +410,7 @@ pub fn exact_test(tri: &[Vec3; 3], ray: &Ray) -> Option<Contact> {
     // det[v0 - o; v1 - o; v2 - o] = det[u0; u1; u2], t's numerator.
     let plane = sign_of(orient3d(coord(v[0]), coord(v[1]), coord(v[2]), coord(o)));
     // t = det[u0, u1, u2] / sum(e_i): an interval.
+    let (num, num_perm) = det3(u[0], u[1], u[2]);
     let num_error = DET_ERROR * num_perm;
     let direction = if has(Sign::Pos) {
         Sign::Pos
@@ -436,12 +439,10 @@ pub fn exact_test(tri: &[Vec3; 3], ray: &Ray) -> Option<Contact> {
         return None;
     }
     let in_range = (t_lo > tmin || (tmin == 0.0 && ahead == Sign::Pos)) && t_hi < tmax;
-    let side = edge_sum.signum();
     Some(Contact::Hit {
         t_lo,
         t_hi,
         sure: line_sure && ahead == Sign::Pos && in_range,
-        near_edge: (0..3).any(|i| side * across(i) <= near),
         t_slack: t_slack(if t_hi.is_finite() { t_hi } else { t_lo }),
         on_edge: has(Sign::Zero),
         near_edges: (0..3).fold(0, |m, i| m | (((side * across(i) <= near) as u8) << i)),
@@ -543,11 +544,11 @@ impl ExactReference {
                             t_lo,
                             t_hi,
                             sure,
-                            near_edge,
                             t_slack,
                             on_edge,
                             near_edges,
                         }) => {
+                            let near_edge = near_edges != 0;
                             out.hits.push(ExactHit {
                                 tri,
                                 t_lo,
