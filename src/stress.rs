@@ -533,10 +533,11 @@ pub fn leak_suite_with(
     for (k, mesh) in meshes.iter().enumerate() {
         let rays = leak_rays(mesh, outside, 17 + k as u64);
         let reference = ExactReference::new(
-            mesh.triangles
-                .iter()
-                .map(|t| t.map(|i| mesh.positions[i as usize]))
-                .collect(),
+            MeshRef {
+                positions: &mesh.positions,
+                triangles: &mesh.triangles,
+            }
+            .triangle_vertices(),
         );
         let answers = reference.answers(&rays);
         for (backend, intersector) in stress_backends(&mesh.positions, &mesh.triangles, kinds)? {

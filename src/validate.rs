@@ -174,6 +174,13 @@ impl RaySet {
         RaySet::Random,
     ];
 
+    /// Whether the set's rays are recorded from a render (shadow and AO
+    /// rays, and the diffuse bounces from its primary hits); the others are
+    /// made without one.
+    pub fn is_recorded(self) -> bool {
+        matches!(self, RaySet::Shadow | RaySet::Ao | RaySet::Diffuse)
+    }
+
     /// Whether the set asks for closest hits (else any hit).
     pub fn closest(self) -> bool {
         matches!(
@@ -333,9 +340,7 @@ pub fn ray_sets(
     count: usize,
     whole_primary: bool,
 ) -> crate::Result<Vec<(RaySet, Vec<Ray>)>> {
-    let needs_recording = sets
-        .iter()
-        .any(|s| matches!(s, RaySet::Shadow | RaySet::Ao | RaySet::Diffuse));
+    let needs_recording = sets.iter().any(|s| s.is_recorded());
     let recorded = if needs_recording {
         Some(recorded_rays(scene, recorder, settings)?)
     } else {
@@ -375,13 +380,20 @@ pub fn random_rays(bounds: Aabb, n: usize, seed: u64) -> Vec<Ray> {
     let mut rays = Vec::with_capacity(n);
     while rays.len() < n {
         let o = lo + size * Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
-        let d = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - Vec3::ONE;
-        let len = d.length();
-        if len > 1e-3 && len <= 1.0 {
-            rays.push(Ray::new(o, d / len));
+        if let Some(d) = ball_direction(&mut rng) {
+            rays.push(Ray::new(o, d));
         }
     }
     rays
+}
+
+/// One draw of a uniformly distributed unit direction: a point in the cube
+/// [-1, 1]^3, kept (normalised) when it lies in the unit ball and not at
+/// its centre, else None (the caller draws again).
+fn ball_direction(rng: &mut crate::render::rng::Rng) -> Option<Vec3> {
+    let d = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - Vec3::ONE;
+    let len = d.length();
+    (len > 1e-3 && len <= 1.0).then(|| d / len)
 }
 
 /// `n` rays each aimed exactly at a vertex of a random triangle or at a
@@ -410,11 +422,9 @@ pub fn edge_rays(triangles: &[[Vec3; 3]], n: usize, seed: u64) -> Vec<Ray> {
                 a + (b - a) * rng.next_f32()
             }
         };
-        let d = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - Vec3::ONE;
+        let d = ball_direction(&mut rng);
         let distance = size * 10f32.powf(-4.0 + 3.7 * rng.next_f32());
-        let len = d.length();
-        if len > 1e-3 && len <= 1.0 && target.is_finite() {
-            let d = d / len;
+        if let (Some(d), true) = (d, target.is_finite()) {
             rays.push(Ray::new(target - d * distance, d));
         }
     }

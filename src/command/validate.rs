@@ -219,10 +219,7 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
         // against the naive scan those are recorded with raylab's tree, built
         // only when a render is recorded (not for a ray file, primary,
         // random or edge rays).
-        let records = file_rays.is_none()
-            && sets
-                .iter()
-                .any(|s| matches!(s, RaySet::Shadow | RaySet::Ao | RaySet::Diffuse));
+        let records = file_rays.is_none() && sets.iter().any(|s| s.is_recorded());
         let raylab_tree;
         let recorder: &dyn crate::accel::Backend = match against {
             BackendKind::Naive if spec.kind().is_library() && records => {
