@@ -713,12 +713,27 @@ pub struct ExactReport {
 impl ExactReport {
     /// Wrong closest-hit and any-hit answers together.
     pub fn wrong(&self) -> usize {
-        self.false_miss
-            + self.false_hit
-            + self.wrong_triangle
-            + self.t_error
-            + self.occlusion_false_miss
-            + self.occlusion_false_hit
+        self.closest_wrong() + self.occlusion_wrong()
+    }
+
+    /// Wrong closest-hit answers.
+    pub fn closest_wrong(&self) -> usize {
+        self.false_miss + self.false_hit + self.wrong_triangle + self.t_error
+    }
+
+    /// Wrong any-hit answers.
+    pub fn occlusion_wrong(&self) -> usize {
+        self.occlusion_false_miss + self.occlusion_false_hit
+    }
+
+    /// Undecidable closest-hit and any-hit answers together.
+    pub fn undecidable_answers(&self) -> usize {
+        self.undecidable + self.occlusion_undecidable
+    }
+
+    /// Edge ties among closest-hit and any-hit answers together.
+    pub fn edge_tie_answers(&self) -> usize {
+        self.edge_tie + self.occlusion_edge_tie
     }
 
     /// Wrong answers per million queries (two per ray: closest and any hit).

@@ -559,7 +559,7 @@ pub fn leak_suite_with(
                 leak_rate: leaks as f64 / rays.len().max(1) as f64,
                 ns_per_ray: elapsed.as_secs_f64() * 1e9 / rays.len().max(1) as f64,
                 exact_wrong: judged.wrong(),
-                edge_ties: judged.edge_tie + judged.occlusion_edge_tie,
+                edge_ties: judged.edge_tie_answers(),
             });
         }
     }
@@ -868,7 +868,7 @@ pub fn degenerate_suite(
                 nan_results: nan,
                 genuine_vs_naive: genuine,
                 exact_wrong: judged.wrong(),
-                undecidable: judged.undecidable + judged.occlusion_undecidable,
+                undecidable: judged.undecidable_answers(),
                 library: spec.is_library(),
                 not_built: None,
             });

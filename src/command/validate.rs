@@ -366,10 +366,7 @@ fn run_exact(
             .map(|(set, rays)| judge(set.name(), rays, tested.as_ref(), &reference))
             .collect();
         let wrong: usize = set_reports.iter().map(|r| r.wrong()).sum();
-        let undecidable: usize = set_reports
-            .iter()
-            .map(|r| r.undecidable + r.occlusion_undecidable)
-            .sum();
+        let undecidable: usize = set_reports.iter().map(|r| r.undecidable_answers()).sum();
         let queries: usize = set_reports.iter().map(|r| 2 * r.rays).sum();
         let report = ExactValidateReport {
             scene: scene.name.clone(),

@@ -268,12 +268,13 @@ fn time_interleaved(
     reps: usize,
 ) -> Vec<(Vec<f64>, Vec<String>)> {
     let mut out = vec![(Vec::new(), Vec::new()); backends.len()];
+    // Per backend: its own path first, then its others.
+    let candidates: Vec<Vec<&Built>> = backends
+        .iter()
+        .map(|(b, others, _)| std::iter::once(b).chain(others).collect())
+        .collect();
     for (kind, rays) in KINDS.iter().zip(rays) {
         let closest = kind.closest();
-        let candidates: Vec<Vec<&Built>> = backends
-            .iter()
-            .map(|(b, others, _)| std::iter::once(b).chain(others).collect())
-            .collect();
         if rays.is_empty() {
             for o in &mut out {
                 o.0.push(f64::NAN);
@@ -341,10 +342,10 @@ fn judged(
             continue;
         }
         if kind.closest() {
-            wrong += r.false_miss + r.false_hit + r.wrong_triangle + r.t_error;
+            wrong += r.closest_wrong();
             undecidable += r.undecidable;
         } else {
-            wrong += r.occlusion_false_miss + r.occlusion_false_hit;
+            wrong += r.occlusion_wrong();
             undecidable += r.occlusion_undecidable;
         }
         total += rays.len();
@@ -384,7 +385,7 @@ fn judged(
         wrong_per_million: wrong as f64 * 1e6 / total.max(1) as f64,
         edge_rays: edges.rays,
         edge_wrong: edges.wrong(),
-        edge_undecidable: edges.undecidable + edges.occlusion_undecidable,
+        edge_undecidable: edges.undecidable_answers(),
         edge_wrong_per_million: if edges.rays > 0 {
             edges.wrong_per_million()
         } else {
