@@ -111,10 +111,15 @@ impl Drop for WaldTree {
 /// and returns what was printed there: tinybvh prints warnings ("failed to
 /// split large node") with printf, which would land in the middle of
 /// `--json` output. Nothing else writes to stdout while a backend is built.
-/// Without a temporary file, `f` runs as is.
+/// Without a temporary file, `f` runs as is. Fd 1 is the whole process's:
+/// two builds on two threads swapping it at once could each restore the
+/// other's file, so the swaps take turns.
 fn capture_stdout<T>(f: impl FnOnce() -> T) -> (T, String) {
     use std::io::{Read, Seek, Write};
     use std::os::fd::AsRawFd;
+    static SWAP: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    // A poisoned lock (an earlier build panicked) does not stop this one.
+    let _turn = SWAP.lock().unwrap_or_else(|e| e.into_inner());
     let path = std::env::temp_dir().join(format!(
         "raylab-tinybvh-stdout-{}-{:?}",
         std::process::id(),
