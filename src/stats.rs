@@ -9,6 +9,7 @@ use serde::Serialize;
 
 use crate::accel::bvh::quality::TreeStats;
 use crate::accel::bvh::traverse::{Counts, Traversal};
+use crate::accel::bvh::wide::{TraversalCosts, WideBvh};
 use crate::accel::bvh::{build, params, BuildParams, Bvh, Tree};
 use crate::error::Result;
 use crate::geometry::{Hit, Ray};
@@ -38,6 +39,8 @@ pub struct BuilderReport {
     #[serde(flatten)]
     pub tree: TreeStats,
     pub sah_constants: SahConstants,
+    /// The measured unit costs of the wide trees' SAH cost.
+    pub traversal_costs: TraversalCosts,
     /// Traversal work per ray kind over the render described by `settings`.
     pub primary: KindWork,
     pub shadow: KindWork,
@@ -49,14 +52,18 @@ pub struct BuilderReport {
     pub wide8: WideReport,
 }
 
-/// A wide tree: size, the SAH cost of the binary tree of the same splits
-/// (leaf tests counted in pairs), and traversal work over the same render.
+/// A wide tree: size, its SAH cost as traversed, and traversal work over the
+/// same render.
 #[derive(Clone, Debug, Serialize)]
 pub struct WideReport {
     pub width: usize,
     /// Median build time on `build_threads` threads, as the renderer builds it.
     pub build_ms: f64,
-    pub sah_cost: f64,
+    /// The SAH cost of the wide tree as its traversal walks it: expected
+    /// nanoseconds per ray in node visits and leaf block tests, at the
+    /// report's measured [`TraversalCosts`] (`WideBvh::sah_cost`).
+    pub sah_ns_per_ray: f64,
+    /// Triangle references per leaf lane.
     pub mean_leaf_size: f64,
     pub nodes: usize,
     /// Blocks of four leaf triangles, and the share of their lanes in use.
@@ -116,17 +123,9 @@ pub fn builder_report(
     let (serial, parallel) = (binary(serial), binary(parallel));
     let deterministic = serial.nodes == parallel.nodes && serial.tri_ids == parallel.tri_ids;
     let (primary, shadow, ao) = counted_work(scene, &parallel, settings, threads)?;
-    // The wide trees' SAH cost is that of the binary tree of their splits:
-    // 4- and 8-wide trees count leaf tests in the same blocks, so one build
-    // serves both.
-    let wide_params = params.with_width(8).with_threads(threads);
-    let wide_splits = TreeStats::with_block(
-        &binary(build(&scene.mesh(), &wide_params.binary())?),
-        scene.triangle_count(),
-        wide_params.sah_block,
-    );
-    let wide4 = wide_report(scene, &params, 4, &wide_splits, settings, threads, reps)?;
-    let wide8 = wide_report(scene, &params, 8, &wide_splits, settings, threads, reps)?;
+    let costs = TraversalCosts::of_default_path();
+    let wide4 = wide_report(scene, &params, 4, &costs, settings, threads, reps)?;
+    let wide8 = wide_report(scene, &params, 8, &costs, settings, threads, reps)?;
     Ok(BuilderReport {
         scene: scene.name.clone(),
         triangles: scene.triangle_count(),
@@ -142,6 +141,7 @@ pub fn builder_report(
         deterministic,
         tree: TreeStats::with_block(&parallel, scene.triangle_count(), params.sah_block),
         sah_constants: SAH_CONSTANTS,
+        traversal_costs: costs,
         primary,
         shadow,
         ao,
@@ -171,23 +171,23 @@ fn counted_work<B: Traversal + Sync>(
 }
 
 /// Builds the tree `--bvh-width width` traverses, timed as the renderer
-/// builds it, and counts its traversal work over a render; `splits` is the
-/// binary tree of its splits (SAH cost, mean leaf size).
+/// builds it, costs it as traversed at `costs`, and counts its traversal work
+/// over a render.
 #[allow(clippy::too_many_arguments)]
 fn wide_report(
     scene: &Scene,
     params: &BuildParams,
     width: usize,
-    splits: &TreeStats,
+    costs: &TraversalCosts,
     settings: &RenderSettings,
     threads: usize,
     reps: usize,
 ) -> Result<WideReport> {
     let params = params.with_width(width).with_threads(threads);
     let (time, wide) = timed_build(scene, &params, reps)?;
-    let (nodes, blocks, triangles) = match &wide {
-        Tree::Wide4(t) => (t.nodes.len(), t.blocks.len(), t.triangle_count()),
-        Tree::Wide8(t) => (t.nodes.len(), t.blocks.len(), t.triangle_count()),
+    let (nodes, blocks, triangles, leaves, sah_ns_per_ray) = match &wide {
+        Tree::Wide4(t) => wide_shape(t, costs),
+        Tree::Wide8(t) => wide_shape(t, costs),
         Tree::Binary(_) => unreachable!("a build of width 4 or 8 is wide"),
     };
     let (primary, shadow, ao) = counted_work(scene, &wide, settings, threads)?;
@@ -196,8 +196,8 @@ fn wide_report(
     Ok(WideReport {
         width,
         build_ms: ms(time),
-        sah_cost: splits.sah_cost,
-        mean_leaf_size: splits.mean_leaf_size,
+        sah_ns_per_ray,
+        mean_leaf_size: triangles as f64 / leaves.max(1) as f64,
         nodes,
         blocks,
         block_fill: triangles as f64 / lanes.max(1) as f64,
@@ -207,6 +207,25 @@ fn wide_report(
         shadow,
         ao,
     })
+}
+
+/// Nodes, blocks, leaf references, leaf lanes and the SAH cost at `costs`.
+fn wide_shape<const N: usize>(
+    t: &WideBvh<N>,
+    costs: &TraversalCosts,
+) -> (usize, usize, usize, usize, f64) {
+    let leaves = t
+        .nodes
+        .iter()
+        .map(|n| (0..N).filter(|&lane| n.is_leaf(lane)).count())
+        .sum();
+    (
+        t.nodes.len(),
+        t.blocks.len(),
+        t.triangle_count(),
+        leaves,
+        t.sah_cost(costs),
+    )
 }
 
 /// The reports as a Markdown table, one row per (scene, builder).
@@ -232,6 +251,7 @@ pub fn markdown_table(reports: &[BuilderReport]) -> String {
         ("8-wide bytes/tri", Right),
         ("8-wide nodes/ray P/S/AO", Left),
         ("block fill", Right),
+        ("8-wide SAH ns/ray", Right),
     ];
     let mut table = Table::new(columns);
     // One figure per ray kind, "primary/shadow/AO".
@@ -263,6 +283,7 @@ pub fn markdown_table(reports: &[BuilderReport]) -> String {
             format!("{:.1}", r.wide8.bytes_per_triangle),
             per_kind([&r.wide8.primary, &r.wide8.shadow, &r.wide8.ao], nodes),
             format!("{:.0}%", r.wide8.block_fill * 100.0),
+            format!("{:.1}", r.wide8.sah_ns_per_ray),
         ]);
     }
     let mut out = table.markdown();
@@ -270,6 +291,12 @@ pub fn markdown_table(reports: &[BuilderReport]) -> String {
         "\nSAH cost: C_traversal = {}, C_intersect = {}, normalised by the {}. Work per ray measured over the render's primary (P), shadow (S) and AO rays.\n",
         SAH_CONSTANTS.traversal, SAH_CONSTANTS.intersect, SAH_CONSTANTS.normalised_by
     ));
+    if let Some(r) = reports.first() {
+        out.push_str(&format!(
+            "8-wide SAH ns/ray: the SAH cost of the 8-wide tree as traversed, expected ns per ray in node visits and block tests at the measured {} (docs/design.md, \"The SAH cost of a wide tree\").\n",
+            r.traversal_costs.describe()
+        ));
+    }
     out
 }
 

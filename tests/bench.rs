@@ -206,7 +206,7 @@ fn quick_bench_runs_every_experiment() {
         assert!(p["render_ms"]["median"].as_f64().unwrap() > 0.0, "{p}");
         assert!(p["build_ms_1t"]["median"].as_f64().unwrap() > 0.0, "{p}");
         if p["structure"] == "raylab" {
-            assert!(p["sah_cost"].as_f64().unwrap() > 0.0, "{p}");
+            assert!(p["sah_ns_per_ray"].as_f64().unwrap() > 0.0, "{p}");
             let refs = p["references_per_triangle"].as_f64().unwrap();
             let split = p["rung"] == "high";
             assert!(refs == 1.0 || (split && refs > 1.0 && refs <= 2.0), "{p}");

@@ -14,8 +14,8 @@ use serde::Serialize;
 
 use super::ChartSection;
 use crate::accel::bvh::params::Quality;
-use crate::accel::bvh::quality::TreeStats;
-use crate::accel::bvh::{build, BuildParams};
+use crate::accel::bvh::wide::TraversalCosts;
+use crate::accel::bvh::{build, BuildParams, Tree};
 use crate::accel::{build_backend, BackendSpec};
 use crate::bench::charts::{
     color, distinct, log_label, log_range, save_chart, side_legend, DrawResult, Swatch, FONT,
@@ -54,9 +54,11 @@ pub struct LadderPoint {
     pub build_ms_1t: Stat,
     pub build_ms_nt: Stat,
     pub build_threads: usize,
-    /// raylab's trees: the SAH cost of the binary tree of the 8-wide tree's
-    /// splits, leaf tests in pairs; Embree's: not available (NaN).
-    pub sah_cost: f64,
+    /// raylab's trees: the SAH cost of the 8-wide tree as traversed
+    /// (`WideBvh::sah_cost`: expected ns per ray in node visits and block
+    /// tests at [`TraversalCosts::of_default_path`]); Embree's: not
+    /// available (NaN).
+    pub sah_ns_per_ray: f64,
     /// References in leaves per triangle (above 1 where triangles were
     /// split; NaN for Embree).
     pub references_per_triangle: f64,
@@ -128,16 +130,14 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lad
                 };
                 let build_ms_1t = builds(1)?;
                 let build_ms_nt = builds(cfg.threads)?;
-                let (sah_cost, references_per_triangle) = if structure == "raylab" {
-                    let params = BuildParams::for_quality(rung).with_width(8).binary();
-                    let tree = build(&scene.mesh(), &params)?
-                        .into_binary()
-                        .expect("width 2 builds a binary tree");
-                    let stats =
-                        TreeStats::with_block(&tree, scene.triangle_count(), params.sah_block);
+                let (sah_ns_per_ray, references_per_triangle) = if structure == "raylab" {
+                    let params = BuildParams::for_quality(rung).with_width(8);
+                    let Tree::Wide8(tree) = build(&scene.mesh(), &params)? else {
+                        unreachable!("width 8 builds an 8-wide tree")
+                    };
                     (
-                        stats.sah_cost,
-                        stats.leaf_references as f64 / scene.triangle_count().max(1) as f64,
+                        tree.sah_cost(&TraversalCosts::of_default_path()),
+                        tree.triangle_count() as f64 / scene.triangle_count().max(1) as f64,
                     )
                 } else {
                     (f64::NAN, f64::NAN)
@@ -180,7 +180,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lad
                     build_ms_1t,
                     build_ms_nt,
                     build_threads: cfg.threads,
-                    sah_cost,
+                    sah_ns_per_ray,
                     references_per_triangle,
                     render_ms,
                     primary_mrays: mrays(median.primary_rays, median.primary_time),
@@ -206,7 +206,7 @@ pub fn markdown(points: &[LadderPoint]) -> String {
             Box::leak(format!("build ms {threads}T").into_boxed_str()),
             Right,
         ),
-        ("SAH cost", Right),
+        ("SAH ns/ray", Right),
         ("refs/tri", Right),
         ("render ms", Right),
         ("Mrays/s P/S/AO", Right),
@@ -241,7 +241,7 @@ pub fn markdown(points: &[LadderPoint]) -> String {
             p.backend.clone(),
             format!("{:.2}", p.build_ms_1t.median),
             format!("{:.2}", p.build_ms_nt.median),
-            num(p.sah_cost, 2),
+            num(p.sah_ns_per_ray, 1),
             num(p.references_per_triangle, 2),
             format!("{:.1}", p.render_ms.median),
             format!(
@@ -253,7 +253,8 @@ pub fn markdown(points: &[LadderPoint]) -> String {
         ]);
     }
     format!(
-        "### Build-quality ladder\n\nEach rung (`--quality`) of raylab's 8-wide tree (low: LBVH, medium: binned SAH, high: SBVH with reinsertion) and of Embree's scene (its build quality of the same name), each on its fastest query path. SAH cost: the binary tree of the 8-wide tree's splits, leaf tests in pairs. Mrays/s per thread over the median render.\n\n{}\n",
+        "### Build-quality ladder\n\nEach rung (`--quality`) of raylab's 8-wide tree (low: LBVH, medium: binned SAH, high: SBVH with reinsertion) and of Embree's scene (its build quality of the same name), each on its fastest query path. SAH ns/ray: raylab's 8-wide tree as traversed, expected ns per ray in node visits and block tests at the measured {} (docs/design.md, \"The SAH cost of a wide tree\"). Mrays/s per thread over the median render.\n\n{}\n",
+        TraversalCosts::of_default_path().describe(),
         t.markdown()
     )
 }

@@ -8,10 +8,12 @@
 //! `docs/design.md`, "Wide trees".
 
 mod collapse;
+pub mod cost;
 pub mod node;
 mod packet;
 mod traverse;
 
+pub use cost::TraversalCosts;
 pub use node::{Bvh4, Bvh8, WideBvh, WideNode, EMPTY, MAX_LEAF, MAX_SLOTS};
 
 #[cfg(test)]
