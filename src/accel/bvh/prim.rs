@@ -3,7 +3,7 @@
 //! boxes as SIMD vectors ([`Box4`]), what a split knows of a node
 //! ([`NodeInfo`]), and the exact parallel fold they are computed with.
 
-use glam::{Vec3, Vec4};
+use glam::{BVec4A, Vec3, Vec4};
 use rayon::prelude::*;
 
 use super::params::PARALLEL_REDUCE_CUTOFF;
@@ -63,6 +63,9 @@ impl Triangles for MeshRef<'_> {
     }
 }
 
+/// The x, y and z lanes of a vector.
+const XYZ: BVec4A = BVec4A::new(true, true, true, false);
+
 /// Twice the bias that puts a scene index's bits in the normal float range.
 const INDEX_BIAS: u32 = 0x0080_0000;
 
@@ -107,10 +110,14 @@ impl PrimRef {
     }
 
     /// Twice the box centre in xyz (`lo + hi`): what the builders bin and sort
-    /// by, in the same order as the centre, without a multiplication.
+    /// by, in the same order as the centre, without a multiplication. The w
+    /// lane is 0, by a blend, not arithmetic: the sum of the index's bits
+    /// is a tiny normal, but two such sums differ by a denormal, and the
+    /// binning's `(c - lo) * scale` then took a microcode assist per
+    /// primitive on Intel cores (Sapphire Rapids: 2.3x the SAH build time).
     #[inline]
     pub fn centroid2(&self) -> Vec4 {
-        self.lo + self.hi
+        Vec4::select(XYZ, self.lo + self.hi, Vec4::ZERO)
     }
 }
 
@@ -235,7 +242,9 @@ mod tests {
             let p = PrimRef::new(&b, index);
             assert_eq!(p.index(), index);
             assert_eq!(p.bounds(), b);
-            assert!(p.lo.w.is_normal() && p.centroid2().w.is_normal(), "{index}");
+            assert!(p.lo.w.is_normal(), "{index}");
+            // No lane of a centroid, nor of a difference of two, is denormal.
+            assert_eq!(p.centroid2().w.to_bits(), 0, "{index}");
             assert_eq!(p.centroid2().truncate(), b.min + b.max);
         }
     }
