@@ -164,7 +164,7 @@ fn quick_bench_runs_every_experiment() {
     // Trace: 4 scenes x 4 ray kinds x thread counts (1 and N) x the distinct
     // non-naive structures (median, sah, sah 4-wide, and 8-wide: sah, the
     // ladder's lbvh and sbvh-opt; Embree MEDIUM, LOW and HIGH) on every query
-    // path each has (8-wide: single and packets; Embree: single, packets of
+    // path each has (8-wide: single, packets of 8 and 16; Embree: single, packets of
     // 4, 8 and 16, and the stream API where it exists), and the six
     // structures of the other libraries (single rays only).
     let trace_threads = if threads > 1 { 2 } else { 1 };
@@ -173,7 +173,7 @@ fn quick_bench_runs_every_experiment() {
     } else {
         0
     };
-    let backends = 3 + 3 * 2 + embree_paths + 6;
+    let backends = 3 + 3 * 3 + embree_paths + 6;
     assert_eq!(len("trace"), 4 * 4 * trace_threads * backends);
     for p in json["trace"].as_array().unwrap() {
         assert!(p["mrays"]["median"].as_f64().unwrap() > 0.0, "{p}");

@@ -430,7 +430,7 @@ fn flags_the_chosen_backend_would_ignore_are_refused() {
         // Query paths a backend does not have.
         (&["--backend", "naive", "--query", "packet8"][..], "--query"),
         (&["--bvh-width", "4", "--query", "packet8"][..], "--query"),
-        (&["--query", "packet16"][..], "--query"),
+        (&["--bvh-width", "2", "--query", "packet16"][..], "--query"),
         (&["--query", "stream"][..], "--query"),
         (&["--query", "sideways"][..], "--query"),
         // The quality ladder: for the BVH and Embree, instead of the flags

@@ -242,13 +242,14 @@ impl BackendSpec {
     }
 
     /// The query paths this backend has: single rays for all; raylab's
-    /// 8-ray packets for the 8-wide tree; Embree's packets of 4, 8 and 16
-    /// rays, and its stream API where the linked Embree has it (3, not 4).
+    /// 8- and 16-ray packets for the 8-wide tree (16 in AVX-512 lanes where
+    /// the CPU has it); Embree's packets of 4, 8 and 16 rays, and its stream
+    /// API where the linked Embree has it (3, not 4).
     pub fn queries(&self) -> Vec<Query> {
         match self {
             BackendSpec::Naive { .. } | BackendSpec::Library { .. } => vec![Query::Single],
             BackendSpec::Bvh { params, .. } if params.width == 8 => {
-                vec![Query::Single, Query::Packet(8)]
+                vec![Query::Single, Query::Packet(8), Query::Packet(16)]
             }
             BackendSpec::Bvh { .. } => vec![Query::Single],
             BackendSpec::Embree { .. } => {
@@ -291,7 +292,7 @@ impl BackendSpec {
                     self.structure_name(),
                     names.join(", "),
                     match (self, query) {
-                        (BackendSpec::Bvh { .. }, Query::Packet(8)) =>
+                        (BackendSpec::Bvh { .. }, Query::Packet(8 | 16)) =>
                             "; raylab's packets traverse the 8-wide tree: --bvh-width 8",
                         (BackendSpec::Embree { .. }, Query::Stream) =>
                             "; Embree 4 removed the stream API",

@@ -170,7 +170,8 @@ pub struct BackendArgs {
     pub embree: EmbreeArgs,
     /// How the renderer's streams of rays are traced: single (one ray at a
     /// time), packet4, packet8 or packet16 (packets of neighbouring rays: Embree
-    /// has all three, raylab's 8-wide tree packet8), or stream (Embree 3's
+    /// has all three, raylab's 8-wide tree packet8 and packet16, the latter
+    /// in AVX-512 lanes where the CPU has it), or stream (Embree 3's
     /// rtcIntersect1M). The image is the same whichever path [default: the
     /// backend's fastest, see docs/reference.md].
     #[arg(long, value_name = "PATH")]

@@ -4,7 +4,7 @@
 use super::builder::build;
 use super::params::BuildParams;
 use super::prim::Triangles;
-use super::simd_packet::PACKET;
+use super::simd_packet::{PACKET, PACKET16};
 use super::traverse::Traversal;
 use super::tree::Tree;
 use crate::accel::{Backend, Query};
@@ -16,8 +16,8 @@ use crate::geometry::{MollerTrumbore, Watertight};
 pub struct BvhBackend {
     pub tree: Tree,
     intersector: Intersector,
-    /// How streams are traced: single rays, or packets of [`PACKET`] rays
-    /// (8-wide trees only).
+    /// How streams are traced: single rays, or packets of [`PACKET`] or
+    /// [`PACKET16`] rays (8-wide trees only).
     query: Query,
 }
 
@@ -34,16 +34,16 @@ impl BvhBackend {
     }
 
     /// Traces streams with `query`: single rays, or (8-wide trees) packets of
-    /// [`PACKET`] rays.
+    /// [`PACKET`] or [`PACKET16`] rays.
     pub fn with_query(mut self, query: Query) -> crate::Result<Self> {
         match (query, &self.tree) {
             (Query::Single, _) => {}
-            (Query::Packet(PACKET), Tree::Wide8(_)) => {}
+            (Query::Packet(PACKET | PACKET16), Tree::Wide8(_)) => {}
             _ => {
                 return Err(Error::usage(
                     "--query",
                     format!(
-                        "raylab's {}-wide tree has no {query} path (single, or packet8 with --bvh-width 8)",
+                        "raylab's {}-wide tree has no {query} path (single, or packet8 and packet16 with --bvh-width 8)",
                         self.tree.width()
                     ),
                 ))
@@ -77,6 +77,16 @@ impl Backend for BvhBackend {
 
     fn intersect_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
         match (&self.tree, self.query) {
+            (Tree::Wide8(t), Query::Packet(PACKET16)) => {
+                for (rays, hits) in rays.chunks(PACKET16).zip(hits.chunks_mut(PACKET16)) {
+                    match self.intersector {
+                        Intersector::Mt => t.closest_packet16_with::<MollerTrumbore>(rays, hits),
+                        Intersector::Watertight => {
+                            t.closest_packet16_with::<Watertight>(rays, hits)
+                        }
+                    }
+                }
+            }
             (Tree::Wide8(t), Query::Packet(_)) => {
                 for (rays, hits) in rays.chunks(PACKET).zip(hits.chunks_mut(PACKET)) {
                     match self.intersector {
@@ -95,6 +105,14 @@ impl Backend for BvhBackend {
 
     fn occluded_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
         match (&self.tree, self.query) {
+            (Tree::Wide8(t), Query::Packet(PACKET16)) => {
+                for (rays, out) in rays.chunks(PACKET16).zip(occluded.chunks_mut(PACKET16)) {
+                    match self.intersector {
+                        Intersector::Mt => t.any_packet16_with::<MollerTrumbore>(rays, out),
+                        Intersector::Watertight => t.any_packet16_with::<Watertight>(rays, out),
+                    }
+                }
+            }
             (Tree::Wide8(t), Query::Packet(_)) => {
                 for (rays, out) in rays.chunks(PACKET).zip(occluded.chunks_mut(PACKET)) {
                     match self.intersector {

@@ -182,6 +182,35 @@ impl Avx2 {
     }
 }
 
+/// Proof that this CPU runs AVX-512F besides AVX2 (and BMI1, POPCNT): only
+/// [`Avx512::detect`] makes one. The 16-ray packet kernel
+/// (`simd_packet::Avx512Packet`) relies on it.
+#[derive(Clone, Copy, Debug)]
+pub struct Avx512 {
+    pub avx2: Avx2,
+}
+
+impl Avx512 {
+    /// `Some` when the CPU has AVX-512F and [`Avx2::detect`] succeeds, unless
+    /// `RAYLAB_SIMD=avx2` (or `portable`) asks for narrower kernels. Checked
+    /// once per process: the packet dispatch asks for every packet.
+    pub fn detect() -> Option<Avx512> {
+        static DETECTED: std::sync::OnceLock<Option<Avx512>> = std::sync::OnceLock::new();
+        *DETECTED.get_or_init(|| {
+            let avx2 = Avx2::detect()?;
+            if std::env::var("RAYLAB_SIMD").is_ok_and(|v| v == "avx2") {
+                return None;
+            }
+            #[cfg(target_arch = "x86_64")]
+            if is_x86_feature_detected!("avx512f") {
+                return Some(Avx512 { avx2 });
+            }
+            let _ = avx2;
+            None
+        })
+    }
+}
+
 /// Which kernel a tree's queries use, chosen when it is built.
 #[derive(Clone, Copy, Debug)]
 pub enum Kernel {

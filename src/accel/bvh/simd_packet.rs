@@ -11,8 +11,12 @@
 //!   Moller-Trumbore of [`super::leaf::intersect4`]), no fused multiply-add,
 //!   so each ray gets the single-ray results bit for bit (tested).
 //!
-//! `unsafe` here is the AVX2 intrinsics, behind the [`Avx2`] proof as in
-//! [`super::simd`].
+//! - [`Avx512Packet`]: sixteen rays in the lanes of AVX-512 registers, the
+//!   same operations in the same order, compares into mask registers
+//!   (`--query packet16`, where the CPU has AVX-512F).
+//!
+//! `unsafe` here is the AVX2 and AVX-512 intrinsics, behind the [`Avx2`]
+//! and [`Avx512`] proofs as in [`super::simd`].
 
 use std::marker::PhantomData;
 
@@ -20,12 +24,15 @@ use arrayvec::ArrayVec;
 
 use super::leaf::{BlockTest, Ray4, Tri4, EMPTY_ID};
 use super::params::SLAB_SLACK;
-use super::simd::{Avx2, NodeKernel, WideRay};
+use super::simd::{Avx2, Avx512, NodeKernel, WideRay};
 use super::wide::{WideNode, EMPTY};
 use crate::geometry::{safe_reciprocal, Hit, Ray, RECIPROCAL_MAX};
 
-/// Rays per packet.
+/// Rays per packet of the AVX2 kernel (`--query packet8`).
 pub const PACKET: usize = 8;
+
+/// Rays per packet of the AVX-512 kernel (`--query packet16`).
+pub const PACKET16: usize = 16;
 
 /// The margin (relative to the determinant) by which every lane's `u` must
 /// lie outside [0, 1] for [`Avx2Packet`]'s triangle test to stop before its
@@ -53,8 +60,8 @@ pub struct NodeHits {
     pub lanes: u32,
 }
 
-/// Tests of a packet against nodes and leaf blocks.
-pub trait PacketKernel: Copy {
+/// Tests of a packet of up to `R` rays against nodes and leaf blocks.
+pub trait PacketKernel<const R: usize>: Copy {
     /// The packet prepared for the tests.
     type Rays;
     fn prepare(self, rays: &[Ray]) -> Self::Rays;
@@ -66,7 +73,7 @@ pub trait PacketKernel: Copy {
         node: &WideNode<8>,
         rays: &Self::Rays,
         active: u32,
-        tmax: &[f32; 8],
+        tmax: &[f32; R],
     ) -> NodeHits;
     /// Closest-hit test of the rays of `active` against the lanes `in_leaf` of
     /// `block`: a ray whose hit beats `hits[r]` (by [`Hit::is_closer_than`],
@@ -78,7 +85,7 @@ pub trait PacketKernel: Copy {
         in_leaf: u32,
         rays: &Self::Rays,
         active: u32,
-        tmax: &[f32; 8],
+        tmax: &[f32; R],
         hits: &mut [Option<Hit>],
     ) -> u32;
     /// The rays of `active` that hit a lane `in_leaf` of `block` within their
@@ -118,8 +125,8 @@ pub struct Lane<P> {
     tmin: f32,
 }
 
-impl<K: NodeKernel<8>, T: BlockTest> PacketKernel for PerRay<K, T> {
-    type Rays = ArrayVec<Lane<T::Prepared>, PACKET>;
+impl<K: NodeKernel<8>, T: BlockTest, const R: usize> PacketKernel<R> for PerRay<K, T> {
+    type Rays = ArrayVec<Lane<T::Prepared>, R>;
 
     #[inline(always)]
     fn prepare(self, rays: &[Ray]) -> Self::Rays {
@@ -140,7 +147,7 @@ impl<K: NodeKernel<8>, T: BlockTest> PacketKernel for PerRay<K, T> {
         node: &WideNode<8>,
         lanes: &Self::Rays,
         active: u32,
-        tmax: &[f32; 8],
+        tmax: &[f32; R],
     ) -> NodeHits {
         let mut out = NodeHits {
             rays: [0; 8],
@@ -168,7 +175,7 @@ impl<K: NodeKernel<8>, T: BlockTest> PacketKernel for PerRay<K, T> {
         in_leaf: u32,
         lanes: &Self::Rays,
         active: u32,
-        tmax: &[f32; 8],
+        tmax: &[f32; R],
         hits: &mut [Option<Hit>],
     ) -> u32 {
         let mut changed = 0;
@@ -227,7 +234,7 @@ pub struct RaysSoa {
 }
 
 #[cfg(target_arch = "x86_64")]
-impl PacketKernel for Avx2Packet {
+impl PacketKernel<PACKET> for Avx2Packet {
     type Rays = RaysSoa;
 
     #[inline(always)]
@@ -571,6 +578,343 @@ impl Avx2Packet {
                 _mm256_storeu_ps(vs.as_mut_ptr(), v);
             }
             (mask, ts, us, vs)
+        }
+    }
+}
+
+/// Sixteen rays in the lanes of AVX-512 registers, Moller-Trumbore at the
+/// leaves: [`Avx2Packet`]'s operations lane for lane, in the same order,
+/// with compares into mask registers, so each ray again gets the single-ray
+/// results bit for bit (tested).
+#[derive(Clone, Copy, Debug)]
+pub struct Avx512Packet(pub Avx512);
+
+/// A packet of 16 by lanes, for [`Avx512Packet`]; unused lanes hold zeros
+/// (never read: every result is masked by the active rays).
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C, align(64))]
+pub struct RaysSoa16 {
+    origin: [[f32; 16]; 3],
+    dir: [[f32; 16]; 3],
+    inv_dir: [[f32; 16]; 3],
+    node_tmin: [f32; 16],
+    tmin: [f32; 16],
+    tmax: [f32; 16],
+    /// Per axis: bit `r` set when ray `r`'s reciprocal direction is >= 0.
+    positive: [u16; 3],
+    /// As [`RaysSoa::rows`].
+    rows: Option<[usize; 3]>,
+}
+
+#[cfg(target_arch = "x86_64")]
+impl PacketKernel<PACKET16> for Avx512Packet {
+    type Rays = RaysSoa16;
+
+    #[inline(always)]
+    fn prepare(self, rays: &[Ray]) -> RaysSoa16 {
+        use std::arch::x86_64::*;
+        let mut p = RaysSoa16::default();
+        for (r, ray) in rays.iter().enumerate() {
+            for a in 0..3 {
+                p.origin[a][r] = ray.origin[a];
+                p.dir[a][r] = ray.dir[a];
+            }
+            p.tmin[r] = ray.tmin;
+            p.tmax[r] = ray.tmax;
+        }
+        // SAFETY: `self.0` proves AVX-512F (see `Avx512::detect`); loads and
+        // stores are of 64-byte aligned rows of `p` (RaysSoa16 is aligned to
+        // 64 and every row is 64 bytes from its start).
+        unsafe {
+            let big = _mm512_set1_ps(RECIPROCAL_MAX);
+            for a in 0..3 {
+                // safe_reciprocal: (1 / d) clamped, as the AVX2 kernel.
+                let inv = _mm512_div_ps(_mm512_set1_ps(1.0), _mm512_load_ps(p.dir[a].as_ptr()));
+                let inv = _mm512_min_ps(
+                    _mm512_max_ps(inv, _mm512_sub_ps(_mm512_setzero_ps(), big)),
+                    big,
+                );
+                _mm512_store_ps(p.inv_dir[a].as_mut_ptr(), inv);
+                p.positive[a] = _mm512_cmp_ps_mask::<_CMP_GE_OQ>(inv, _mm512_setzero_ps());
+            }
+            let tmin = _mm512_load_ps(p.tmin.as_ptr());
+            _mm512_store_ps(
+                p.node_tmin.as_mut_ptr(),
+                _mm512_mul_ps(tmin, _mm512_set1_ps(1.0 - SLAB_SLACK)),
+            );
+        }
+        // Sign bits per ray: bit a set when axis a is negative.
+        let sign = |r: usize| {
+            (0..3).fold(0usize, |s, a| {
+                s | (((p.positive[a] >> r) & 1 == 0) as usize) << a
+            })
+        };
+        let first = sign(0);
+        p.rows = (0..rays.len()).all(|r| sign(r) == first).then_some([
+            first & 1,
+            2 + (first >> 1 & 1),
+            4 + (first >> 2 & 1),
+        ]);
+        p
+    }
+
+    #[inline(always)]
+    fn node<const NEAR: bool>(
+        self,
+        node: &WideNode<8>,
+        p: &RaysSoa16,
+        active: u32,
+        tmax: &[f32; PACKET16],
+    ) -> NodeHits {
+        use crate::geometry::SLAB_GROW;
+        use std::arch::x86_64::*;
+        let mut out = NodeHits {
+            rays: [0; 8],
+            near: [f32::INFINITY; 8],
+            lanes: 0,
+        };
+        let mut used = 0u32;
+        for (c, &child) in node.child.iter().enumerate() {
+            used |= ((child != EMPTY) as u32) << c;
+        }
+        // SAFETY: `self.0` proves the CPU has AVX-512F; every load reads
+        // sixteen f32 from a 64-byte aligned row of `p` (RaysSoa16 is aligned
+        // to 64) or from `tmax` (an unaligned load). No closures (see the
+        // AVX2 kernel).
+        unsafe {
+            macro_rules! row {
+                ($row:expr) => {
+                    _mm512_load_ps($row.as_ptr())
+                };
+            }
+            let o = [row!(p.origin[0]), row!(p.origin[1]), row!(p.origin[2])];
+            let inv = [row!(p.inv_dir[0]), row!(p.inv_dir[1]), row!(p.inv_dir[2])];
+            let tmin = row!(p.node_tmin);
+            let tmax = _mm512_loadu_ps(tmax.as_ptr());
+            let grow = _mm512_set1_ps(SLAB_GROW);
+            let live = active as __mmask16;
+            let b = &node.bounds;
+            macro_rules! plane {
+                ($row:expr, $a:expr, $c:expr) => {
+                    _mm512_mul_ps(_mm512_sub_ps(_mm512_set1_ps(b[$row][$c]), o[$a]), inv[$a])
+                };
+            }
+            macro_rules! child {
+                ($c:expr, ($nx:expr, $fx:expr), ($ny:expr, $fy:expr), ($nz:expr, $fz:expr)) => {{
+                    let c = $c;
+                    let near = _mm512_max_ps(_mm512_max_ps(_mm512_max_ps($nx, $ny), $nz), tmin);
+                    let far = _mm512_min_ps(
+                        _mm512_mul_ps(_mm512_min_ps(_mm512_min_ps($fx, $fy), $fz), grow),
+                        tmax,
+                    );
+                    let hit = _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(live, near, far);
+                    if hit != 0 {
+                        out.lanes |= 1 << c;
+                        out.rays[c] = hit as u32;
+                        if NEAR {
+                            out.near[c] = _mm512_mask_reduce_min_ps(hit, near);
+                        }
+                    }
+                }};
+            }
+            match p.rows {
+                Some([rx, ry, rz]) => {
+                    for c in bits(used) {
+                        child!(
+                            c,
+                            (plane!(rx, 0, c), plane!(rx ^ 1, 0, c)),
+                            (plane!(ry, 1, c), plane!(ry ^ 1, 1, c)),
+                            (plane!(rz, 2, c), plane!(rz ^ 1, 2, c))
+                        );
+                    }
+                }
+                None => {
+                    macro_rules! blended {
+                        ($a:expr, $c:expr) => {{
+                            let lo = plane!(2 * $a, $a, $c);
+                            let hi = plane!(2 * $a + 1, $a, $c);
+                            (
+                                _mm512_mask_blend_ps(p.positive[$a], hi, lo),
+                                _mm512_mask_blend_ps(p.positive[$a], lo, hi),
+                            )
+                        }};
+                    }
+                    for c in bits(used) {
+                        let ((nx, fx), (ny, fy), (nz, fz)) =
+                            (blended!(0, c), blended!(1, c), blended!(2, c));
+                        child!(c, (nx, fx), (ny, fy), (nz, fz));
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    #[inline(always)]
+    fn leaf_closest(
+        self,
+        block: &Tri4,
+        in_leaf: u32,
+        p: &RaysSoa16,
+        active: u32,
+        tmax: &[f32; PACKET16],
+        hits: &mut [Option<Hit>],
+    ) -> u32 {
+        let mut changed = 0;
+        let mut tmax = *tmax;
+        for i in bits(in_leaf) {
+            if block.ids[i] == EMPTY_ID {
+                continue;
+            }
+            let (mut found, t, u, v) = self.triangle(block, i, p, &tmax);
+            found &= active;
+            for r in bits(found) {
+                let hit = Hit {
+                    t: t[r],
+                    u: u[r],
+                    v: v[r],
+                    tri: block.ids[i],
+                };
+                if hits[r].is_none_or(|b| hit.is_closer_than(&b)) {
+                    hits[r] = Some(hit);
+                    tmax[r] = hit.t.next_up();
+                    changed |= 1 << r;
+                }
+            }
+        }
+        changed
+    }
+
+    #[inline(always)]
+    fn leaf_any(self, block: &Tri4, in_leaf: u32, p: &RaysSoa16, active: u32) -> u32 {
+        let mut hit = 0;
+        for i in bits(in_leaf) {
+            if block.ids[i] == EMPTY_ID {
+                continue;
+            }
+            hit |= self.triangle(block, i, p, &p.tmax).0 & active & !hit;
+            if hit == active {
+                break;
+            }
+        }
+        hit
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Avx512Packet {
+    /// [`Avx2Packet::triangle`] for sixteen rays: the rays hit within
+    /// `(tmin, tmax[r])`, and each lane's t, u and v.
+    #[inline(always)]
+    #[allow(clippy::type_complexity)]
+    fn triangle(
+        self,
+        block: &Tri4,
+        i: usize,
+        p: &RaysSoa16,
+        tmax: &[f32; PACKET16],
+    ) -> (u32, [f32; 16], [f32; 16], [f32; 16]) {
+        use std::arch::x86_64::*;
+        let [v0, v1, v2] = &block.v;
+        let e1 = [
+            v1[0][i] - v0[0][i],
+            v1[1][i] - v0[1][i],
+            v1[2][i] - v0[2][i],
+        ];
+        let e2 = [
+            v2[0][i] - v0[0][i],
+            v2[1][i] - v0[1][i],
+            v2[2][i] - v0[2][i],
+        ];
+        // SAFETY: `self.0` proves AVX-512F; loads read 64-byte aligned rows
+        // of `p` (RaysSoa16 is aligned to 64) or sixteen f32 of `tmax`
+        // (unaligned load); stores write sixteen f32 to local arrays.
+        unsafe {
+            macro_rules! s {
+                ($x:expr) => {
+                    _mm512_set1_ps($x)
+                };
+            }
+            macro_rules! add {
+                ($a:expr, $b:expr) => {
+                    _mm512_add_ps($a, $b)
+                };
+            }
+            macro_rules! sub {
+                ($a:expr, $b:expr) => {
+                    _mm512_sub_ps($a, $b)
+                };
+            }
+            macro_rules! mul {
+                ($a:expr, $b:expr) => {
+                    _mm512_mul_ps($a, $b)
+                };
+            }
+            macro_rules! row {
+                ($row:expr) => {
+                    _mm512_load_ps($row.as_ptr())
+                };
+            }
+            macro_rules! cmp {
+                ($op:ident, $a:expr, $b:expr) => {
+                    _mm512_cmp_ps_mask::<$op>($a, $b)
+                };
+            }
+            let (ox, oy, oz) = (row!(p.origin[0]), row!(p.origin[1]), row!(p.origin[2]));
+            let (dx, dy, dz) = (row!(p.dir[0]), row!(p.dir[1]), row!(p.dir[2]));
+            let (e1x, e1y, e1z) = (s!(e1[0]), s!(e1[1]), s!(e1[2]));
+            let (e2x, e2y, e2z) = (s!(e2[0]), s!(e2[1]), s!(e2[2]));
+            let px = sub!(mul!(dy, e2z), mul!(e2y, dz));
+            let py = sub!(mul!(dz, e2x), mul!(e2z, dx));
+            let pz = sub!(mul!(dx, e2y), mul!(e2x, dy));
+            let det = add!(add!(mul!(e1x, px), mul!(e1y, py)), mul!(e1z, pz));
+            let (sx, sy, sz) = (
+                sub!(ox, s!(v0[0][i])),
+                sub!(oy, s!(v0[1][i])),
+                sub!(oz, s!(v0[2][i])),
+            );
+            let u_num = add!(add!(mul!(sx, px), mul!(sy, py)), mul!(sz, pz));
+            // The early exit of the AVX2 kernel (see there), by bits.
+            let sign_bit = _mm512_set1_epi32(i32::MIN);
+            let abs_det =
+                _mm512_castsi512_ps(_mm512_andnot_si512(sign_bit, _mm512_castps_si512(det)));
+            let signed = _mm512_castsi512_ps(_mm512_xor_si512(
+                _mm512_castps_si512(u_num),
+                _mm512_and_si512(_mm512_castps_si512(det), sign_bit),
+            ));
+            let margin = mul!(abs_det, s!(U_MARGIN));
+            let outside = cmp!(_CMP_LT_OQ, signed, sub!(s!(0.0), margin))
+                | cmp!(_CMP_GT_OQ, signed, add!(abs_det, margin));
+            if outside == 0xFFFF {
+                return (0, [0f32; 16], [0f32; 16], [0f32; 16]);
+            }
+            let inv_det = _mm512_div_ps(s!(1.0), det);
+            let u = mul!(u_num, inv_det);
+            let qx = sub!(mul!(sy, e1z), mul!(e1y, sz));
+            let qy = sub!(mul!(sz, e1x), mul!(e1z, sx));
+            let qz = sub!(mul!(sx, e1y), mul!(e1x, sy));
+            let v = mul!(
+                add!(add!(mul!(dx, qx), mul!(dy, qy)), mul!(dz, qz)),
+                inv_det
+            );
+            let t = mul!(
+                add!(add!(mul!(e2x, qx), mul!(e2y, qy)), mul!(e2z, qz)),
+                inv_det
+            );
+            let ok = cmp!(_CMP_GE_OQ, abs_det, s!(f32::MIN_POSITIVE))
+                & cmp!(_CMP_GE_OQ, u, s!(0.0))
+                & cmp!(_CMP_LE_OQ, u, s!(1.0))
+                & cmp!(_CMP_GE_OQ, v, s!(0.0))
+                & cmp!(_CMP_LE_OQ, add!(u, v), s!(1.0))
+                & cmp!(_CMP_GT_OQ, t, row!(p.tmin))
+                & cmp!(_CMP_LT_OQ, t, _mm512_loadu_ps(tmax.as_ptr()));
+            let (mut ts, mut us, mut vs) = ([0f32; 16], [0f32; 16], [0f32; 16]);
+            if ok != 0 {
+                _mm512_storeu_ps(ts.as_mut_ptr(), t);
+                _mm512_storeu_ps(us.as_mut_ptr(), u);
+                _mm512_storeu_ps(vs.as_mut_ptr(), v);
+            }
+            (ok as u32, ts, us, vs)
         }
     }
 }

@@ -1,4 +1,4 @@
-//! Packet traversal of the 8-wide tree: up to [`PACKET`] rays of a stream
+//! Packet traversal of the 8-wide tree: up to 8 or 16 rays of a stream
 //! walk the tree together with one shared stack, each entry carrying the mask
 //! of rays that entered that child (Wald et al. 2001's packets over a wide
 //! tree, with per-ray active masks). At a node every active ray is tested
@@ -22,7 +22,7 @@ use arrayvec::ArrayVec;
 use super::super::leaf::BlockTest;
 use super::super::params::{CULL_SLACK, PACKET_MIN_RAYS, SLAB_SLACK};
 use super::super::simd::NodeKernel;
-use super::super::simd_packet::{bits, PacketKernel, PACKET};
+use super::super::simd_packet::{bits, PacketKernel};
 use super::super::traverse::NoCount;
 use super::node::{for_leaf_blocks, WideBvh, LEAF};
 use super::traverse::push_sorted;
@@ -30,7 +30,7 @@ use crate::geometry::{Hit, Ray};
 
 /// The rays whose `cut` is at least `near` (a bit per ray).
 #[inline(always)]
-fn reach(near: f32, cut: &[f32; PACKET]) -> u32 {
+fn reach<const R: usize>(near: f32, cut: &[f32; R]) -> u32 {
     let mut mask = 0;
     for (r, &c) in cut.iter().enumerate() {
         mask |= ((near <= c) as u32) << r;
@@ -39,16 +39,17 @@ fn reach(near: f32, cut: &[f32; PACKET]) -> u32 {
 }
 
 impl WideBvh<8> {
-    /// The closest hits of up to [`PACKET`] rays into `hits` (as long), each
-    /// as [`Self::closest_with`] answers it: packet tests `P`, and for the
-    /// last rays of an entry the single-ray traversal with node kernel `K`
-    /// and triangle test `T` (the ones `P` runs lane by lane); stacks of `S`
-    /// entries (at least [`Self::stack_need`]).
+    /// The closest hits of up to `R` rays (8 or 16) into
+    /// `hits` (as long), each as [`Self::closest_with`] answers it: packet
+    /// tests `P`, and for the last rays of an entry the single-ray traversal
+    /// with node kernel `K` and triangle test `T` (the ones `P` runs lane by
+    /// lane); stacks of `S` entries (at least [`Self::stack_need`]).
     #[inline(always)]
     pub(crate) fn closest_packet<
         K: NodeKernel<8>,
         T: BlockTest,
-        P: PacketKernel,
+        P: PacketKernel<R>,
+        const R: usize,
         const S: usize,
     >(
         &self,
@@ -57,7 +58,7 @@ impl WideBvh<8> {
         rays: &[Ray],
         hits: &mut [Option<Hit>],
     ) {
-        debug_assert!(rays.len() <= PACKET && hits.len() == rays.len());
+        debug_assert!(rays.len() <= R && R <= 32 && hits.len() == rays.len());
         hits.fill(None);
         if self.nodes.is_empty() {
             return;
@@ -66,8 +67,8 @@ impl WideBvh<8> {
         let mut active = 0u32;
         // Per ray: triangles are tested below `tmax` (just above its best t),
         // boxes culled beyond `cut`, as in the single-ray traversal.
-        let mut tmax = [0f32; PACKET];
-        let mut cut = [0f32; PACKET];
+        let mut tmax = [0f32; R];
+        let mut cut = [0f32; R];
         for (r, ray) in rays.iter().enumerate() {
             tmax[r] = ray.tmax;
             cut[r] = ray.tmax * (1.0 + CULL_SLACK);
@@ -142,24 +143,30 @@ impl WideBvh<8> {
         }
     }
 
-    /// Whether each of up to [`PACKET`] rays hits anything within its segment,
+    /// Whether each of up to `R` rays hits anything within its segment,
     /// into `occluded` (as long), as [`Self::any_with`] answers it (packet
     /// tests `P`; single-ray `K` and `T` for the last rays of an entry).
     #[inline(always)]
-    pub(crate) fn any_packet<K: NodeKernel<8>, T: BlockTest, P: PacketKernel, const S: usize>(
+    pub(crate) fn any_packet<
+        K: NodeKernel<8>,
+        T: BlockTest,
+        P: PacketKernel<R>,
+        const R: usize,
+        const S: usize,
+    >(
         &self,
         kernel: K,
         packet: P,
         rays: &[Ray],
         occluded: &mut [bool],
     ) {
-        debug_assert!(rays.len() <= PACKET && occluded.len() == rays.len());
+        debug_assert!(rays.len() <= R && R <= 32 && occluded.len() == rays.len());
         occluded.fill(false);
         if self.nodes.is_empty() {
             return;
         }
         let prepared = packet.prepare(rays);
-        let mut tmax = [0f32; PACKET];
+        let mut tmax = [0f32; R];
         // Rays still looking for an occluder.
         let mut alive = 0u32;
         for (r, ray) in rays.iter().enumerate() {
@@ -221,7 +228,7 @@ mod tests {
     use crate::accel::bvh::leaf::BlockTest;
     use crate::accel::bvh::params::BuildParams;
     use crate::accel::bvh::simd::Kernel;
-    use crate::accel::bvh::simd_packet::PACKET;
+    use crate::accel::bvh::simd_packet::{PACKET, PACKET16};
     use crate::accel::bvh::test_fixtures::{binary, random_tris};
     use crate::accel::bvh::traverse::{NoCount, Traversal};
     use crate::geometry::{Hit, MollerTrumbore, Ray, Watertight};
@@ -297,14 +304,22 @@ mod tests {
         h.map(|h| [h.t.to_bits(), h.u.to_bits(), h.v.to_bits(), h.tri])
     }
 
-    /// Packets of every size from 1 to 8 against the single-ray traversal.
+    /// Packets of every size from 1 to 8 (`--query packet8`) and from 1 to
+    /// 16 (`packet16`) against the single-ray traversal.
     fn check<T: BlockTest>(tree: &Bvh8, rays: &[Ray], label: &str) {
-        for size in 1..=PACKET {
+        let sizes = (1..=PACKET).map(|s| (s, false));
+        for (size, sixteen) in sizes.chain((1..=PACKET16).map(|s| (s, true))) {
+            let label = format!("{label} packet{}", if sixteen { 16 } else { 8 });
             for (k, chunk) in rays.chunks(size).enumerate() {
                 let mut hits = vec![None; chunk.len()];
                 let mut occluded = vec![true; chunk.len()];
-                tree.closest_packet_with::<T>(chunk, &mut hits);
-                tree.any_packet_with::<T>(chunk, &mut occluded);
+                if sixteen {
+                    tree.closest_packet16_with::<T>(chunk, &mut hits);
+                    tree.any_packet16_with::<T>(chunk, &mut occluded);
+                } else {
+                    tree.closest_packet_with::<T>(chunk, &mut hits);
+                    tree.any_packet_with::<T>(chunk, &mut occluded);
+                }
                 for (r, ray) in chunk.iter().enumerate() {
                     let want = tree.closest::<T, _>(ray, &mut NoCount);
                     assert_eq!(
@@ -336,6 +351,9 @@ mod tests {
                 kernels.push(Kernel::Avx2(k));
             } else {
                 eprintln!("no AVX2 on this CPU: the AVX2 packet kernel is not tested");
+            }
+            if crate::accel::bvh::simd::Avx512::detect().is_none() {
+                eprintln!("no AVX-512 on this CPU: the AVX-512 packet kernel is not tested");
             }
             for kernel in kernels {
                 let tree = Bvh8::collapse_with(&bvh, kernel).unwrap();

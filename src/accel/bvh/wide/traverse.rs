@@ -8,10 +8,10 @@ use arrayvec::ArrayVec;
 
 use super::super::leaf::{BlockTest, Ray4, LANES};
 use super::super::params::{CULL_SLACK, DEEP_STACK, SLAB_SLACK, STACK};
-use super::super::simd::{prefetch, Avx2, Kernel, NodeKernel, Portable, WideRay};
+use super::super::simd::{prefetch, Avx2, Avx512, Kernel, NodeKernel, Portable, WideRay};
 #[cfg(target_arch = "x86_64")]
-use super::super::simd_packet::Avx2Packet;
-use super::super::simd_packet::PerRay;
+use super::super::simd_packet::{Avx2Packet, Avx512Packet};
+use super::super::simd_packet::{PerRay, PACKET, PACKET16};
 use super::super::traverse::{Counter, Traversal};
 use super::node::{for_leaf_blocks, leaf_slots, WideBvh, LEAF};
 use crate::geometry::{safe_reciprocal, Hit, Ray};
@@ -268,13 +268,13 @@ impl WideBvh<8> {
         match (self.kernel, self.stack_need <= STACK) {
             (Kernel::Avx2(k), true) => k.closest_packet::<T, STACK>(self, rays, hits),
             (Kernel::Avx2(k), false) => k.closest_packet::<T, DEEP_STACK>(self, rays, hits),
-            (Kernel::Portable, true) => self.closest_packet::<Portable, T, _, STACK>(
+            (Kernel::Portable, true) => self.closest_packet::<Portable, T, _, PACKET, STACK>(
                 Portable,
                 PerRay::<_, T>::new(Portable),
                 rays,
                 hits,
             ),
-            (Kernel::Portable, false) => self.closest_packet::<Portable, T, _, DEEP_STACK>(
+            (Kernel::Portable, false) => self.closest_packet::<Portable, T, _, PACKET, DEEP_STACK>(
                 Portable,
                 PerRay::<_, T>::new(Portable),
                 rays,
@@ -289,19 +289,156 @@ impl WideBvh<8> {
         match (self.kernel, self.stack_need <= STACK) {
             (Kernel::Avx2(k), true) => k.any_packet::<T, STACK>(self, rays, occluded),
             (Kernel::Avx2(k), false) => k.any_packet::<T, DEEP_STACK>(self, rays, occluded),
-            (Kernel::Portable, true) => self.any_packet::<Portable, T, _, STACK>(
+            (Kernel::Portable, true) => self.any_packet::<Portable, T, _, PACKET, STACK>(
                 Portable,
                 PerRay::<_, T>::new(Portable),
                 rays,
                 occluded,
             ),
-            (Kernel::Portable, false) => self.any_packet::<Portable, T, _, DEEP_STACK>(
+            (Kernel::Portable, false) => self.any_packet::<Portable, T, _, PACKET, DEEP_STACK>(
                 Portable,
                 PerRay::<_, T>::new(Portable),
                 rays,
                 occluded,
             ),
         }
+    }
+}
+
+impl WideBvh<8> {
+    /// The closest hits of a packet of up to [`PACKET16`] rays: with
+    /// AVX-512 and Moller-Trumbore the rays in AVX-512 lanes
+    /// ([`Avx512Packet`]), with AVX-512 and the watertight test each ray with
+    /// the AVX2 single-ray kernels; without AVX-512 each ray with the
+    /// portable single-ray kernels (correct, not fast).
+    pub fn closest_packet16_with<T: BlockTest>(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
+        let avx512 = Avx512::detect().filter(|_| matches!(self.kernel, Kernel::Avx2(_)));
+        match (avx512, self.stack_need <= STACK) {
+            (Some(k), true) => k.closest_packet::<T, STACK>(self, rays, hits),
+            (Some(k), false) => k.closest_packet::<T, DEEP_STACK>(self, rays, hits),
+            (None, true) => self.closest_packet::<Portable, T, _, PACKET16, STACK>(
+                Portable,
+                PerRay::<_, T>::new(Portable),
+                rays,
+                hits,
+            ),
+            (None, false) => self.closest_packet::<Portable, T, _, PACKET16, DEEP_STACK>(
+                Portable,
+                PerRay::<_, T>::new(Portable),
+                rays,
+                hits,
+            ),
+        }
+    }
+
+    /// Whether each ray of a packet of up to [`PACKET16`] is occluded, with
+    /// the kernels [`Self::closest_packet16_with`] chooses.
+    pub fn any_packet16_with<T: BlockTest>(&self, rays: &[Ray], occluded: &mut [bool]) {
+        let avx512 = Avx512::detect().filter(|_| matches!(self.kernel, Kernel::Avx2(_)));
+        match (avx512, self.stack_need <= STACK) {
+            (Some(k), true) => k.any_packet::<T, STACK>(self, rays, occluded),
+            (Some(k), false) => k.any_packet::<T, DEEP_STACK>(self, rays, occluded),
+            (None, true) => self.any_packet::<Portable, T, _, PACKET16, STACK>(
+                Portable,
+                PerRay::<_, T>::new(Portable),
+                rays,
+                occluded,
+            ),
+            (None, false) => self.any_packet::<Portable, T, _, PACKET16, DEEP_STACK>(
+                Portable,
+                PerRay::<_, T>::new(Portable),
+                rays,
+                occluded,
+            ),
+        }
+    }
+}
+
+/// The 16-ray packet queries compiled with AVX-512F (and AVX2) enabled, as
+/// [`Avx2`]'s below.
+impl Avx512 {
+    #[inline(always)]
+    pub fn closest_packet<T: BlockTest, const S: usize>(
+        self,
+        bvh: &WideBvh<8>,
+        rays: &[Ray],
+        hits: &mut [Option<Hit>],
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            // SAFETY: `self` proves the CPU has AVX-512F, AVX2, BMI1 and POPCNT.
+            unsafe { closest_packet_avx512::<T, S>(self, bvh, rays, hits) }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        bvh.closest_packet::<Portable, T, _, PACKET16, S>(
+            Portable,
+            PerRay::<_, T>::new(Portable),
+            rays,
+            hits,
+        )
+    }
+
+    #[inline(always)]
+    pub fn any_packet<T: BlockTest, const S: usize>(
+        self,
+        bvh: &WideBvh<8>,
+        rays: &[Ray],
+        occluded: &mut [bool],
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            // SAFETY: as in `closest_packet`.
+            unsafe { any_packet_avx512::<T, S>(self, bvh, rays, occluded) }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        bvh.any_packet::<Portable, T, _, PACKET16, S>(
+            Portable,
+            PerRay::<_, T>::new(Portable),
+            rays,
+            occluded,
+        )
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,bmi1,popcnt")]
+fn closest_packet_avx512<T: BlockTest, const S: usize>(
+    kernel: Avx512,
+    bvh: &WideBvh<8>,
+    rays: &[Ray],
+    hits: &mut [Option<Hit>],
+) {
+    let single = kernel.avx2;
+    if T::IS_MOLLER_TRUMBORE {
+        bvh.closest_packet::<Avx2, T, _, PACKET16, S>(single, Avx512Packet(kernel), rays, hits)
+    } else {
+        bvh.closest_packet::<Avx2, T, _, PACKET16, S>(
+            single,
+            PerRay::<_, T>::new(single),
+            rays,
+            hits,
+        )
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,bmi1,popcnt")]
+fn any_packet_avx512<T: BlockTest, const S: usize>(
+    kernel: Avx512,
+    bvh: &WideBvh<8>,
+    rays: &[Ray],
+    occluded: &mut [bool],
+) {
+    let single = kernel.avx2;
+    if T::IS_MOLLER_TRUMBORE {
+        bvh.any_packet::<Avx2, T, _, PACKET16, S>(single, Avx512Packet(kernel), rays, occluded)
+    } else {
+        bvh.any_packet::<Avx2, T, _, PACKET16, S>(
+            single,
+            PerRay::<_, T>::new(single),
+            rays,
+            occluded,
+        )
     }
 }
 
@@ -357,7 +494,12 @@ impl Avx2 {
             unsafe { closest_packet_avx2::<T, S>(self, bvh, rays, hits) }
         }
         #[cfg(not(target_arch = "x86_64"))]
-        bvh.closest_packet::<Portable, T, _, S>(Portable, PerRay::<_, T>::new(Portable), rays, hits)
+        bvh.closest_packet::<Portable, T, _, PACKET, S>(
+            Portable,
+            PerRay::<_, T>::new(Portable),
+            rays,
+            hits,
+        )
     }
 
     #[inline(always)]
@@ -373,7 +515,12 @@ impl Avx2 {
             unsafe { any_packet_avx2::<T, S>(self, bvh, rays, occluded) }
         }
         #[cfg(not(target_arch = "x86_64"))]
-        bvh.any_packet::<Portable, T, _, S>(Portable, PerRay::<_, T>::new(Portable), rays, occluded)
+        bvh.any_packet::<Portable, T, _, PACKET, S>(
+            Portable,
+            PerRay::<_, T>::new(Portable),
+            rays,
+            occluded,
+        )
     }
 }
 
@@ -386,9 +533,9 @@ fn closest_packet_avx2<T: BlockTest, const S: usize>(
     hits: &mut [Option<Hit>],
 ) {
     if T::IS_MOLLER_TRUMBORE {
-        bvh.closest_packet::<Avx2, T, _, S>(kernel, Avx2Packet(kernel), rays, hits)
+        bvh.closest_packet::<Avx2, T, _, PACKET, S>(kernel, Avx2Packet(kernel), rays, hits)
     } else {
-        bvh.closest_packet::<Avx2, T, _, S>(kernel, PerRay::<_, T>::new(kernel), rays, hits)
+        bvh.closest_packet::<Avx2, T, _, PACKET, S>(kernel, PerRay::<_, T>::new(kernel), rays, hits)
     }
 }
 
@@ -401,9 +548,9 @@ fn any_packet_avx2<T: BlockTest, const S: usize>(
     occluded: &mut [bool],
 ) {
     if T::IS_MOLLER_TRUMBORE {
-        bvh.any_packet::<Avx2, T, _, S>(kernel, Avx2Packet(kernel), rays, occluded)
+        bvh.any_packet::<Avx2, T, _, PACKET, S>(kernel, Avx2Packet(kernel), rays, occluded)
     } else {
-        bvh.any_packet::<Avx2, T, _, S>(kernel, PerRay::<_, T>::new(kernel), rays, occluded)
+        bvh.any_packet::<Avx2, T, _, PACKET, S>(kernel, PerRay::<_, T>::new(kernel), rays, occluded)
     }
 }
 
