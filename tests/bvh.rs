@@ -426,10 +426,10 @@ fn sah_tree_is_cheaper_than_median_on_the_big_scenes() {
     }
 }
 
-/// The 8-wide tree's packet path answers the rays a render casts (recorded in
-/// the order its streams ask them, and the diffuse bounces) exactly as its
-/// single-ray path does, with either triangle test; and images rendered
-/// through it are the single-ray images bit for bit.
+/// The 8-wide tree's packet paths (8 and 16 rays) answer the rays a render
+/// casts (recorded in the order its streams ask them, and the diffuse
+/// bounces) exactly as its single-ray path does, with either triangle test;
+/// and images rendered through them are the single-ray images bit for bit.
 #[test]
 fn packet_path_answers_recorded_rays_as_single_rays_do() {
     use raylab::accel::{build_backend, BackendSpec, Query};
@@ -438,10 +438,13 @@ fn packet_path_answers_recorded_rays_as_single_rays_do() {
         let scene = builtin(name).unwrap();
         let mut s = settings(128, 96, AoMode::Cosine(4));
         s.light_samples = 2;
-        for intersector in [Intersector::Mt, Intersector::Watertight] {
+        let paths = [Intersector::Mt, Intersector::Watertight]
+            .into_iter()
+            .flat_map(|i| [(i, 8), (i, 16)]);
+        for (intersector, width) in paths {
             let single =
                 BackendSpec::bvh(BuildParams::sah().with_width(8)).with_intersector(intersector);
-            let packet = single.with_query(Query::Packet(8)).unwrap();
+            let packet = single.with_query(Query::Packet(width)).unwrap();
             let (single, packet) = (
                 build_backend(&single, &scene).unwrap(),
                 build_backend(&packet, &scene).unwrap(),
@@ -455,7 +458,7 @@ fn packet_path_answers_recorded_rays_as_single_rays_do() {
                     let want = single.intersect(ray);
                     assert!(
                         hit.map(|h| (h.t.to_bits(), h.tri)) == want.map(|h| (h.t.to_bits(), h.tri)),
-                        "{name} {intersector:?} {kind} ray {i}: packet {hit:?}, single {want:?}"
+                        "{name} {intersector:?} packet{width} {kind} ray {i}: packet {hit:?}, single {want:?}"
                     );
                 }
             }
@@ -466,7 +469,7 @@ fn packet_path_answers_recorded_rays_as_single_rays_do() {
                     assert_eq!(
                         *o,
                         single.occluded(ray),
-                        "{name} {intersector:?} {kind} ray {i}"
+                        "{name} {intersector:?} packet{width} {kind} ray {i}"
                     );
                 }
             }
@@ -477,7 +480,7 @@ fn packet_path_answers_recorded_rays_as_single_rays_do() {
             };
             assert!(
                 image(single.as_ref()) == image(packet.as_ref()),
-                "{name} {intersector:?}: packet image differs"
+                "{name} {intersector:?}: packet{width} image differs"
             );
         }
     }

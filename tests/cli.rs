@@ -674,6 +674,9 @@ fn query_paths_render_the_same_image_and_are_named() {
     let (name, packet) = render(&["--query", "packet8"]);
     assert_eq!(name, "bvh8-sah-packet8");
     assert_eq!(packet, single);
+    let (name, packet16) = render(&["--query", "packet16"]);
+    assert_eq!(name, "bvh8-sah-packet16");
+    assert_eq!(packet16, single);
     let (name, binary) = render(&["--bvh-width", "2"]);
     assert_eq!(
         name, "bvh-sah",
