@@ -195,13 +195,18 @@ fn quick_bench_runs_every_experiment() {
     // reference.
     let libraries = if embree() { 11 } else { 9 };
     assert_eq!(len("libraries"), 4 * libraries);
+    // Rows are named by structure (the path per kind is in `paths`).
+    let watertight = "bvh8-sah-watertight";
+    let mut watertight_rows = 0;
     for p in json["libraries"].as_array().unwrap() {
         assert!(p["failed"].is_null(), "{p}");
         assert!(p["rays"].as_u64().unwrap() > 0, "{p}");
-        if p["backend"] == "bvh8-sah-watertight-packet8" {
+        if p["backend"] == watertight {
             assert_eq!(p["wrong"], 0, "{p}");
+            watertight_rows += 1;
         }
     }
+    assert_eq!(watertight_rows, 4, "one {watertight} row per scene");
     for p in json["ladder"].as_array().unwrap() {
         assert!(p["render_ms"]["median"].as_f64().unwrap() > 0.0, "{p}");
         assert!(p["build_ms_1t"]["median"].as_f64().unwrap() > 0.0, "{p}");

@@ -3,7 +3,9 @@
 
 mod common;
 
-use common::{assert_one_line_error, assert_success, raylab, temp_dir};
+use common::{
+    assert_one_line_error, assert_success, embree_packets, own_packets, raylab, temp_dir,
+};
 
 #[test]
 fn bad_flags_fail_with_one_line_naming_the_flag() {
@@ -97,8 +99,8 @@ fn json_report_has_the_stable_keys_and_matches_the_png() {
     }
     assert_eq!(v["triangles"], 36);
     // The default backend is raylab's fastest own one, not the naive scan,
-    // on its fastest query path (8-ray packets).
-    assert_eq!(v["backend"], "bvh8-sah-packet8");
+    // on its fastest query path (16-ray packets with AVX-512, else 8).
+    assert_eq!(v["backend"], format!("bvh8-sah-{}", own_packets()));
     assert_eq!(v["schedule"], "rayon");
     assert_eq!(v["width"], 40);
     assert_eq!(v["rays"]["primary"], 1200);
@@ -195,7 +197,10 @@ fn intersector_flag_selects_the_watertight_test() {
     assert_success(&out);
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     // The default tree is the 8-wide one, the fastest, in packets.
-    assert_eq!(v["backend"], "bvh8-sah-watertight-packet8");
+    assert_eq!(
+        v["backend"],
+        format!("bvh8-sah-watertight-{}", own_packets())
+    );
     std::fs::remove_dir_all(&d).ok();
 }
 
@@ -708,17 +713,18 @@ fn quality_rungs_name_their_builders_and_render_the_same_image() {
     // Long thin blades: the SBVH splits them, and must find the same hits.
     for scene in ["cornell-water", "grass:3000"] {
         let (name, medium) = render(scene, &[]);
-        assert_eq!(name, "bvh8-sah-packet8");
+        let own = own_packets();
+        assert_eq!(name, format!("bvh8-sah-{own}"));
         for (rung, builder) in [("low", "lbvh"), ("medium", "sah"), ("high", "sbvh")] {
             let (name, image) = render(scene, &["--quality", rung]);
             let opt = if rung == "high" { "-opt" } else { "" };
-            assert_eq!(name, format!("bvh8-{builder}{opt}-packet8"), "{scene}");
+            assert_eq!(name, format!("bvh8-{builder}{opt}-{own}"), "{scene}");
             assert_eq!(image, medium, "{scene}: --quality {rung}");
             let (name, image) = render(scene, &["--builder", builder, "--bvh-width", "2"]);
             assert_eq!(name, format!("bvh-{builder}"), "{scene}");
             assert_eq!(image, medium, "{scene}: binary {builder}");
             let (name, image) = render(scene, &["--builder", builder, "--optimize"]);
-            assert_eq!(name, format!("bvh8-{builder}-opt-packet8"), "{scene}");
+            assert_eq!(name, format!("bvh8-{builder}-opt-{own}"), "{scene}");
             assert_eq!(image, medium, "{scene}: optimised {builder}");
         }
     }
@@ -727,7 +733,7 @@ fn quality_rungs_name_their_builders_and_render_the_same_image() {
             "cornell-empty",
             &["--backend", "embree", "--quality", "high"],
         );
-        assert_eq!(name, "embree-high-packet8");
+        assert_eq!(name, format!("embree-high-{}", embree_packets()));
     }
     std::fs::remove_dir_all(&d).ok();
 }

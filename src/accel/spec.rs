@@ -268,12 +268,25 @@ impl BackendSpec {
 
     /// The same backend on its fastest query path, which a render uses unless
     /// `--query` says otherwise. Measured by `raylab bench --part trace`
-    /// (docs/results.md): for raylab's 8-wide tree its own 8-ray packets, for
-    /// Embree its packets of 8 rays, its native width on AVX2.
+    /// (docs/results.md): for raylab's 8-wide tree its own packets, of 16
+    /// rays where the CPU has AVX-512F and of 8 elsewhere; for Embree its
+    /// packets of 16 rays where it traces them natively (AVX-512), else of 8.
     pub fn with_fastest_query(self) -> Self {
         let fastest = match self {
-            BackendSpec::Bvh { params, .. } if params.width == 8 => Query::Packet(8),
-            BackendSpec::Embree { .. } => Query::Packet(8),
+            BackendSpec::Bvh { params, .. } if params.width == 8 => {
+                if crate::accel::bvh::simd::Avx512::detect().is_some() {
+                    Query::Packet(16)
+                } else {
+                    Query::Packet(8)
+                }
+            }
+            BackendSpec::Embree { .. } => {
+                if super::embree::native_packets_or_none().contains(&16) {
+                    Query::Packet(16)
+                } else {
+                    Query::Packet(8)
+                }
+            }
             _ => Query::Single,
         };
         self.with_query(fastest).unwrap_or(self)

@@ -63,6 +63,16 @@ const fn packets(v: Variant) -> Variant {
     }
 }
 
+/// The variant tracing its streams in packets of 16 rays (raylab's own, in
+/// AVX-512 lanes where the CPU has AVX-512F; rtcIntersect16/rtcOccluded16
+/// for Embree).
+const fn packets16(v: Variant) -> Variant {
+    Variant {
+        query: Query::Packet(16),
+        ..v
+    }
+}
+
 /// The variant built at `rung` of the quality ladder.
 const fn rung(v: Variant, rung: Quality) -> Variant {
     Variant {
@@ -78,7 +88,7 @@ use BuilderKind::{Median, Sah};
 use Schedule::{Rayon, Rows, Serial, Tiles};
 
 /// Every variant, in the order tables list them. `naive-serial` is the baseline.
-pub const VARIANTS: [Variant; 35] = [
+pub const VARIANTS: [Variant; 37] = [
     v("naive-serial", Naive, Sah, Serial, false),
     v("naive-rows", Naive, Sah, Rows, false),
     v("naive-tiles", Naive, Sah, Tiles, false),
@@ -102,6 +112,7 @@ pub const VARIANTS: [Variant; 35] = [
         8,
     )),
     packets(wide(v("bvh8-sah-packet8-tiles", Bvh, Sah, Tiles, true), 8)),
+    packets16(wide(v("bvh8-sah-packet16-tiles", Bvh, Sah, Tiles, true), 8)),
     rung(
         packets(wide(
             v("bvh8-lbvh-packet8-serial", Bvh, Sah, Serial, false),
@@ -121,6 +132,7 @@ pub const VARIANTS: [Variant; 35] = [
     v("embree-rayon", Embree, Sah, Rayon, true),
     packets(v("embree-packet8-serial", Embree, Sah, Serial, false)),
     packets(v("embree-packet8-tiles", Embree, Sah, Tiles, true)),
+    packets16(v("embree-packet16-tiles", Embree, Sah, Tiles, true)),
     rung(
         packets(v("embree-low-packet8-serial", Embree, Sah, Serial, false)),
         Quality::Low,
@@ -244,10 +256,10 @@ impl Variant {
                 format!("{builder} BVH with {}-wide SIMD nodes", self.width)
             }
             Bvh => format!("{builder} BVH"),
-            Embree if self.query == Query::Packet(8) => {
-                format!("Embree {embree}, rtcIntersect8/rtcOccluded8")
-            }
-            Embree => format!("Embree {embree}, rtcIntersect1/rtcOccluded1"),
+            Embree => match self.query {
+                Query::Packet(n) => format!("Embree {embree}, rtcIntersect{n}/rtcOccluded{n}"),
+                _ => format!("Embree {embree}, rtcIntersect1/rtcOccluded1"),
+            },
             Tinybvh => format!(
                 "tinybvh {} ({}), its own kernels",
                 if self.rung == Some(Quality::High) {

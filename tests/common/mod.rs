@@ -126,3 +126,23 @@ pub fn assert_success(out: &Output) {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// The name of raylab's fastest packet path on this CPU (`packet16` with
+/// AVX-512F, else `packet8`), which renders use by default.
+pub fn own_packets() -> &'static str {
+    if raylab::accel::bvh::simd::Avx512::detect().is_some() {
+        "packet16"
+    } else {
+        "packet8"
+    }
+}
+
+/// The name of Embree's default packet path here (`packet16` where it
+/// traces 16 rays natively, else `packet8`).
+pub fn embree_packets() -> &'static str {
+    if raylab::accel::embree::native_packets_or_none().contains(&16) {
+        "packet16"
+    } else {
+        "packet8"
+    }
+}

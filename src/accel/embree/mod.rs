@@ -45,12 +45,18 @@ pub fn unavailable() -> crate::Error {
     )
 }
 
-/// Packet widths the linked Embree traces natively here (none without Embree).
+/// Packet widths the linked Embree traces natively here (none without
+/// Embree); asked of a device once per process.
 pub fn native_packets_or_none() -> Vec<usize> {
-    #[cfg(feature = "embree")]
-    return native_packets();
-    #[cfg(not(feature = "embree"))]
-    Vec::new()
+    static NATIVE: std::sync::OnceLock<Vec<usize>> = std::sync::OnceLock::new();
+    NATIVE
+        .get_or_init(|| {
+            #[cfg(feature = "embree")]
+            return native_packets();
+            #[cfg(not(feature = "embree"))]
+            Vec::new()
+        })
+        .clone()
 }
 
 /// The linked Embree's version ("none" in a build without Embree).

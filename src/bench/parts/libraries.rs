@@ -67,7 +67,8 @@ pub struct LibraryPoint {
     /// Mrays/s on one thread per kind, in [`KINDS`] order, on the query
     /// path that was fastest for that kind.
     pub mrays: Vec<f64>,
-    /// That path per kind (`single`, `packet8`; empty where not measured).
+    /// That path per kind (`single`, `packet8`, `packet16`; empty where not
+    /// measured).
     pub paths: Vec<String>,
     /// Mean ns per ray over the kinds but edges (each kind weighted alike).
     pub ns_per_ray: f64,
@@ -122,7 +123,7 @@ fn specs() -> Vec<BackendSpec> {
 }
 
 /// The query paths each backend is timed on, where it has them.
-const PATHS: [Query; 2] = [Query::Single, Query::Packet(8)];
+const PATHS: [Query; 3] = [Query::Single, Query::Packet(8), Query::Packet(16)];
 
 /// Progress steps: one per scene and backend.
 pub fn steps(_cfg: &BenchConfig, scenes: &[Scene]) -> u64 {
@@ -462,7 +463,7 @@ pub fn markdown(points: &[LibraryPoint]) -> String {
         .map(|(b, l)| format!("- `{b}`: {}\n", l.join("; ")))
         .collect();
     format!(
-        "### Every CPU BVH side by side\n\nOne thread, each backend on its fastest query path per ray kind (raylab's 8-wide trees and Embree are timed on single rays and on packets of 8, interleaved, and the faster counts; the path is listed), the same recorded rays (one render's primary, shadow and AO rays and a diffuse bounce per primary hit: at most 50000 consecutive rays of each from the middle of the render's stream, so that packets hold neighbouring rays). Wrong: answers (closest hit for primary and diffuse, any hit for shadow and AO) that the exact reference says are false misses, false hits, the wrong triangle or a t beyond its bound; undecidable: double precision could not say. Edge rays: as many rays aimed exactly at the scene's vertices and at points on its edges, from 1e-4 to 0.5 of the scene's size away (`validate --rays edges`), each asked for its closest hit and for any hit; they are timed but kept out of the time per ray in the chart.\n\n{}\nWhat the other libraries lack, and what raylab does instead:\n\n{limits}",
+        "### Every CPU BVH side by side\n\nOne thread, each backend on its fastest query path per ray kind (raylab's 8-wide trees and Embree are timed on single rays and on packets of 8 and 16, interleaved, and the fastest counts; the path is listed), the same recorded rays (one render's primary, shadow and AO rays and a diffuse bounce per primary hit: at most 50000 consecutive rays of each from the middle of the render's stream, so that packets hold neighbouring rays). Wrong: answers (closest hit for primary and diffuse, any hit for shadow and AO) that the exact reference says are false misses, false hits, the wrong triangle or a t beyond its bound; undecidable: double precision could not say. Edge rays: as many rays aimed exactly at the scene's vertices and at points on its edges, from 1e-4 to 0.5 of the scene's size away (`validate --rays edges`), each asked for its closest hit and for any hit; they are timed but kept out of the time per ray in the chart.\n\n{}\nWhat the other libraries lack, and what raylab does instead:\n\n{limits}",
         t.markdown()
     )
 }

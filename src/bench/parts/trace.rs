@@ -683,11 +683,14 @@ mod tests {
             .to_vec();
         let bar = StepBar::new(0, true);
         let points = trace_throughput(&scene, &settings, &specs, &[1, 2], 1, &bar).unwrap();
-        // The 8-wide tree on its two query paths, every ray kind, two thread counts.
-        assert_eq!(points.len(), 4 * KINDS.len() * 2);
-        assert!(points.iter().any(|p| p.backend == "bvh8-sah-packet8"
-            && p.structure == "bvh8-sah"
-            && p.query == "packet8"));
+        // The binary and 4-wide trees on single rays, the 8-wide tree on its
+        // three query paths, every ray kind, two thread counts.
+        assert_eq!(points.len(), 5 * KINDS.len() * 2);
+        for q in ["packet8", "packet16"] {
+            assert!(points.iter().any(|p| p.backend == format!("bvh8-sah-{q}")
+                && p.structure == "bvh8-sah"
+                && p.query == q));
+        }
         for p in &points {
             assert_eq!(p.differing, 0, "{p:?}");
             assert!(p.mrays.median > 0.0 && p.rays > 0, "{p:?}");
