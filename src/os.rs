@@ -1,9 +1,10 @@
 //! The operating-system and CPU state raylab sets itself, the only `unsafe`
 //! outside the Embree FFI and the SIMD kernels: asking Linux to back large
 //! arrays with transparent huge pages (FFI to the C library that `std` already
-//! links), letting a closed output pipe end the process quietly
-//! ([`quiet_on_closed_pipe`]), and flushing denormals on render threads
-//! ([`FlushDenormals`]).
+//! links), pinning the build pools' workers to CPUs
+//! ([`pin_to_allowed_cpu`]), letting a closed output pipe end the process
+//! quietly ([`quiet_on_closed_pipe`]), and flushing denormals on render
+//! threads ([`FlushDenormals`]).
 //!
 //! Why: a build writes hundreds of megabytes of fresh memory (primitive
 //! references, nodes, leaf blocks), and with 4 KiB pages every page is a
@@ -54,6 +55,53 @@ fn advise_huge_pages(addr: usize, len: usize) {
 
 #[cfg(not(target_os = "linux"))]
 fn advise_huge_pages(_addr: usize, _len: usize) {}
+
+/// Pins the calling thread to the `index`-th of the CPUs it may run on
+/// (counted modulo their number); returns whether it did. Linux only.
+///
+/// Why: the build pools' workers sleep between builds, and a sleeping thread
+/// woken by another is put on the waker's CPU first; with two workers on two
+/// CPUs, both often ran on one CPU for most of a 10 ms build (Linux
+/// schedstat: each runnable but waiting half the time) while the other CPU
+/// was idle, so a two-thread build took as long as a one-thread build.
+/// Embree's TBB workers spin between tasks and do not meet this.
+#[cfg(target_os = "linux")]
+pub fn pin_to_allowed_cpu(index: usize) -> bool {
+    // glibc's cpu_set_t: 1024 bits.
+    const WORDS: usize = 16;
+    extern "C" {
+        fn sched_getaffinity(pid: std::ffi::c_int, size: usize, mask: *mut u64) -> std::ffi::c_int;
+        fn sched_setaffinity(
+            pid: std::ffi::c_int,
+            size: usize,
+            mask: *const u64,
+        ) -> std::ffi::c_int;
+    }
+    let mut allowed = [0u64; WORDS];
+    // SAFETY: pid 0 is the calling thread; `allowed` is a live, writable
+    // buffer of exactly the size passed, which the call fills and nothing
+    // else reads.
+    if unsafe { sched_getaffinity(0, std::mem::size_of_val(&allowed), allowed.as_mut_ptr()) } != 0 {
+        return false;
+    }
+    let cpus: Vec<usize> = (0..WORDS * 64)
+        .filter(|&c| allowed[c / 64] >> (c % 64) & 1 == 1)
+        .collect();
+    let Some(&cpu) = cpus.get(index % cpus.len().max(1)) else {
+        return false;
+    };
+    let mut mask = [0u64; WORDS];
+    mask[cpu / 64] |= 1 << (cpu % 64);
+    // SAFETY: pid 0 is the calling thread; `mask` is a live buffer of the
+    // size passed, read only; the CPU is one the thread is allowed, so the
+    // call cannot leave it with none.
+    unsafe { sched_setaffinity(0, std::mem::size_of_val(&mask), mask.as_ptr()) == 0 }
+}
+
+#[cfg(not(target_os = "linux"))]
+pub fn pin_to_allowed_cpu(_index: usize) -> bool {
+    false
+}
 
 /// Restores the default action of SIGPIPE (Rust's runtime ignores it), so that
 /// `raylab validate ... | head -1` ends quietly when `head` closes the pipe, as
@@ -132,6 +180,45 @@ impl Drop for FlushDenormals {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The CPUs the calling thread may run on, from /proc.
+    #[cfg(target_os = "linux")]
+    fn allowed_cpus() -> String {
+        let status = std::fs::read_to_string("/proc/thread-self/status").unwrap();
+        status
+            .lines()
+            .find_map(|l| l.strip_prefix("Cpus_allowed_list:"))
+            .unwrap()
+            .trim()
+            .to_string()
+    }
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn pinning_leaves_a_thread_one_of_its_cpus() {
+        let all = allowed_cpus();
+        for index in [0, 1, 7] {
+            let (pinned, cpus) = std::thread::spawn(move || {
+                let pinned = pin_to_allowed_cpu(index);
+                (pinned, allowed_cpus())
+            })
+            .join()
+            .unwrap();
+            assert!(pinned, "index {index}");
+            let cpu: usize = cpus.parse().expect("a single CPU");
+            assert!(
+                all.split(',').any(|range| {
+                    let mut ends = range.split('-').map(|x| x.parse::<usize>().unwrap());
+                    let lo = ends.next().unwrap();
+                    let hi = ends.next().unwrap_or(lo);
+                    (lo..=hi).contains(&cpu)
+                }),
+                "CPU {cpu} not among {all}"
+            );
+        }
+        // The calling thread is not affected.
+        assert_eq!(allowed_cpus(), all);
+    }
 
     #[test]
     fn huge_vectors_are_ordinary_vectors() {

@@ -21,6 +21,11 @@ pub(crate) fn in_pool<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> 
         .get(threads, || {
             rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
+                // One CPU each, so that waking workers are not stacked on
+                // one CPU (see `os::pin_to_allowed_cpu`).
+                .start_handler(|worker| {
+                    crate::os::pin_to_allowed_cpu(worker);
+                })
                 .build()
                 .map(std::sync::Arc::new)
         })
