@@ -208,6 +208,86 @@ impl<K: NodeKernel<8>, T: BlockTest, const R: usize> PacketKernel<R> for PerRay<
     }
 }
 
+/// A packet kernel that tests its `R` rays against one triangle of a block
+/// at a time, all rays in SIMD lanes ([`Avx2Packet`], [`Avx512Packet`]); its
+/// leaf tests are [`leaf_closest_by_lanes`] and [`leaf_any_by_lanes`].
+#[cfg(target_arch = "x86_64")]
+trait TriangleLanes<const R: usize>: Copy {
+    type Rays;
+    /// Moller-Trumbore of the rays against lane `i` of `block`: the rays hit
+    /// within `(tmin, tmax[r])`, and each ray's t, u and v.
+    #[allow(clippy::type_complexity)]
+    fn triangle(
+        self,
+        block: &Tri4,
+        i: usize,
+        p: &Self::Rays,
+        tmax: &[f32; R],
+    ) -> (u32, [f32; R], [f32; R], [f32; R]);
+}
+
+/// [`PacketKernel::leaf_closest`] one triangle at a time.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn leaf_closest_by_lanes<L: TriangleLanes<R>, const R: usize>(
+    lanes: L,
+    block: &Tri4,
+    in_leaf: u32,
+    p: &L::Rays,
+    active: u32,
+    tmax: &[f32; R],
+    hits: &mut [Option<Hit>],
+) -> u32 {
+    let mut changed = 0;
+    let mut tmax = *tmax;
+    for i in bits(in_leaf) {
+        if block.ids[i] == EMPTY_ID {
+            continue;
+        }
+        let (mut found, t, u, v) = lanes.triangle(block, i, p, &tmax);
+        found &= active;
+        for r in bits(found) {
+            let hit = Hit {
+                t: t[r],
+                u: u[r],
+                v: v[r],
+                tri: block.ids[i],
+            };
+            if hits[r].is_none_or(|b| hit.is_closer_than(&b)) {
+                hits[r] = Some(hit);
+                tmax[r] = hit.t.next_up();
+                changed |= 1 << r;
+            }
+        }
+    }
+    changed
+}
+
+/// [`PacketKernel::leaf_any`] one triangle at a time, each ray within
+/// `(tmin, tmax[r])`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn leaf_any_by_lanes<L: TriangleLanes<R>, const R: usize>(
+    lanes: L,
+    block: &Tri4,
+    in_leaf: u32,
+    p: &L::Rays,
+    tmax: &[f32; R],
+    active: u32,
+) -> u32 {
+    let mut hit = 0;
+    for i in bits(in_leaf) {
+        if block.ids[i] == EMPTY_ID {
+            continue;
+        }
+        hit |= lanes.triangle(block, i, p, tmax).0 & active & !hit;
+        if hit == active {
+            break;
+        }
+    }
+    hit
+}
+
 /// Eight rays in the lanes of AVX registers, Moller-Trumbore at the leaves.
 #[derive(Clone, Copy, Debug)]
 pub struct Avx2Packet(pub Avx2);
@@ -412,54 +492,23 @@ impl PacketKernel<PACKET> for Avx2Packet {
         tmax: &[f32; 8],
         hits: &mut [Option<Hit>],
     ) -> u32 {
-        let mut changed = 0;
-        let mut tmax = *tmax;
-        for i in bits(in_leaf) {
-            if block.ids[i] == EMPTY_ID {
-                continue;
-            }
-            let (mut found, t, u, v) = self.triangle(block, i, p, &tmax);
-            found &= active;
-            for r in bits(found) {
-                let hit = Hit {
-                    t: t[r],
-                    u: u[r],
-                    v: v[r],
-                    tri: block.ids[i],
-                };
-                if hits[r].is_none_or(|b| hit.is_closer_than(&b)) {
-                    hits[r] = Some(hit);
-                    tmax[r] = hit.t.next_up();
-                    changed |= 1 << r;
-                }
-            }
-        }
-        changed
+        leaf_closest_by_lanes(self, block, in_leaf, p, active, tmax, hits)
     }
 
     #[inline(always)]
     fn leaf_any(self, block: &Tri4, in_leaf: u32, p: &RaysSoa, active: u32) -> u32 {
-        let mut hit = 0;
-        for i in bits(in_leaf) {
-            if block.ids[i] == EMPTY_ID {
-                continue;
-            }
-            hit |= self.triangle(block, i, p, &p.tmax).0 & active & !hit;
-            if hit == active {
-                break;
-            }
-        }
-        hit
+        leaf_any_by_lanes(self, block, in_leaf, p, &p.tmax, active)
     }
 }
 
 #[cfg(target_arch = "x86_64")]
-impl Avx2Packet {
+impl TriangleLanes<PACKET> for Avx2Packet {
+    type Rays = RaysSoa;
+
     /// Moller-Trumbore of the eight rays against lane `i` of `block`, the
     /// operations of [`super::leaf::intersect4`] in the same order: the rays
     /// hit within `(tmin, tmax[r])`, and each lane's t, u and v.
     #[inline(always)]
-    #[allow(clippy::type_complexity)]
     fn triangle(
         self,
         block: &Tri4,
@@ -760,53 +809,22 @@ impl PacketKernel<PACKET16> for Avx512Packet {
         tmax: &[f32; PACKET16],
         hits: &mut [Option<Hit>],
     ) -> u32 {
-        let mut changed = 0;
-        let mut tmax = *tmax;
-        for i in bits(in_leaf) {
-            if block.ids[i] == EMPTY_ID {
-                continue;
-            }
-            let (mut found, t, u, v) = self.triangle(block, i, p, &tmax);
-            found &= active;
-            for r in bits(found) {
-                let hit = Hit {
-                    t: t[r],
-                    u: u[r],
-                    v: v[r],
-                    tri: block.ids[i],
-                };
-                if hits[r].is_none_or(|b| hit.is_closer_than(&b)) {
-                    hits[r] = Some(hit);
-                    tmax[r] = hit.t.next_up();
-                    changed |= 1 << r;
-                }
-            }
-        }
-        changed
+        leaf_closest_by_lanes(self, block, in_leaf, p, active, tmax, hits)
     }
 
     #[inline(always)]
     fn leaf_any(self, block: &Tri4, in_leaf: u32, p: &RaysSoa16, active: u32) -> u32 {
-        let mut hit = 0;
-        for i in bits(in_leaf) {
-            if block.ids[i] == EMPTY_ID {
-                continue;
-            }
-            hit |= self.triangle(block, i, p, &p.tmax).0 & active & !hit;
-            if hit == active {
-                break;
-            }
-        }
-        hit
+        leaf_any_by_lanes(self, block, in_leaf, p, &p.tmax, active)
     }
 }
 
 #[cfg(target_arch = "x86_64")]
-impl Avx512Packet {
-    /// [`Avx2Packet::triangle`] for sixteen rays: the rays hit within
+impl TriangleLanes<PACKET16> for Avx512Packet {
+    type Rays = RaysSoa16;
+
+    /// [`Avx2Packet`]'s triangle test for sixteen rays: the rays hit within
     /// `(tmin, tmax[r])`, and each lane's t, u and v.
     #[inline(always)]
-    #[allow(clippy::type_complexity)]
     fn triangle(
         self,
         block: &Tri4,
