@@ -354,93 +354,113 @@ impl WideBvh<8> {
     }
 }
 
-/// The 16-ray packet queries compiled with AVX-512F (and AVX2) enabled, as
-/// [`Avx2`]'s below.
-impl Avx512 {
-    #[inline(always)]
-    pub fn closest_packet<T: BlockTest, const S: usize>(
-        self,
-        bvh: &WideBvh<8>,
-        rays: &[Ray],
-        hits: &mut [Option<Hit>],
-    ) {
-        #[cfg(target_arch = "x86_64")]
-        {
-            // SAFETY: `self` proves the CPU has AVX-512F, AVX2, BMI1 and POPCNT.
-            unsafe { closest_packet_avx512::<T, S>(self, bvh, rays, hits) }
+/// The packet queries of one instruction set: `$isa`'s `closest_packet` and
+/// `any_packet` call functions compiled with `$features` enabled, into which
+/// the generic packet traversal and the `$packet` kernels (`R` = `$rays`
+/// rays) are inlined; with the watertight test, each ray runs the AVX2
+/// single-ray kernels (`$single` of the proof) inside the same traversal.
+macro_rules! packet_entries {
+    ($isa:ident, $features:literal, $closest:ident, $any:ident, $packet:ident, $rays:ident, $single:expr) => {
+        impl $isa {
+            #[inline(always)]
+            pub fn closest_packet<T: BlockTest, const S: usize>(
+                self,
+                bvh: &WideBvh<8>,
+                rays: &[Ray],
+                hits: &mut [Option<Hit>],
+            ) {
+                #[cfg(target_arch = "x86_64")]
+                {
+                    // SAFETY: `self` is made only by its `detect`, which
+                    // checked that the CPU has every feature in `$features`.
+                    unsafe { $closest::<T, S>(self, bvh, rays, hits) }
+                }
+                #[cfg(not(target_arch = "x86_64"))]
+                bvh.closest_packet::<Portable, T, _, $rays, S>(
+                    Portable,
+                    PerRay::<_, T>::new(Portable),
+                    rays,
+                    hits,
+                )
+            }
+
+            #[inline(always)]
+            pub fn any_packet<T: BlockTest, const S: usize>(
+                self,
+                bvh: &WideBvh<8>,
+                rays: &[Ray],
+                occluded: &mut [bool],
+            ) {
+                #[cfg(target_arch = "x86_64")]
+                {
+                    // SAFETY: as in `closest_packet`.
+                    unsafe { $any::<T, S>(self, bvh, rays, occluded) }
+                }
+                #[cfg(not(target_arch = "x86_64"))]
+                bvh.any_packet::<Portable, T, _, $rays, S>(
+                    Portable,
+                    PerRay::<_, T>::new(Portable),
+                    rays,
+                    occluded,
+                )
+            }
         }
-        #[cfg(not(target_arch = "x86_64"))]
-        bvh.closest_packet::<Portable, T, _, PACKET16, S>(
-            Portable,
-            PerRay::<_, T>::new(Portable),
-            rays,
-            hits,
-        )
-    }
 
-    #[inline(always)]
-    pub fn any_packet<T: BlockTest, const S: usize>(
-        self,
-        bvh: &WideBvh<8>,
-        rays: &[Ray],
-        occluded: &mut [bool],
-    ) {
         #[cfg(target_arch = "x86_64")]
-        {
-            // SAFETY: as in `closest_packet`.
-            unsafe { any_packet_avx512::<T, S>(self, bvh, rays, occluded) }
+        #[target_feature(enable = $features)]
+        fn $closest<T: BlockTest, const S: usize>(
+            isa: $isa,
+            bvh: &WideBvh<8>,
+            rays: &[Ray],
+            hits: &mut [Option<Hit>],
+        ) {
+            let single: Avx2 = $single(isa);
+            if T::IS_MOLLER_TRUMBORE {
+                bvh.closest_packet::<Avx2, T, _, $rays, S>(single, $packet(isa), rays, hits)
+            } else {
+                let per_ray = PerRay::<_, T>::new(single);
+                bvh.closest_packet::<Avx2, T, _, $rays, S>(single, per_ray, rays, hits)
+            }
         }
-        #[cfg(not(target_arch = "x86_64"))]
-        bvh.any_packet::<Portable, T, _, PACKET16, S>(
-            Portable,
-            PerRay::<_, T>::new(Portable),
-            rays,
-            occluded,
-        )
-    }
+
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = $features)]
+        fn $any<T: BlockTest, const S: usize>(
+            isa: $isa,
+            bvh: &WideBvh<8>,
+            rays: &[Ray],
+            occluded: &mut [bool],
+        ) {
+            let single: Avx2 = $single(isa);
+            if T::IS_MOLLER_TRUMBORE {
+                bvh.any_packet::<Avx2, T, _, $rays, S>(single, $packet(isa), rays, occluded)
+            } else {
+                let per_ray = PerRay::<_, T>::new(single);
+                bvh.any_packet::<Avx2, T, _, $rays, S>(single, per_ray, rays, occluded)
+            }
+        }
+    };
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx2,bmi1,popcnt")]
-fn closest_packet_avx512<T: BlockTest, const S: usize>(
-    kernel: Avx512,
-    bvh: &WideBvh<8>,
-    rays: &[Ray],
-    hits: &mut [Option<Hit>],
-) {
-    let single = kernel.avx2;
-    if T::IS_MOLLER_TRUMBORE {
-        bvh.closest_packet::<Avx2, T, _, PACKET16, S>(single, Avx512Packet(kernel), rays, hits)
-    } else {
-        bvh.closest_packet::<Avx2, T, _, PACKET16, S>(
-            single,
-            PerRay::<_, T>::new(single),
-            rays,
-            hits,
-        )
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx2,bmi1,popcnt")]
-fn any_packet_avx512<T: BlockTest, const S: usize>(
-    kernel: Avx512,
-    bvh: &WideBvh<8>,
-    rays: &[Ray],
-    occluded: &mut [bool],
-) {
-    let single = kernel.avx2;
-    if T::IS_MOLLER_TRUMBORE {
-        bvh.any_packet::<Avx2, T, _, PACKET16, S>(single, Avx512Packet(kernel), rays, occluded)
-    } else {
-        bvh.any_packet::<Avx2, T, _, PACKET16, S>(
-            single,
-            PerRay::<_, T>::new(single),
-            rays,
-            occluded,
-        )
-    }
-}
+// 8 rays in AVX2 lanes; 16 rays in AVX-512 lanes.
+packet_entries!(
+    Avx2,
+    "avx2,bmi1,popcnt",
+    closest_packet_avx2,
+    any_packet_avx2,
+    Avx2Packet,
+    PACKET,
+    |k: Avx2| k
+);
+packet_entries!(
+    Avx512,
+    "avx512f,avx2,bmi1,popcnt",
+    closest_packet_avx512,
+    any_packet_avx512,
+    Avx512Packet,
+    PACKET16,
+    |k: Avx512| k.avx2
+);
 
 /// The wide trees' queries compiled with AVX2 enabled: the generic traversal
 /// is `#[inline(always)]`, so it is compiled into these functions and every
@@ -477,80 +497,6 @@ impl Avx2 {
         }
         #[cfg(not(target_arch = "x86_64"))]
         bvh.any_with::<Portable, T, C, S>(Portable, ray, counter)
-    }
-}
-
-impl Avx2 {
-    #[inline(always)]
-    pub fn closest_packet<T: BlockTest, const S: usize>(
-        self,
-        bvh: &WideBvh<8>,
-        rays: &[Ray],
-        hits: &mut [Option<Hit>],
-    ) {
-        #[cfg(target_arch = "x86_64")]
-        {
-            // SAFETY: as in `closest`.
-            unsafe { closest_packet_avx2::<T, S>(self, bvh, rays, hits) }
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        bvh.closest_packet::<Portable, T, _, PACKET, S>(
-            Portable,
-            PerRay::<_, T>::new(Portable),
-            rays,
-            hits,
-        )
-    }
-
-    #[inline(always)]
-    pub fn any_packet<T: BlockTest, const S: usize>(
-        self,
-        bvh: &WideBvh<8>,
-        rays: &[Ray],
-        occluded: &mut [bool],
-    ) {
-        #[cfg(target_arch = "x86_64")]
-        {
-            // SAFETY: as in `closest`.
-            unsafe { any_packet_avx2::<T, S>(self, bvh, rays, occluded) }
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        bvh.any_packet::<Portable, T, _, PACKET, S>(
-            Portable,
-            PerRay::<_, T>::new(Portable),
-            rays,
-            occluded,
-        )
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,bmi1,popcnt")]
-fn closest_packet_avx2<T: BlockTest, const S: usize>(
-    kernel: Avx2,
-    bvh: &WideBvh<8>,
-    rays: &[Ray],
-    hits: &mut [Option<Hit>],
-) {
-    if T::IS_MOLLER_TRUMBORE {
-        bvh.closest_packet::<Avx2, T, _, PACKET, S>(kernel, Avx2Packet(kernel), rays, hits)
-    } else {
-        bvh.closest_packet::<Avx2, T, _, PACKET, S>(kernel, PerRay::<_, T>::new(kernel), rays, hits)
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,bmi1,popcnt")]
-fn any_packet_avx2<T: BlockTest, const S: usize>(
-    kernel: Avx2,
-    bvh: &WideBvh<8>,
-    rays: &[Ray],
-    occluded: &mut [bool],
-) {
-    if T::IS_MOLLER_TRUMBORE {
-        bvh.any_packet::<Avx2, T, _, PACKET, S>(kernel, Avx2Packet(kernel), rays, occluded)
-    } else {
-        bvh.any_packet::<Avx2, T, _, PACKET, S>(kernel, PerRay::<_, T>::new(kernel), rays, occluded)
     }
 }
 
