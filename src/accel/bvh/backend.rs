@@ -2,11 +2,13 @@
 //! its leaves use.
 
 use super::builder::build;
+use super::leaf::BlockTest;
 use super::params::BuildParams;
 use super::prim::Triangles;
 use super::simd_packet::{PACKET, PACKET16};
 use super::traverse::Traversal;
 use super::tree::Tree;
+use super::wide::Bvh8;
 use crate::accel::{Backend, Query};
 use crate::error::Error;
 use crate::geometry::{Hit, Intersector, Ray};
@@ -77,24 +79,10 @@ impl Backend for BvhBackend {
 
     fn intersect_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
         match (&self.tree, self.query) {
-            (Tree::Wide8(t), Query::Packet(PACKET16)) => {
-                for (rays, hits) in rays.chunks(PACKET16).zip(hits.chunks_mut(PACKET16)) {
-                    match self.intersector {
-                        Intersector::Mt => t.closest_packet16_with::<MollerTrumbore>(rays, hits),
-                        Intersector::Watertight => {
-                            t.closest_packet16_with::<Watertight>(rays, hits)
-                        }
-                    }
-                }
-            }
-            (Tree::Wide8(t), Query::Packet(_)) => {
-                for (rays, hits) in rays.chunks(PACKET).zip(hits.chunks_mut(PACKET)) {
-                    match self.intersector {
-                        Intersector::Mt => t.closest_packet_with::<MollerTrumbore>(rays, hits),
-                        Intersector::Watertight => t.closest_packet_with::<Watertight>(rays, hits),
-                    }
-                }
-            }
+            (Tree::Wide8(t), Query::Packet(n)) => match self.intersector {
+                Intersector::Mt => closest_in_packets::<MollerTrumbore>(t, n, rays, hits),
+                Intersector::Watertight => closest_in_packets::<Watertight>(t, n, rays, hits),
+            },
             _ => {
                 for (ray, hit) in rays.iter().zip(hits) {
                     *hit = self.intersect(ray);
@@ -105,27 +93,43 @@ impl Backend for BvhBackend {
 
     fn occluded_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
         match (&self.tree, self.query) {
-            (Tree::Wide8(t), Query::Packet(PACKET16)) => {
-                for (rays, out) in rays.chunks(PACKET16).zip(occluded.chunks_mut(PACKET16)) {
-                    match self.intersector {
-                        Intersector::Mt => t.any_packet16_with::<MollerTrumbore>(rays, out),
-                        Intersector::Watertight => t.any_packet16_with::<Watertight>(rays, out),
-                    }
-                }
-            }
-            (Tree::Wide8(t), Query::Packet(_)) => {
-                for (rays, out) in rays.chunks(PACKET).zip(occluded.chunks_mut(PACKET)) {
-                    match self.intersector {
-                        Intersector::Mt => t.any_packet_with::<MollerTrumbore>(rays, out),
-                        Intersector::Watertight => t.any_packet_with::<Watertight>(rays, out),
-                    }
-                }
-            }
+            (Tree::Wide8(t), Query::Packet(n)) => match self.intersector {
+                Intersector::Mt => any_in_packets::<MollerTrumbore>(t, n, rays, occluded),
+                Intersector::Watertight => any_in_packets::<Watertight>(t, n, rays, occluded),
+            },
             _ => {
                 for (ray, o) in rays.iter().zip(occluded) {
                     *o = self.occluded(ray);
                 }
             }
+        }
+    }
+}
+
+/// Closest hits of a stream in packets of `n` rays ([`PACKET`] or
+/// [`PACKET16`], as `with_query` admits) with triangle test `T`. Each loop
+/// chunks by a constant, so the packet functions see at most that many rays.
+fn closest_in_packets<T: BlockTest>(t: &Bvh8, n: usize, rays: &[Ray], hits: &mut [Option<Hit>]) {
+    if n == PACKET16 {
+        for (rays, hits) in rays.chunks(PACKET16).zip(hits.chunks_mut(PACKET16)) {
+            t.closest_packet16_with::<T>(rays, hits);
+        }
+    } else {
+        for (rays, hits) in rays.chunks(PACKET).zip(hits.chunks_mut(PACKET)) {
+            t.closest_packet_with::<T>(rays, hits);
+        }
+    }
+}
+
+/// Occlusion of a stream in packets of `n` rays, as [`closest_in_packets`].
+fn any_in_packets<T: BlockTest>(t: &Bvh8, n: usize, rays: &[Ray], occluded: &mut [bool]) {
+    if n == PACKET16 {
+        for (rays, out) in rays.chunks(PACKET16).zip(occluded.chunks_mut(PACKET16)) {
+            t.any_packet16_with::<T>(rays, out);
+        }
+    } else {
+        for (rays, out) in rays.chunks(PACKET).zip(occluded.chunks_mut(PACKET)) {
+            t.any_packet_with::<T>(rays, out);
         }
     }
 }

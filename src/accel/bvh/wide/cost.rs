@@ -93,9 +93,7 @@ impl TraversalCosts {
             kernel: kernel.name(),
         }
     }
-}
 
-impl TraversalCosts {
     /// One line for a report: what the costs are and their values.
     pub fn describe(&self) -> String {
         format!(
