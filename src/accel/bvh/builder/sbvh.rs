@@ -15,11 +15,15 @@
 //! tree. References may grow by at most [`SBVH_GROWTH`] of the triangle
 //! count: each node hands what is left of its allowance to its children in
 //! proportion to their sizes, so the tree is the same for any thread count.
-//! Nodes of at most [`SBVH_MIN_SPATIAL`] references get object splits only.
+//! Nodes of at most [`SBVH_MIN_SPATIAL`] references get object splits only,
+//! and a subtree stops searching once a search in it lost clearly (its best
+//! plane costing more than `1 + `[`SBVH_GIVE_UP`] times the object split).
 //!
 //! A reference's box always holds the part of its triangle it stands for;
 //! clipped boxes are computed in f32, and the node boxes' margin
 //! ([`padded`]) covers their rounding, as it covers Embree's spatial splits.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use glam::{BVec4A, Vec3, Vec4};
 
@@ -27,8 +31,8 @@ use super::sah::BinnedSah;
 use super::topdown::{prim_refs, try_split};
 use crate::accel::bvh::node::{padded, Skeleton, UNUSED};
 use crate::accel::bvh::params::{
-    C_INTERSECT, C_TRAVERSAL, MAX_SPLIT_DEPTH, PARALLEL_CUTOFF, SBVH_ALPHA, SBVH_BINS, SBVH_GROWTH,
-    SBVH_MIN_SPATIAL, SBVH_NODE_OVERLAP, SBVH_PARALLEL_BINNING,
+    C_INTERSECT, C_TRAVERSAL, MAX_SPLIT_DEPTH, PARALLEL_CUTOFF, SBVH_ALPHA, SBVH_BINS,
+    SBVH_GIVE_UP, SBVH_GROWTH, SBVH_MIN_SPATIAL, SBVH_NODE_OVERLAP, SBVH_PARALLEL_BINNING,
 };
 use crate::accel::bvh::prim::{Box4, NodeInfo, PrimRef, Triangles};
 use crate::accel::bvh::Node;
@@ -43,9 +47,22 @@ pub(crate) fn build<T: Triangles + ?Sized>(
     block: usize,
     parallel: bool,
 ) -> Skeleton {
+    build_giving_up(triangles, max_leaf, block, parallel, SBVH_GIVE_UP).0
+}
+
+/// [`build`] with a subtree giving up its spatial search after a plane
+/// that cost more than `1 + give_up` times the object split (infinite:
+/// never); also the number of spatial searches made.
+fn build_giving_up<T: Triangles + ?Sized>(
+    triangles: &T,
+    max_leaf: usize,
+    block: usize,
+    parallel: bool,
+    give_up: f32,
+) -> (Skeleton, usize) {
     let refs = prim_refs(triangles, parallel);
     if refs.is_empty() {
-        return Skeleton::default();
+        return (Skeleton::default(), 0);
     }
     let info = NodeInfo::of(&refs, parallel);
     let allowance = (refs.len() as f64 * SBVH_GROWTH as f64) as usize;
@@ -55,12 +72,14 @@ pub(crate) fn build<T: Triangles + ?Sized>(
         max_leaf: max_leaf.max(1),
         block: block.max(1) as u32,
         root_area: info.bounds.area().max(f32::MIN_POSITIVE),
+        give_up,
+        searches: AtomicUsize::new(0),
         parallel,
     };
-    let root = builder.node(refs, info, 0, allowance);
+    let root = builder.node(refs, info, 0, allowance, true);
     let mut skeleton = Skeleton::default();
     flatten(root, &mut skeleton);
-    skeleton
+    (skeleton, builder.searches.into_inner())
 }
 
 /// A built subtree, flattened once at the end.
@@ -78,6 +97,10 @@ struct Sbvh<'a, T: ?Sized> {
     max_leaf: usize,
     block: u32,
     root_area: f32,
+    /// [`SBVH_GIVE_UP`], or infinite in tests.
+    give_up: f32,
+    /// Spatial searches made (a count for the tests).
+    searches: AtomicUsize,
     parallel: bool,
 }
 
@@ -97,14 +120,23 @@ impl<T: Triangles + ?Sized> Sbvh<'_, T> {
     }
 
     /// The subtree of `refs` (whose info is `info`), allowed `allowance`
-    /// more references than it has.
-    fn node(&self, mut refs: Vec<PrimRef>, info: NodeInfo, depth: u32, allowance: usize) -> Sub {
+    /// more references than it has; spatial splits are searched for only
+    /// while `search` holds (see [`SBVH_GIVE_UP`]).
+    fn node(
+        &self,
+        mut refs: Vec<PrimRef>,
+        info: NodeInfo,
+        depth: u32,
+        allowance: usize,
+        search: bool,
+    ) -> Sub {
         let n = refs.len();
-        let spatial = if allowance > 0 && n > SBVH_MIN_SPATIAL && depth < MAX_SPLIT_DEPTH {
-            self.spatial_split(&refs, &info, allowance)
-        } else {
-            None
-        };
+        let (spatial, search) =
+            if search && allowance > 0 && n > SBVH_MIN_SPATIAL && depth < MAX_SPLIT_DEPTH {
+                self.spatial_split(&refs, &info, allowance)
+            } else {
+                (None, search)
+            };
         let (left, right) = match spatial {
             Some(sides) => sides,
             None => match try_split(&self.sah, &mut refs, &info, depth, self.parallel) {
@@ -124,8 +156,8 @@ impl<T: Triangles + ?Sized> Sbvh<'_, T> {
         let rest = allowance - (total - n);
         let left_share = (rest as u64 * left.0.len() as u64 / total as u64) as usize;
         let right_share = rest - left_share;
-        let l = || self.node(left.0, left.1, depth + 1, left_share);
-        let r = || self.node(right.0, right.1, depth + 1, right_share);
+        let l = || self.node(left.0, left.1, depth + 1, left_share, search);
+        let r = || self.node(right.0, right.1, depth + 1, right_share, search);
         let kids = if self.parallel && total >= PARALLEL_CUTOFF {
             rayon::join(l, r)
         } else {
@@ -139,13 +171,15 @@ impl<T: Triangles + ?Sized> Sbvh<'_, T> {
 
     /// The spatial split of the node, made, when it is cheaper than the best
     /// object split and than a leaf, fits the allowance and leaves both sides
-    /// non-empty; `None` otherwise.
+    /// non-empty; `None` otherwise. Also whether the node's subtree should
+    /// search further: not after a search whose best plane cost more than
+    /// `1 + `[`SBVH_GIVE_UP`] times the object split.
     fn spatial_split(
         &self,
         refs: &[PrimRef],
         info: &NodeInfo,
         allowance: usize,
-    ) -> Option<(Side, Side)> {
+    ) -> (Option<(Side, Side)>, bool) {
         let (object, overlap) = match object_split(refs, info, |n| self.tests(n)) {
             Some((weighted, left, right)) => (weighted, intersection(left, right).area()),
             None => (f32::INFINITY, info.bounds.area()),
@@ -153,23 +187,29 @@ impl<T: Triangles + ?Sized> Sbvh<'_, T> {
         if overlap <= SBVH_ALPHA * self.root_area
             || overlap < SBVH_NODE_OVERLAP * info.bounds.area()
         {
-            return None;
+            return (None, true);
         }
-        let plane = self.best_plane(refs, info, allowance)?;
+        self.searches.fetch_add(1, Ordering::Relaxed);
+        let Some(plane) = self.best_plane(refs, info, allowance) else {
+            return (None, true);
+        };
+        if plane.weighted > (1.0 + self.give_up) * object {
+            return (None, false);
+        }
         let n = refs.len();
         let area = info.bounds.area().max(f32::MIN_POSITIVE);
         let cost = C_TRAVERSAL + C_INTERSECT * plane.weighted / area;
         let leaf_is_cheaper = n <= self.max_leaf && cost >= self.tests(n as u32) * C_INTERSECT;
         if plane.weighted >= object || leaf_is_cheaper {
-            return None;
+            return (None, true);
         }
         let (left, right) = self.apply(refs, info, plane);
         if left.is_empty() || right.is_empty() || left.len() + right.len() - n > allowance {
-            return None;
+            return (None, true);
         }
         let left_info = NodeInfo::of(&left, self.parallel);
         let right_info = NodeInfo::of(&right, self.parallel);
-        Some(((left, left_info), (right, right_info)))
+        (Some(((left, left_info), (right, right_info))), true)
     }
 
     /// The cheapest of the [`SBVH_BINS`] - 1 planes on each axis of the
@@ -689,6 +729,42 @@ mod tests {
                     assert!(inside, "triangle {i} point {p} in no leaf");
                 }
             }
+        }
+    }
+
+    #[test]
+    fn subtrees_give_up_searching_where_spatial_splits_lose() {
+        use crate::accel::bvh::node::Bvh;
+        use crate::accel::bvh::quality::TreeStats;
+        // A smooth closed mesh, where object splits barely overlap, and the
+        // grass, where spatial splits pay at every level.
+        for (scene, fewer) in [("mesh:20000", 0.25), ("grass:5000", 0.85)] {
+            let tris = crate::scene::builtin::builtin(scene)
+                .unwrap()
+                .triangle_vertices();
+            let cost = |s: Skeleton| {
+                let bvh: Bvh = s.gather(&tris, false);
+                TreeStats::with_block(&bvh, tris.len(), 2).sah_cost
+            };
+            let (pruned, pruned_searches) = build_giving_up(&tris, 4, 2, false, SBVH_GIVE_UP);
+            let (full, full_searches) = build_giving_up(&tris, 4, 2, false, f32::INFINITY);
+            assert_eq!(
+                pruned,
+                build(&tris, 4, 2, true),
+                "{scene}: parallel build differs"
+            );
+            assert!(
+                pruned.tri_ids.len() > tris.len(),
+                "{scene}: no spatial split made"
+            );
+            assert!(
+                (pruned_searches as f32) < full_searches as f32 * fewer,
+                "{scene}: {pruned_searches} searches against {full_searches}"
+            );
+            // Measured: 5 against 1560 searches on the mesh, 492 against 657
+            // on the grass; SAH costs within 0.2%.
+            let (pruned, full) = (cost(pruned), cost(full));
+            assert!(pruned < full * 1.01, "{scene}: SAH {pruned} against {full}");
         }
     }
 
