@@ -35,6 +35,7 @@ use crate::accel::bvh::params::{
     SBVH_GIVE_UP, SBVH_GROWTH, SBVH_MIN_SPATIAL, SBVH_NODE_OVERLAP, SBVH_PARALLEL_BINNING,
 };
 use crate::accel::bvh::prim::{Box4, NodeInfo, PrimRef, Triangles};
+use crate::accel::bvh::simd::bin_indices;
 use crate::accel::bvh::Node;
 use crate::geometry::Aabb;
 
@@ -266,14 +267,21 @@ impl<T: Triangles + ?Sized> Sbvh<'_, T> {
     /// straddling reference's triangle is read once, not once per axis.
     fn spatial_bins(&self, refs: &[PrimRef], grids: &[Grid; 3]) -> SpatialBins {
         let mut bins = SpatialBins::empty();
+        // The three grids' origins and scales as lanes: each reference's
+        // first and last bins on all axes in two vector conversions, the
+        // arithmetic of [`Grid::bin`] lane by lane.
+        let origin = Vec4::new(grids[0].lo, grids[1].lo, grids[2].lo, 0.0);
+        let scale = Vec4::new(grids[0].scale, grids[1].scale, grids[2].scale, 0.0);
+        let bin = |x: Vec4| bin_indices(((x - origin) * scale).max(Vec4::ZERO), SBVH_BINS - 1);
         for r in refs {
             let whole = Box4 { lo: r.lo, hi: r.hi };
+            let (firsts, lasts) = (bin(r.lo), bin(r.hi));
             let mut tri = None;
             for (axis, grid) in grids.iter().enumerate() {
                 if grid.scale <= 0.0 {
                     continue;
                 }
-                let (first, last) = (grid.bin(r.lo[axis]), grid.bin(r.hi[axis]));
+                let (first, last) = (firsts[axis] as usize, lasts[axis] as usize);
                 bins.enter[axis][first] += 1;
                 bins.exit[axis][last] += 1;
                 if first == last {
