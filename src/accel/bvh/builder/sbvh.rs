@@ -218,7 +218,7 @@ impl<T: Triangles + ?Sized> Sbvh<'_, T> {
     fn best_plane(&self, refs: &[PrimRef], info: &NodeInfo, allowance: usize) -> Option<Plane> {
         const B: usize = SBVH_BINS;
         let n = refs.len();
-        let grids = [0, 1, 2].map(|axis| Grid::of(info, axis));
+        let grids = Grids::of(info);
         let bins = if self.parallel && n >= SBVH_PARALLEL_BINNING {
             use rayon::prelude::*;
             refs.par_chunks(SBVH_PARALLEL_BINNING / 2)
@@ -228,7 +228,7 @@ impl<T: Triangles + ?Sized> Sbvh<'_, T> {
             self.spatial_bins(refs, &grids)
         };
         let mut best: Option<Plane> = None;
-        for (axis, grid) in grids.iter().enumerate() {
+        for (axis, grid) in grids.axes.iter().enumerate() {
             if grid.scale <= 0.0 {
                 continue;
             }
@@ -265,19 +265,13 @@ impl<T: Triangles + ?Sized> Sbvh<'_, T> {
 
     /// `refs` binned on the three axes' `grids` in one pass, so that each
     /// straddling reference's triangle is read once, not once per axis.
-    fn spatial_bins(&self, refs: &[PrimRef], grids: &[Grid; 3]) -> SpatialBins {
+    fn spatial_bins(&self, refs: &[PrimRef], grids: &Grids) -> SpatialBins {
         let mut bins = SpatialBins::empty();
-        // The three grids' origins and scales as lanes: each reference's
-        // first and last bins on all axes in two vector conversions, the
-        // arithmetic of [`Grid::bin`] lane by lane.
-        let origin = Vec4::new(grids[0].lo, grids[1].lo, grids[2].lo, 0.0);
-        let scale = Vec4::new(grids[0].scale, grids[1].scale, grids[2].scale, 0.0);
-        let bin = |x: Vec4| bin_indices(((x - origin) * scale).max(Vec4::ZERO), SBVH_BINS - 1);
         for r in refs {
             let whole = Box4 { lo: r.lo, hi: r.hi };
-            let (firsts, lasts) = (bin(r.lo), bin(r.hi));
+            let (firsts, lasts) = (grids.bins(r.lo), grids.bins(r.hi));
             let mut tri = None;
-            for (axis, grid) in grids.iter().enumerate() {
+            for (axis, grid) in grids.axes.iter().enumerate() {
                 if grid.scale <= 0.0 {
                     continue;
                 }
@@ -312,14 +306,14 @@ impl<T: Triangles + ?Sized> Sbvh<'_, T> {
         plane: Plane,
     ) -> (Vec<PrimRef>, Vec<PrimRef>) {
         let axis = plane.axis;
-        let grid = Grid::of(info, axis);
-        let at = grid.plane(plane.bin);
+        let grids = Grids::of(info);
+        let at = grids.axes[axis].plane(plane.bin);
         let mut left = Vec::with_capacity(refs.len());
         let mut right = Vec::with_capacity(refs.len());
         for r in refs {
-            if grid.bin(r.hi[axis]) < plane.bin {
+            if (grids.bins(r.hi)[axis] as usize) < plane.bin {
                 left.push(*r);
-            } else if grid.bin(r.lo[axis]) >= plane.bin {
+            } else if grids.bins(r.lo)[axis] as usize >= plane.bin {
                 right.push(*r);
             } else {
                 let whole = Box4 { lo: r.lo, hi: r.hi };
@@ -375,6 +369,37 @@ impl SpatialBins {
     }
 }
 
+/// The bins of the spatial search on the three axes of a node's box, with
+/// their origins and scales as lanes: a point's bins on all axes take two
+/// vector operations and one conversion ([`Grids::bins`]), the one mapping
+/// of coordinates to bins for the search and for the split it picks.
+struct Grids {
+    axes: [Grid; 3],
+    origin: Vec4,
+    scale: Vec4,
+}
+
+impl Grids {
+    fn of(info: &NodeInfo) -> Grids {
+        let axes = [0, 1, 2].map(|axis| Grid::of(info, axis));
+        Grids {
+            origin: Vec4::new(axes[0].lo, axes[1].lo, axes[2].lo, 0.0),
+            scale: Vec4::new(axes[0].scale, axes[1].scale, axes[2].scale, 0.0),
+            axes,
+        }
+    }
+
+    /// The bin of each of `x`'s coordinates on its axis, clamped to the
+    /// grid (lane w: 0).
+    #[inline]
+    fn bins(&self, x: Vec4) -> [u32; 4] {
+        bin_indices(
+            ((x - self.origin) * self.scale).max(Vec4::ZERO),
+            SBVH_BINS - 1,
+        )
+    }
+}
+
 /// The bins of the spatial search along one axis of a node's box.
 struct Grid {
     lo: f32,
@@ -400,12 +425,6 @@ impl Grid {
                 scale: 0.0,
             }
         }
-    }
-
-    /// The bin of coordinate `x`, clamped to the grid.
-    #[inline]
-    fn bin(&self, x: f32) -> usize {
-        (((x - self.lo) * self.scale).max(0.0) as usize).min(SBVH_BINS - 1)
     }
 
     /// The coordinate of the plane starting bin `bin`.
