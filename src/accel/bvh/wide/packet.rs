@@ -2,7 +2,8 @@
 //! walk the tree together with one shared stack, each entry carrying the mask
 //! of rays that entered that child (Wald et al. 2001's packets over a wide
 //! tree, with per-ray active masks). At a node every active ray is tested
-//! against the eight child boxes with the single-ray node kernel, and the
+//! against the child boxes with the single-ray node kernel (the SIMD kernels
+//! first skip the children the packet's frustum rules out), and the
 //! children are pushed once for the packet, nearest (the least entry distance
 //! of its rays) on top; at a leaf each active ray runs the single-ray block
 //! test. Any-hit rays retire one by one as they find an occluder. When only
@@ -14,7 +15,8 @@
 //! hit is chosen by the same order ([`Hit::is_closer_than`]) whichever order
 //! leaves are visited in, and a ray's box tests are the single-ray kernel's
 //! with its own current cut, so no leaf that holds its closest hit is culled
-//! (the argument of `CULL_SLACK`). Tests compare the two on random, adversarial
+//! (the argument of `CULL_SLACK`; the frustum only skips children every
+//! ray's own test misses). Tests compare the two on random, adversarial
 //! and recorded rays.
 
 use arrayvec::ArrayVec;
@@ -63,8 +65,7 @@ impl WideBvh<8> {
         if self.nodes.is_empty() {
             return;
         }
-        let prepared = packet.prepare(rays);
-        let mut active = 0u32;
+        let (prepared, active) = packet.prepare(rays);
         // Per ray: triangles are tested below `tmax` (just above its best t),
         // boxes culled beyond `cut`, as in the single-ray traversal.
         let mut tmax = [0f32; R];
@@ -72,7 +73,6 @@ impl WideBvh<8> {
         for (r, ray) in rays.iter().enumerate() {
             tmax[r] = ray.tmax;
             cut[r] = ray.tmax * (1.0 + CULL_SLACK);
-            active |= (ray.is_valid() as u32) << r;
         }
         // (child, rays that entered it, their least entry distance)
         let mut stack: ArrayVec<(u32, u32, f32), S> = ArrayVec::new();
@@ -165,13 +165,12 @@ impl WideBvh<8> {
         if self.nodes.is_empty() {
             return;
         }
-        let prepared = packet.prepare(rays);
+        // `alive`: the rays still looking for an occluder.
+        let (prepared, valid) = packet.prepare(rays);
+        let mut alive = valid;
         let mut tmax = [0f32; R];
-        // Rays still looking for an occluder.
-        let mut alive = 0u32;
         for (r, ray) in rays.iter().enumerate() {
             tmax[r] = ray.tmax * (1.0 + SLAB_SLACK);
-            alive |= (ray.is_valid() as u32) << r;
         }
         let mut stack: ArrayVec<(u32, u32), S> = ArrayVec::new();
         let (mut current, mut mask) = (0u32, alive);
@@ -215,7 +214,7 @@ impl WideBvh<8> {
             }
         }
         for (r, o) in occluded.iter_mut().enumerate() {
-            *o = rays[r].is_valid() && alive & (1 << r) == 0;
+            *o = (valid & !alive) >> r & 1 == 1;
         }
     }
 }
