@@ -12,7 +12,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::Serialize;
 
-use super::trace::trace;
+use super::trace::{min_run_s, passes_for, trace};
 use super::ChartSection;
 use crate::accel::bvh::BuildParams;
 use crate::accel::library::Library;
@@ -215,7 +215,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lib
             rows.push(None);
         }
         bar.set_message(format!("libraries: tracing on {}", scene.name));
-        let timed = time_interleaved(&backends, &rays, reps);
+        let timed = time_interleaved(&backends, &rays, reps, min_run_s(cfg));
         let mut measured = backends.iter().zip(timed);
         for row in rows {
             match row {
@@ -261,12 +261,13 @@ fn not_built(scene: &Scene, spec: &BackendSpec, why: String) -> LibraryPoint {
 /// Mrays/s on one thread per backend and kind, on the backend's fastest
 /// path for that kind, and that path's name. Per kind every backend and
 /// path is traced once untimed, then `reps` rounds each tracing all of
-/// them in turn (so drift on a shared machine hits all alike); the median
-/// of each counts.
+/// them in turn (so drift on a shared machine hits all alike), each run at
+/// least `min_run` seconds long; the median of each counts.
 fn time_interleaved(
     backends: &[(Built, Vec<Built>, Stat)],
     rays: &[Vec<Ray>],
     reps: usize,
+    min_run: f64,
 ) -> Vec<(Vec<f64>, Vec<String>)> {
     let mut out = vec![(Vec::new(), Vec::new()); backends.len()];
     // Per backend: its own path first, then its others.
@@ -283,18 +284,24 @@ fn time_interleaved(
             }
             continue;
         }
-        for c in candidates.iter().flatten() {
-            trace(c.as_ref(), closest, rays, 1);
-        }
+        // The warm-up also sets each path's passes per timed run.
+        let passes: Vec<Vec<usize>> = candidates
+            .iter()
+            .map(|c| {
+                c.iter()
+                    .map(|path| passes_for(trace(path.as_ref(), closest, rays, 1, 1).0, min_run))
+                    .collect()
+            })
+            .collect();
         let mut rates: Vec<Vec<Vec<f64>>> = candidates
             .iter()
             .map(|c| vec![Vec::new(); c.len()])
             .collect();
         for _ in 0..reps.max(1) {
-            for (c, r) in candidates.iter().zip(&mut rates) {
-                for (path, r) in c.iter().zip(r) {
-                    let secs = trace(path.as_ref(), closest, rays, 1).0.max(1e-12);
-                    r.push(rays.len() as f64 / secs / 1e6);
+            for ((c, r), p) in candidates.iter().zip(&mut rates).zip(&passes) {
+                for ((path, r), &n) in c.iter().zip(r).zip(p) {
+                    let secs = trace(path.as_ref(), closest, rays, 1, n).0.max(1e-12);
+                    r.push((rays.len() * n) as f64 / secs / 1e6);
                 }
             }
         }

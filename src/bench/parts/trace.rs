@@ -12,7 +12,7 @@
 //! a hit against a miss) are counted and reported: ties on shared edges, and
 //! the libraries' own misses, which `raylab validate` classifies.
 
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::Instant;
 
 use std::path::Path;
@@ -92,6 +92,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Tra
             &specs,
             &thread_counts(cfg),
             reps,
+            min_run_s(cfg),
             bar,
         )?);
     }
@@ -167,21 +168,61 @@ fn digest(a: Answer) -> u64 {
     }
 }
 
-/// Traces `rays` on `threads` threads, streams of [`CHUNK`] rays taken from a
-/// shared counter, and returns the wall time in seconds and the sum of the
-/// answers' digests.
-pub fn trace(backend: &dyn Backend, closest: bool, rays: &[Ray], threads: usize) -> (f64, u64) {
+/// A timed run lasts at least about this long: its rays are traced as many
+/// times over as the warm-up run says it takes. Runs of a millisecond (a small
+/// scene's shadow rays on the fastest paths) measured thread start-up more
+/// than tracing: raylab's fastest packets seemed to gain 0.9-1.3x from a
+/// second thread where Embree's slower ones gained 1.6-1.9x.
+pub const MIN_RUN_S: f64 = 0.02;
+
+/// How many passes over its rays make a run last `min_run_s` (the bench's
+/// [`MIN_RUN_S`], 0 for `--quick`), from one pass's `seconds`.
+pub fn passes_for(seconds: f64, min_run_s: f64) -> usize {
+    (min_run_s / seconds.max(1e-9)).ceil().clamp(1.0, 10_000.0) as usize
+}
+
+/// The least duration of a timed run for `cfg`: none for `--quick`, whose
+/// figures only show that every path runs.
+pub fn min_run_s(cfg: &BenchConfig) -> f64 {
+    if cfg.quick {
+        0.0
+    } else {
+        MIN_RUN_S
+    }
+}
+
+/// Traces `rays` `passes` times on `threads` threads, streams of [`CHUNK`]
+/// rays taken from a shared counter, and returns the wall time in seconds
+/// and the sum of the answers' digests. The clock starts once every thread
+/// is running (they wait on a flag) and stops when the last one finishes,
+/// so thread start-up and joining are not timed.
+pub fn trace(
+    backend: &dyn Backend,
+    closest: bool,
+    rays: &[Ray],
+    threads: usize,
+    passes: usize,
+) -> (f64, u64) {
+    let chunks_per_pass = rays.len().div_ceil(CHUNK);
+    let chunks = chunks_per_pass * passes;
     let next = AtomicUsize::new(0);
+    let ready = AtomicUsize::new(0);
+    let go = AtomicBool::new(false);
     let work = || {
         let _ftz = backend.flushes_denormals().then(FlushDenormals::enable);
         let mut sum = 0u64;
         let mut hits = vec![None; CHUNK];
         let mut occluded = vec![false; CHUNK];
+        ready.fetch_add(1, Ordering::AcqRel);
+        while !go.load(Ordering::Acquire) {
+            std::hint::spin_loop();
+        }
         loop {
-            let start = next.fetch_add(CHUNK, Ordering::Relaxed);
-            if start >= rays.len() {
-                break sum;
+            let k = next.fetch_add(1, Ordering::Relaxed);
+            if k >= chunks {
+                break (sum, Instant::now());
             }
+            let start = k % chunks_per_pass * CHUNK;
             let chunk = &rays[start..(start + CHUNK).min(rays.len())];
             let n = chunk.len();
             if closest {
@@ -196,19 +237,27 @@ pub fn trace(backend: &dyn Backend, closest: bool, rays: &[Ray], threads: usize)
             }
         }
     };
-    let started = Instant::now();
-    let sum = if threads <= 1 {
-        work()
-    } else {
-        std::thread::scope(|s| {
-            let handles: Vec<_> = (0..threads).map(|_| s.spawn(work)).collect();
-            handles
-                .into_iter()
-                .map(|h| h.join().unwrap_or(0))
-                .fold(0u64, u64::wrapping_add)
-        })
-    };
-    (started.elapsed().as_secs_f64(), sum)
+    if threads <= 1 {
+        let started = Instant::now();
+        go.store(true, Ordering::Release);
+        let (sum, _) = work();
+        return (started.elapsed().as_secs_f64(), sum);
+    }
+    std::thread::scope(|s| {
+        let handles: Vec<_> = (0..threads).map(|_| s.spawn(work)).collect();
+        while ready.load(Ordering::Acquire) < threads {
+            std::hint::spin_loop();
+        }
+        let started = Instant::now();
+        go.store(true, Ordering::Release);
+        let (sum, finished) = handles
+            .into_iter()
+            .filter_map(|h| h.join().ok())
+            .fold((0u64, started), |(sum, last), (s, at)| {
+                (sum.wrapping_add(s), last.max(at))
+            });
+        (finished.duration_since(started).as_secs_f64(), sum)
+    })
 }
 
 /// The backends of the trace part for the bench's variants: each distinct
@@ -231,7 +280,8 @@ pub fn trace_specs(
 }
 
 /// Measures every backend of `specs` on the rays of one render of `scene`
-/// with `settings`, on each of `thread_counts`, `reps` times. The first own
+/// with `settings`, on each of `thread_counts`, `reps` times, each timed
+/// run at least `min_run` seconds long (see [`MIN_RUN_S`]). The first own
 /// (non-Embree) backend is the reference every other is checked against.
 ///
 /// Builds are measured too: on each thread count, a warm-up build and `reps`
@@ -245,6 +295,7 @@ pub fn trace_throughput(
     specs: &[BackendSpec],
     thread_counts: &[usize],
     reps: usize,
+    min_run: f64,
     bar: &StepBar,
 ) -> Result<Vec<TracePoint>> {
     let mut kept: Vec<Option<Built>> = specs.iter().map(|_| None).collect();
@@ -290,7 +341,15 @@ pub fn trace_throughput(
             }
         }
     }
-    trace_backends(scene, settings, &backends, thread_counts, reps, bar)
+    trace_backends(
+        scene,
+        settings,
+        &backends,
+        thread_counts,
+        reps,
+        min_run,
+        bar,
+    )
 }
 
 /// [`trace_throughput`] over backends already built, each with its median
@@ -301,6 +360,7 @@ pub fn trace_backends(
     backends: &[(Built, Vec<f64>)],
     thread_counts: &[usize],
     reps: usize,
+    min_run: f64,
     bar: &StepBar,
 ) -> Result<Vec<TracePoint>> {
     if backends.is_empty() {
@@ -363,6 +423,8 @@ pub fn trace_backends(
         }
         let expected: u64 = want.iter().map(|&a| digest(a)).fold(0, u64::wrapping_add);
         let mut rates = vec![vec![Vec::new(); thread_counts.len()]; backends.len()];
+        // Passes per run of each backend and thread count, set by the warm-up.
+        let mut passes = vec![vec![1usize; thread_counts.len()]; backends.len()];
         for rep in 0..reps.max(1) + 1 {
             bar.set_message(format!(
                 "trace: {} rays of {}, run {}/{}",
@@ -373,16 +435,20 @@ pub fn trace_backends(
             ));
             for (ti, &threads) in thread_counts.iter().enumerate() {
                 for (bi, (b, _)) in backends.iter().enumerate() {
-                    let (seconds, sum) = trace(b.as_ref(), closest, rays, threads);
-                    if differing[bi] == 0 && sum != expected {
+                    let n = passes[bi][ti];
+                    let (seconds, sum) = trace(b.as_ref(), closest, rays, threads, n);
+                    if differing[bi] == 0 && sum != expected.wrapping_mul(n as u64) {
                         return Err(Error::Other(format!(
                             "trace: {} answered differently on {threads} threads",
                             b.name()
                         )));
                     }
-                    // Run 0 warms caches and the branch predictors.
+                    // Run 0 warms caches and the branch predictors, and
+                    // sets how many passes the timed runs make.
                     if rep > 0 {
-                        rates[bi][ti].push(rays.len() as f64 / seconds.max(1e-12) / 1e6);
+                        rates[bi][ti].push((rays.len() * n) as f64 / seconds.max(1e-12) / 1e6);
+                    } else {
+                        passes[bi][ti] = passes_for(seconds, min_run);
                     }
                 }
             }
@@ -682,7 +748,7 @@ mod tests {
             .map(|w| BackendSpec::bvh(BuildParams::sah().with_width(w)))
             .to_vec();
         let bar = StepBar::new(0, true);
-        let points = trace_throughput(&scene, &settings, &specs, &[1, 2], 1, &bar).unwrap();
+        let points = trace_throughput(&scene, &settings, &specs, &[1, 2], 1, 0.0, &bar).unwrap();
         // The binary and 4-wide trees on single rays, the 8-wide tree on its
         // three query paths, every ray kind, two thread counts.
         assert_eq!(points.len(), 5 * KINDS.len() * 2);
@@ -717,6 +783,26 @@ mod tests {
         );
     }
 
+    /// Several passes on several threads trace every ray once per pass (the
+    /// digest sums add up) and the clock moves with the work.
+    #[test]
+    fn passes_multiply_the_work_on_any_thread_count() {
+        let (scene, settings) = setup();
+        let built = build_backend(&BackendSpec::bvh(BuildParams::sah()), &scene).unwrap();
+        let backend = built.as_ref();
+        let rays = recorded_rays(&scene, backend, &settings).unwrap().primary;
+        let (one_s, one) = trace(backend, true, &rays, 1, 1);
+        assert!(one > 0, "some primary rays hit");
+        for threads in [1, 2, 3] {
+            let (s, sum) = trace(backend, true, &rays, threads, 40);
+            assert_eq!(sum, one.wrapping_mul(40), "{threads} threads");
+            assert!(s > one_s, "40 passes took {s} s, one {one_s} s");
+        }
+        assert_eq!(passes_for(0.004, MIN_RUN_S), 5);
+        assert_eq!(passes_for(1.0, MIN_RUN_S), 1);
+        assert_eq!(passes_for(0.004, 0.0), 1);
+    }
+
     #[test]
     fn a_wrong_own_backend_fails_the_trace() {
         let (scene, settings) = setup();
@@ -730,7 +816,7 @@ mod tests {
         };
         let backends = vec![(right, Vec::new()), (planted, Vec::new())];
         let bar = StepBar::new(0, true);
-        let err = trace_backends(&scene, &settings, &backends, &[1], 1, &bar)
+        let err = trace_backends(&scene, &settings, &backends, &[1], 1, 0.0, &bar)
             .unwrap_err()
             .to_string();
         assert!(err.contains("bvh4-sah differs from bvh-sah"), "{err}");
