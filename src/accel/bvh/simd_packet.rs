@@ -29,7 +29,6 @@
 use std::marker::PhantomData;
 
 use arrayvec::ArrayVec;
-use glam::Vec3A;
 
 use super::leaf::{BlockTest, Ray4, Tri4, EMPTY_ID};
 use super::params::{CULL_SLACK, SLAB_SLACK};
@@ -96,38 +95,30 @@ impl Frustum {
     /// The frustum of rays whose near planes are the rows `rows` (they agree
     /// in sign on every axis) from their `bounds`.
     ///
-    /// The reciprocal directions' bounds are those of the directions' bounds
-    /// (`1 / d` and its clamp are monotone over one sign, and so is their
-    /// rounding). The traversals give node tests a ray's `tmax` widened by
+    /// The traversals give node tests a ray's `tmax` widened by
     /// [`SLAB_SLACK`] (any hit) or a cut at most its `tmax` widened by
     /// [`CULL_SLACK`] (closest hit, the cut only shrinking as hits are
     /// found): the greater of the two widenings of the greatest `tmax`
     /// bounds both, rounding being monotone.
+    #[inline(always)]
     fn new(rows: [usize; 3], bounds: &RayBounds) -> Frustum {
-        let RayBounds {
-            o_lo,
-            o_hi,
-            d_lo,
-            d_hi,
-            tmin,
-            tmax,
-        } = *bounds;
-        let (inv_of_lo, inv_of_hi) = (safe_reciprocal(d_lo.into()), safe_reciprocal(d_hi.into()));
+        let b = bounds;
         let mut f = Frustum {
             near_row: rows,
-            tmin: tmin * (1.0 - SLAB_SLACK),
-            tmax: (tmax * (1.0 + CULL_SLACK)).max(tmax * (1.0 + SLAB_SLACK)),
+            inv_lo: b.inv_lo,
+            inv_hi: b.inv_hi,
+            tmin: b.tmin * (1.0 - SLAB_SLACK),
+            tmax: (b.tmax * (1.0 + CULL_SLACK)).max(b.tmax * (1.0 + SLAB_SLACK)),
             ..Frustum::default()
         };
-        for a in 0..3 {
+        for (a, row) in rows.iter().enumerate() {
             // The near plane is the minimum (an even row) when the axis runs
             // positive; its distance is least from the greatest origin.
-            (f.o_near[a], f.o_far[a]) = if rows[a].is_multiple_of(2) {
-                (o_hi[a], o_lo[a])
+            (f.o_near[a], f.o_far[a]) = if row.is_multiple_of(2) {
+                (b.o_hi[a], b.o_lo[a])
             } else {
-                (o_lo[a], o_hi[a])
+                (b.o_lo[a], b.o_hi[a])
             };
-            (f.inv_lo[a], f.inv_hi[a]) = (inv_of_hi[a], inv_of_lo[a]);
         }
         f
     }
@@ -183,15 +174,18 @@ impl Frustum {
     }
 }
 
-/// Per axis the least and greatest origin and direction of a packet's valid
-/// rays, their least `tmin` and greatest `tmax`: what a kernel gathers while
-/// it lays the packet out by lanes, for its [`Frustum`].
+/// Per axis the least and greatest origin and reciprocal direction of a
+/// packet's valid rays, their least `tmin` and greatest `tmax`: what a kernel
+/// gathers while it lays the packet out by lanes, for its [`Frustum`]. The
+/// kernels take the reciprocal directions' bounds as the reciprocals of the
+/// directions' bounds: `1 / d` and its clamp are monotone over one sign, and
+/// so is their rounding.
 #[derive(Clone, Copy, Debug)]
 struct RayBounds {
-    o_lo: Vec3A,
-    o_hi: Vec3A,
-    d_lo: Vec3A,
-    d_hi: Vec3A,
+    o_lo: [f32; 3],
+    o_hi: [f32; 3],
+    inv_lo: [f32; 3],
+    inv_hi: [f32; 3],
     tmin: f32,
     tmax: f32,
 }
@@ -694,15 +688,17 @@ impl PacketKernel<PACKET> for Avx2Packet {
                     out
                 }};
             }
+            // Lanes 3-5: the reciprocals of the directions' bounds.
+            let (inv_of_lo, inv_of_hi) = (store!(inv!(lo)), store!(inv!(hi)));
             let (lo, hi) = (store!(lo), store!(hi));
             let frustum = rows.filter(|_| valid != 0).map(|rows| {
                 Frustum::new(
                     rows,
                     &RayBounds {
-                        o_lo: Vec3A::new(lo[0], lo[1], lo[2]),
-                        o_hi: Vec3A::new(hi[0], hi[1], hi[2]),
-                        d_lo: Vec3A::new(lo[3], lo[4], lo[5]),
-                        d_hi: Vec3A::new(hi[3], hi[4], hi[5]),
+                        o_lo: [lo[0], lo[1], lo[2]],
+                        o_hi: [hi[0], hi[1], hi[2]],
+                        inv_lo: [inv_of_hi[3], inv_of_hi[4], inv_of_hi[5]],
+                        inv_hi: [inv_of_lo[3], inv_of_lo[4], inv_of_lo[5]],
                         tmin: lo[6],
                         tmax: hi[7],
                     },
@@ -1125,14 +1121,18 @@ impl PacketKernel<PACKET16> for Avx512Packet {
             let (mut lo_c, mut hi_c) = ([0f32; 16], [0f32; 16]);
             _mm512_storeu_ps(lo_c.as_mut_ptr(), lo);
             _mm512_storeu_ps(hi_c.as_mut_ptr(), hi);
+            // Lanes 3-5: the reciprocals of the directions' bounds.
+            let (mut inv_of_lo, mut inv_of_hi) = ([0f32; 16], [0f32; 16]);
+            _mm512_storeu_ps(inv_of_lo.as_mut_ptr(), inv!(lo));
+            _mm512_storeu_ps(inv_of_hi.as_mut_ptr(), inv!(hi));
             let frustum = near_rows.filter(|_| valid != 0).map(|near_rows| {
                 Frustum::new(
                     near_rows,
                     &RayBounds {
-                        o_lo: Vec3A::new(lo_c[0], lo_c[1], lo_c[2]),
-                        o_hi: Vec3A::new(hi_c[0], hi_c[1], hi_c[2]),
-                        d_lo: Vec3A::new(lo_c[3], lo_c[4], lo_c[5]),
-                        d_hi: Vec3A::new(hi_c[3], hi_c[4], hi_c[5]),
+                        o_lo: [lo_c[0], lo_c[1], lo_c[2]],
+                        o_hi: [hi_c[0], hi_c[1], hi_c[2]],
+                        inv_lo: [inv_of_hi[3], inv_of_hi[4], inv_of_hi[5]],
+                        inv_hi: [inv_of_lo[3], inv_of_lo[4], inv_of_lo[5]],
                         tmin: lo_c[6],
                         tmax: hi_c[7],
                     },
