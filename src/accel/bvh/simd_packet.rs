@@ -86,39 +86,49 @@ pub struct Frustum {
     inv_lo: [f32; 3],
     inv_hi: [f32; 3],
     /// The least node-test `tmin` of the rays, and a bound on every `tmax`
-    /// a node test may be given for them (see [`Frustum::new`]).
+    /// a node test may be given for them (see [`Frustum::of_lanes`]).
     tmin: f32,
     tmax: f32,
 }
 
 impl Frustum {
     /// The frustum of rays whose near planes are the rows `rows` (they agree
-    /// in sign on every axis) from their `bounds`.
+    /// in sign on every axis), from their least (`lo`) and greatest (`hi`)
+    /// values per component in a ray's memory order (origin in lanes 0-2,
+    /// direction 3-5, `tmin` 6, `tmax` 7) and the reciprocals of those two
+    /// vectors, as a kernel gathers them while it lays the packet out.
     ///
-    /// The traversals give node tests a ray's `tmax` widened by
-    /// [`SLAB_SLACK`] (any hit) or a cut at most its `tmax` widened by
-    /// [`CULL_SLACK`] (closest hit, the cut only shrinking as hits are
-    /// found): the greater of the two widenings of the greatest `tmax`
-    /// bounds both, rounding being monotone.
+    /// The reciprocal directions' bounds are the reciprocals of the
+    /// directions' bounds, swapped: `1 / d` and its clamp fall as `d` rises
+    /// within one sign, and so does their rounding. The traversals give node
+    /// tests a ray's `tmax` widened by [`SLAB_SLACK`] (any hit) or a cut at
+    /// most its `tmax` widened by [`CULL_SLACK`] (closest hit, the cut only
+    /// shrinking as hits are found): the greater of the two widenings of the
+    /// greatest `tmax` bounds both, rounding being monotone.
     #[inline(always)]
-    fn new(rows: [usize; 3], bounds: &RayBounds) -> Frustum {
-        let b = bounds;
+    fn of_lanes(
+        rows: [usize; 3],
+        lo: &[f32],
+        hi: &[f32],
+        inv_of_lo: &[f32],
+        inv_of_hi: &[f32],
+    ) -> Frustum {
+        let tmax = hi[7];
         let mut f = Frustum {
             near_row: rows,
-            inv_lo: b.inv_lo,
-            inv_hi: b.inv_hi,
-            tmin: b.tmin * (1.0 - SLAB_SLACK),
-            tmax: (b.tmax * (1.0 + CULL_SLACK)).max(b.tmax * (1.0 + SLAB_SLACK)),
+            tmin: lo[6] * (1.0 - SLAB_SLACK),
+            tmax: (tmax * (1.0 + CULL_SLACK)).max(tmax * (1.0 + SLAB_SLACK)),
             ..Frustum::default()
         };
         for (a, row) in rows.iter().enumerate() {
             // The near plane is the minimum (an even row) when the axis runs
             // positive; its distance is least from the greatest origin.
             (f.o_near[a], f.o_far[a]) = if row.is_multiple_of(2) {
-                (b.o_hi[a], b.o_lo[a])
+                (hi[a], lo[a])
             } else {
-                (b.o_lo[a], b.o_hi[a])
+                (lo[a], hi[a])
             };
+            (f.inv_lo[a], f.inv_hi[a]) = (inv_of_hi[3 + a], inv_of_lo[3 + a]);
         }
         f
     }
@@ -172,22 +182,6 @@ impl Frustum {
             !(_mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(entry, exit)) as u32) & 0xFF
         }
     }
-}
-
-/// Per axis the least and greatest origin and reciprocal direction of a
-/// packet's valid rays, their least `tmin` and greatest `tmax`: what a kernel
-/// gathers while it lays the packet out by lanes, for its [`Frustum`]. The
-/// kernels take the reciprocal directions' bounds as the reciprocals of the
-/// directions' bounds: `1 / d` and its clamp are monotone over one sign, and
-/// so is their rounding.
-#[derive(Clone, Copy, Debug)]
-struct RayBounds {
-    o_lo: [f32; 3],
-    o_hi: [f32; 3],
-    inv_lo: [f32; 3],
-    inv_hi: [f32; 3],
-    tmin: f32,
-    tmax: f32,
 }
 
 /// What a node test reports for a packet: per child lane, the rays whose
@@ -691,19 +685,9 @@ impl PacketKernel<PACKET> for Avx2Packet {
             // Lanes 3-5: the reciprocals of the directions' bounds.
             let (inv_of_lo, inv_of_hi) = (store!(inv!(lo)), store!(inv!(hi)));
             let (lo, hi) = (store!(lo), store!(hi));
-            let frustum = rows.filter(|_| valid != 0).map(|rows| {
-                Frustum::new(
-                    rows,
-                    &RayBounds {
-                        o_lo: [lo[0], lo[1], lo[2]],
-                        o_hi: [hi[0], hi[1], hi[2]],
-                        inv_lo: [inv_of_hi[3], inv_of_hi[4], inv_of_hi[5]],
-                        inv_hi: [inv_of_lo[3], inv_of_lo[4], inv_of_lo[5]],
-                        tmin: lo[6],
-                        tmax: hi[7],
-                    },
-                )
-            });
+            let frustum = rows
+                .filter(|_| valid != 0)
+                .map(|rows| Frustum::of_lanes(rows, &lo, &hi, &inv_of_lo, &inv_of_hi));
             (
                 RaysSoa {
                     origin: [store!(ox), store!(oy), store!(oz)],
@@ -1126,17 +1110,7 @@ impl PacketKernel<PACKET16> for Avx512Packet {
             _mm512_storeu_ps(inv_of_lo.as_mut_ptr(), inv!(lo));
             _mm512_storeu_ps(inv_of_hi.as_mut_ptr(), inv!(hi));
             let frustum = near_rows.filter(|_| valid != 0).map(|near_rows| {
-                Frustum::new(
-                    near_rows,
-                    &RayBounds {
-                        o_lo: [lo_c[0], lo_c[1], lo_c[2]],
-                        o_hi: [hi_c[0], hi_c[1], hi_c[2]],
-                        inv_lo: [inv_of_hi[3], inv_of_hi[4], inv_of_hi[5]],
-                        inv_hi: [inv_of_lo[3], inv_of_lo[4], inv_of_lo[5]],
-                        tmin: lo_c[6],
-                        tmax: hi_c[7],
-                    },
-                )
+                Frustum::of_lanes(near_rows, &lo_c, &hi_c, &inv_of_lo, &inv_of_hi)
             });
             macro_rules! store {
                 ($v:expr) => {{
