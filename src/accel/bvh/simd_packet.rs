@@ -199,6 +199,10 @@ pub trait PacketKernel<const R: usize>: Copy {
     /// The packet prepared, and its valid rays ([`Ray::is_valid`]) as a bit
     /// per ray.
     fn prepare(self, rays: &[Ray]) -> (Self::Rays, u32);
+    /// Whether the packet's rays agree in sign on every axis (the SIMD
+    /// kernels then bound them by a [`Frustum`]); the portable kernel says
+    /// yes, so its packets keep the one switch threshold.
+    fn coherent(rays: &Self::Rays) -> bool;
     /// The box test of every ray of `active` against every child of `node`,
     /// ray `r` within `(its tmin, tmax[r])`; the least entry distances only
     /// when `NEAR` (the any-hit traversal neither sorts nor culls by them).
@@ -400,6 +404,11 @@ impl<K: NodeKernel<8>, T: BlockTest, const R: usize> PacketKernel<R> for PerRay<
             })
             .collect();
         (lanes, valid)
+    }
+
+    #[inline(always)]
+    fn coherent(_: &Self::Rays) -> bool {
+        true
     }
 
     #[inline(always)]
@@ -707,6 +716,11 @@ impl PacketKernel<PACKET> for Avx2Packet {
                 valid,
             )
         }
+    }
+
+    #[inline(always)]
+    fn coherent(p: &Self::Rays) -> bool {
+        p.frustum.is_some()
     }
 
     #[inline(always)]
@@ -1134,6 +1148,11 @@ impl PacketKernel<PACKET16> for Avx512Packet {
                 valid as u32,
             )
         }
+    }
+
+    #[inline(always)]
+    fn coherent(p: &Self::Rays) -> bool {
+        p.frustum.is_some()
     }
 
     #[inline(always)]

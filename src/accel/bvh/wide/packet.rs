@@ -7,8 +7,10 @@
 //! children are pushed once for the packet, nearest (the least entry distance
 //! of its rays) on top; at a leaf each active ray runs the single-ray block
 //! test. Any-hit rays retire one by one as they find an occluder. When only
-//! [`PACKET_MIN_RAYS`]` - 1` rays of an entry remain, they finish the subtree
-//! with the single-ray traversal (Benthin et al. 2012's hybrid switch).
+//! [`PACKET_MIN_RAYS`]` - 1` rays of an entry remain
+//! ([`PACKET_MIN_RAYS_INCOHERENT`]` - 1` in packets whose rays differ in
+//! sign), they finish the subtree with the single-ray traversal (Benthin et
+//! al. 2012's hybrid switch).
 //!
 //! Why the answers are the single-ray traversal's bit for bit: every
 //! triangle test is the single-ray one (same function, same ray), the closest
@@ -22,7 +24,7 @@
 use arrayvec::ArrayVec;
 
 use super::super::leaf::BlockTest;
-use super::super::params::{CULL_SLACK, PACKET_MIN_RAYS, SLAB_SLACK};
+use super::super::params::{CULL_SLACK, PACKET_MIN_RAYS, PACKET_MIN_RAYS_INCOHERENT, SLAB_SLACK};
 use super::super::simd::NodeKernel;
 use super::super::simd_packet::{bits, PacketKernel};
 use super::super::traverse::NoCount;
@@ -38,6 +40,18 @@ fn reach<const R: usize>(near: f32, cut: &[f32; R]) -> u32 {
         mask |= ((near <= c) as u32) << r;
     }
     mask
+}
+
+/// Below how many rays an entry of the packet `prepared` finishes ray by
+/// ray: [`PACKET_MIN_RAYS`], or [`PACKET_MIN_RAYS_INCOHERENT`] when its rays
+/// differ in sign.
+#[inline(always)]
+fn min_rays<P: PacketKernel<R>, const R: usize>(prepared: &P::Rays) -> u32 {
+    if P::coherent(prepared) {
+        PACKET_MIN_RAYS
+    } else {
+        PACKET_MIN_RAYS_INCOHERENT
+    }
 }
 
 impl WideBvh<8> {
@@ -66,6 +80,7 @@ impl WideBvh<8> {
             return;
         }
         let (prepared, active) = packet.prepare(rays);
+        let min_rays = min_rays::<P, R>(&prepared);
         // Per ray: triangles are tested below `tmax` (just above its best t),
         // boxes culled beyond `cut`, as in the single-ray traversal.
         let mut tmax = [0f32; R];
@@ -79,7 +94,7 @@ impl WideBvh<8> {
         let (mut current, mut mask) = (0u32, active);
         while mask != 0 {
             let mut changed = 0;
-            if mask.count_ones() < PACKET_MIN_RAYS {
+            if mask.count_ones() < min_rays {
                 for r in bits(mask) {
                     hits[r] = self.closest_from::<K, T, NoCount, S>(
                         kernel,
@@ -167,6 +182,7 @@ impl WideBvh<8> {
         }
         // `alive`: the rays still looking for an occluder.
         let (prepared, valid) = packet.prepare(rays);
+        let min_rays = min_rays::<P, R>(&prepared);
         let mut alive = valid;
         let mut tmax = [0f32; R];
         for (r, ray) in rays.iter().enumerate() {
@@ -175,7 +191,7 @@ impl WideBvh<8> {
         let mut stack: ArrayVec<(u32, u32), S> = ArrayVec::new();
         let (mut current, mut mask) = (0u32, alive);
         while mask != 0 {
-            if mask.count_ones() < PACKET_MIN_RAYS {
+            if mask.count_ones() < min_rays {
                 for r in bits(mask) {
                     if self.any_from::<K, T, NoCount, S>(kernel, &rays[r], current, &mut NoCount) {
                         alive &= !(1 << r);
