@@ -9,7 +9,7 @@ use glam::Vec3;
 /// A ray segment `origin + t * dir` for `t` in the open interval `(tmin, tmax)`.
 ///
 /// `dir` need not be normalised; `t` is measured in units of `dir`.
-/// `repr(C)`: the AVX-512 packet kernel loads rays as eight f32 each.
+/// `repr(C)`: the SIMD packet kernels load rays as eight f32 each.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[repr(C)]
 pub struct Ray {

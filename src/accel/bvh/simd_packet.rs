@@ -235,6 +235,25 @@ pub trait PacketKernel<const R: usize>: Copy {
 const RAY_FLOATS: usize = 8;
 const _: () = assert!(std::mem::size_of::<Ray>() == RAY_FLOATS * 4);
 
+/// The near plane's row per axis ([`WideRay::near`]'s choice) shared by the
+/// `n` rays of a packet, from `positive[a]` (bit `r` set when ray `r`'s
+/// reciprocal direction on axis `a` is >= 0); `None` when the rays differ in
+/// sign on some axis, or there are none.
+#[inline(always)]
+fn shared_near_rows(positive: [u32; 3], n: usize) -> Option<[usize; 3]> {
+    let lanes = (1u32 << n) - 1;
+    let agree = positive
+        .iter()
+        .all(|&m| m & lanes == 0 || m & lanes == lanes);
+    // Bit a set when axis a runs negative.
+    let negative = (0..3).fold(0, |s, a| s | ((positive[a] & 1 == 0) as usize) << a);
+    (agree && n > 0).then_some([
+        negative & 1,
+        2 + (negative >> 1 & 1),
+        4 + (negative >> 2 & 1),
+    ])
+}
+
 /// Lane indices for `_mm512_permutex2var_ps` (0-15 from the first source,
 /// 16-31 from the second) of each round of [`transpose_16x8`]: lane `j` of
 /// the result takes the lane the expression gives for `j` (a constant).
@@ -610,33 +629,35 @@ impl PacketKernel<PACKET> for Avx2Packet {
             let inf = _mm256_set1_ps(f32::INFINITY);
             let zero = _mm256_setzero_ps();
             let sign_bit = _mm256_set1_ps(-0.0);
+            // Each compare as a bit per ray, as the AVX-512 kernel's masks.
+            macro_rules! bits_of {
+                ($cmp:expr) => {
+                    _mm256_movemask_ps($cmp) as u32
+                };
+            }
             macro_rules! finite {
                 ($v:expr) => {
-                    _mm256_cmp_ps::<_CMP_LT_OQ>(_mm256_andnot_ps(sign_bit, $v), inf)
+                    bits_of!(_mm256_cmp_ps::<_CMP_LT_OQ>(
+                        _mm256_andnot_ps(sign_bit, $v),
+                        inf
+                    ))
                 };
             }
             macro_rules! nonzero {
                 ($v:expr) => {
-                    _mm256_cmp_ps::<_CMP_NEQ_OQ>($v, zero)
+                    bits_of!(_mm256_cmp_ps::<_CMP_NEQ_OQ>($v, zero))
                 };
             }
-            let valid = _mm256_and_ps(
-                _mm256_and_ps(
-                    _mm256_and_ps(finite!(ox), _mm256_and_ps(finite!(oy), finite!(oz))),
-                    _mm256_and_ps(finite!(dx), _mm256_and_ps(finite!(dy), finite!(dz))),
-                ),
-                _mm256_and_ps(
-                    _mm256_or_ps(nonzero!(dx), _mm256_or_ps(nonzero!(dy), nonzero!(dz))),
-                    _mm256_and_ps(
-                        finite!(tmin),
-                        _mm256_and_ps(
-                            _mm256_cmp_ps::<_CMP_GE_OQ>(tmin, zero),
-                            _mm256_cmp_ps::<_CMP_GE_OQ>(tmax, tmin),
-                        ),
-                    ),
-                ),
-            );
-            let valid = _mm256_movemask_ps(valid) as u32;
+            let valid = finite!(ox)
+                & finite!(oy)
+                & finite!(oz)
+                & finite!(dx)
+                & finite!(dy)
+                & finite!(dz)
+                & (nonzero!(dx) | nonzero!(dy) | nonzero!(dz))
+                & finite!(tmin)
+                & bits_of!(_mm256_cmp_ps::<_CMP_GE_OQ>(tmin, zero))
+                & bits_of!(_mm256_cmp_ps::<_CMP_GE_OQ>(tmax, tmin));
             // safe_reciprocal: (1 / d) clamped (see RECIPROCAL_MAX).
             let big = _mm256_set1_ps(RECIPROCAL_MAX);
             macro_rules! inv {
@@ -655,20 +676,9 @@ impl PacketKernel<PACKET> for Avx2Packet {
             let mut pos_bits = [0u32; 3];
             for a in 0..3 {
                 positive[a] = _mm256_cmp_ps::<_CMP_GE_OQ>(inv_dir[a], zero);
-                pos_bits[a] = _mm256_movemask_ps(positive[a]) as u32;
+                pos_bits[a] = bits_of!(positive[a]);
             }
-            // The near planes' rows when every ray of the packet has the same
-            // signs; bit a of `negative` set when axis a runs negative.
-            let lanes = (1u32 << rays.len()) - 1;
-            let agree = pos_bits
-                .iter()
-                .all(|&m| m & lanes == 0 || m & lanes == lanes);
-            let negative = (0..3).fold(0, |s, a| s | ((pos_bits[a] & 1 == 0) as usize) << a);
-            let rows = (agree && !rays.is_empty()).then_some([
-                negative & 1,
-                2 + (negative >> 1 & 1),
-                4 + (negative >> 2 & 1),
-            ]);
+            let rows = shared_near_rows(pos_bits, rays.len());
             // The valid rays' bounds, component by component.
             let (mut lo, mut hi) = (inf, _mm256_set1_ps(f32::NEG_INFINITY));
             for (r, ray) in by_ray.iter().enumerate() {
@@ -1091,18 +1101,7 @@ impl PacketKernel<PACKET16> for Avx512Packet {
                 _mm512_cmp_ps_mask::<_CMP_GE_OQ>(iy, zero),
                 _mm512_cmp_ps_mask::<_CMP_GE_OQ>(iz, zero),
             ];
-            // The near planes' rows when every ray of the packet has the same
-            // signs; bit a of `negative` set when axis a runs negative.
-            let lanes = ((1u32 << rays.len()) - 1) as u16;
-            let agree = positive
-                .iter()
-                .all(|&m| m & lanes == 0 || m & lanes == lanes);
-            let negative = (0..3).fold(0, |s, a| s | ((positive[a] & 1 == 0) as usize) << a);
-            let near_rows = (agree && !rays.is_empty()).then_some([
-                negative & 1,
-                2 + (negative >> 1 & 1),
-                4 + (negative >> 2 & 1),
-            ]);
+            let near_rows = shared_near_rows(positive.map(u32::from), rays.len());
             // The valid rays' bounds, from the pairs: a lane of ray 2k + j
             // joins when that ray is valid.
             let mut lo = inf;
@@ -1116,16 +1115,6 @@ impl PacketKernel<PACKET16> for Avx512Packet {
             // Even and odd rays' halves combined.
             let lo = _mm512_min_ps(lo, _mm512_shuffle_f32x4::<0b0100_1110>(lo, lo));
             let hi = _mm512_max_ps(hi, _mm512_shuffle_f32x4::<0b0100_1110>(hi, hi));
-            let (mut lo_c, mut hi_c) = ([0f32; 16], [0f32; 16]);
-            _mm512_storeu_ps(lo_c.as_mut_ptr(), lo);
-            _mm512_storeu_ps(hi_c.as_mut_ptr(), hi);
-            // Lanes 3-5: the reciprocals of the directions' bounds.
-            let (mut inv_of_lo, mut inv_of_hi) = ([0f32; 16], [0f32; 16]);
-            _mm512_storeu_ps(inv_of_lo.as_mut_ptr(), inv!(lo));
-            _mm512_storeu_ps(inv_of_hi.as_mut_ptr(), inv!(hi));
-            let frustum = near_rows.filter(|_| valid != 0).map(|near_rows| {
-                Frustum::of_lanes(near_rows, &lo_c, &hi_c, &inv_of_lo, &inv_of_hi)
-            });
             macro_rules! store {
                 ($v:expr) => {{
                     let mut out = [0f32; 16];
@@ -1133,6 +1122,12 @@ impl PacketKernel<PACKET16> for Avx512Packet {
                     out
                 }};
             }
+            // Lanes 3-5: the reciprocals of the directions' bounds.
+            let (inv_of_lo, inv_of_hi) = (store!(inv!(lo)), store!(inv!(hi)));
+            let (lo, hi) = (store!(lo), store!(hi));
+            let frustum = near_rows
+                .filter(|_| valid != 0)
+                .map(|rows| Frustum::of_lanes(rows, &lo, &hi, &inv_of_lo, &inv_of_hi));
             (
                 RaysSoa16 {
                     origin: [store!(ox), store!(oy), store!(oz)],
