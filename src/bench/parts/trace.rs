@@ -214,8 +214,11 @@ pub fn trace(
         let mut hits = vec![None; CHUNK];
         let mut occluded = vec![false; CHUNK];
         ready.fetch_add(1, Ordering::AcqRel);
+        // Yielding, not spinning: on a machine with as many CPUs as threads,
+        // spinning workers kept the main thread from setting `go` until the
+        // scheduler preempted one.
         while !go.load(Ordering::Acquire) {
-            std::hint::spin_loop();
+            std::thread::yield_now();
         }
         loop {
             let k = next.fetch_add(1, Ordering::Relaxed);
@@ -246,7 +249,7 @@ pub fn trace(
     std::thread::scope(|s| {
         let handles: Vec<_> = (0..threads).map(|_| s.spawn(work)).collect();
         while ready.load(Ordering::Acquire) < threads {
-            std::hint::spin_loop();
+            std::thread::yield_now();
         }
         let started = Instant::now();
         go.store(true, Ordering::Release);
