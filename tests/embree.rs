@@ -344,3 +344,35 @@ fn embree_packets_and_streams_answer_as_its_single_rays() {
         assert!(e.to_string().contains("--query"), "{e}");
     }
 }
+
+#[test]
+fn embree_high_builds_with_the_sbvh_reference_budget() {
+    use raylab::accel::bvh::params::embree_split_replications;
+    // Long thin blades: spatial splits pay everywhere, so the budget binds.
+    let scene = builtin("grass:3000").unwrap();
+    let bytes = |config: &str| {
+        let device = Device::new(config).unwrap();
+        EmbreeScene::new(
+            &device,
+            &scene.positions,
+            &scene.triangles,
+            Quality::High,
+            false,
+        )
+        .unwrap()
+        .bvh_bytes()
+    };
+    // Embree's own default: 1.2 references per triangle.
+    let default = bytes("threads=1");
+    let same = bytes(&format!(
+        "threads=1,max_spatial_split_replications={}",
+        embree_split_replications()
+    ));
+    let backend = EmbreeBackend::new(&scene, Quality::High, false, 1).unwrap();
+    // raylab's backend builds with the budget, not Embree's default.
+    assert_eq!(backend.memory_bytes(), same);
+    assert!(
+        same as f64 > default as f64 * 1.1,
+        "{same} bytes with the budget against {default} with Embree's default"
+    );
+}

@@ -217,7 +217,32 @@ pub const BIN_ROUND: usize = 32;
 /// about 35% longer at 1.0 than at 0.3; Embree's HIGH builder, given room for
 /// one split per triangle (`embree::builder`), reaches 317 and 79.6. 1.0 gives
 /// both the same room.
+///
+/// Embree's HIGH builds get the same budget ([`embree_split_replications`]).
+/// Its scene build defaults to 1.2 references per triangle (its device's
+/// `max_spatial_split_replications`), a fifth of this budget, and builds a
+/// different tree: the ladder compared builds at unequal budgets. Measured
+/// on a Zen 4 (`raylab bench --parts ladder grass:20000 city45:3000
+/// .../2CylinderEngine.glb --reps 3`, the binaries before and after taking
+/// turns, three runs each; medians): Embree HIGH's one-thread build went
+/// from 93 to 133 ms (grass), 81 to 109 (city45) and 238 to 368 (the
+/// engine), and its trees rendered faster (205 to 167 ms, 40 to 38, 29 to
+/// 23). raylab's high rung over Embree HIGH's build time, 1 / 2 threads:
+/// 0.96-1.24 / 1.33-1.79 (grass), 1.26-1.32 / 1.45-1.60 (city45),
+/// 1.52-1.64 / 1.47-1.94 (the engine) before; 0.82-0.88 / 0.88-1.27,
+/// 0.84-0.87 / 1.06-1.57, 0.93-0.98 / 1.02-1.11 at equal budgets.
+/// At 0.2 (Embree's default) raylab's high rung built 2.0-2.3x faster but
+/// traced `grass:20000` only 1.04-1.08x faster than the medium rung,
+/// against 1.19-1.31x at 1.0 (`raylab render --quality high --query
+/// packet16`, one thread, budgets alternated five times).
 pub const SBVH_GROWTH: f32 = 1.0;
+
+/// References per triangle Embree's HIGH builders may make: its device's
+/// `max_spatial_split_replications` for scene builds, the room in the
+/// primitive array for `rtcBuildBVH`; [`SBVH_GROWTH`]'s budget.
+pub const fn embree_split_replications() -> f32 {
+    1.0 + SBVH_GROWTH
+}
 
 /// A spatial split is tried only where the best object split's children
 /// overlap by more than this fraction of the root's surface area (Stich et

@@ -15,6 +15,7 @@ use glam::Vec3;
 
 use super::{ffi, Device, Quality};
 use crate::accel::bvh::node::{skeleton_of, BuildNode, Skeleton};
+use crate::accel::bvh::params::embree_split_replications;
 use crate::error::{Error, Result};
 use crate::geometry::Aabb;
 
@@ -207,9 +208,9 @@ pub(crate) fn build(
         return Ok(Skeleton::default());
     }
     let count = triangles.len();
-    // Room for spatial splits at high quality.
+    // Room for spatial splits at high quality: raylab's SBVH budget.
     let capacity = if quality == Quality::High {
-        2 * count
+        (count as f64 * embree_split_replications() as f64) as usize
     } else {
         count
     };

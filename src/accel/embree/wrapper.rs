@@ -9,6 +9,7 @@ use std::sync::{Arc, Mutex};
 use glam::Vec3;
 
 use super::{api, ffi, Quality};
+use crate::accel::bvh::params::embree_split_replications;
 use crate::accel::{Backend, Query};
 use crate::error::{Error, Result};
 use crate::geometry::{Hit, Ray};
@@ -563,7 +564,12 @@ impl EmbreeBackend {
         robust: bool,
         threads: usize,
     ) -> Result<Self> {
-        let device = Device::new(&format!("threads={threads}"))?;
+        // Spatial splits at high quality get raylab's SBVH budget, not
+        // Embree's default of 1.2 references per triangle (params.rs).
+        let device = Device::new(&format!(
+            "threads={threads},max_spatial_split_replications={}",
+            embree_split_replications()
+        ))?;
         let embree = EmbreeScene::new(&device, positions, triangles, quality, robust)?;
         Ok(EmbreeBackend {
             scene: embree,
