@@ -42,6 +42,17 @@ fn bad_scenes_fail_with_one_line_naming_the_file() {
         "/no/such/scene.obj",
     );
     assert_one_line_error(&["render", "cornell-nope", "-o", o], "cornell-nope");
+    // The error lists every kind of scene the command takes.
+    for kind in [
+        ".ply",
+        ".glb",
+        "cornell-water",
+        "mesh:N",
+        "grass:N",
+        "city45:N",
+    ] {
+        assert_one_line_error(&["render", "nope", "-o", o], kind);
+    }
     let bad = d.join("bad.obj");
     std::fs::write(&bad, "v 0 0 0\nv 1 0 0\nv 0 nan 0\nf 1 2 3\n").unwrap();
     assert_one_line_error(&["render", bad.to_str().unwrap(), "-o", o], "bad.obj:3:");

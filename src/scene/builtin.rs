@@ -98,10 +98,13 @@ pub fn builtin(name: &str) -> Result<Scene> {
         }
         _ => {
             let names: Vec<&str> = BUILTIN_SCENES.iter().map(|(n, _)| *n).collect();
+            let files: Vec<String> = super::EXTENSIONS.iter().map(|e| format!(".{e}")).collect();
             return Err(Error::usage(
                 "SCENE",
                 format!(
-                    "'{name}' is neither an .obj file nor a built-in scene ({})",
+                    "'{name}' is neither a scene file ({}) nor a built-in scene ({}, \
+                     mesh:N, grass:N, city:N, city45:N)",
+                    files.join(", "),
                     names.join(", ")
                 ),
             ));

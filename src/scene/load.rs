@@ -5,11 +5,8 @@
 
 use std::path::Path;
 
-use super::{gltf, obj, ply, Scene, READS};
+use super::{gltf, obj, ply, Scene, EXTENSIONS, READS};
 use crate::error::{Error, Result};
-
-/// File extensions of scene formats raylab reads, in lower case.
-pub const EXTENSIONS: &[&str] = &["obj", "ply", "gltf", "glb"];
 
 /// Extensions of 3D formats raylab does not read, with their names.
 const OTHER_FORMATS: &[(&str, &str)] = &[

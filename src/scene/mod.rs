@@ -19,6 +19,9 @@ use crate::geometry::{triangle_area, triangle_unit_normal, Aabb};
 /// What raylab reads, for messages.
 pub const READS: &str = "raylab reads OBJ (.obj), PLY (.ply) and glTF 2.0 (.gltf, .glb)";
 
+/// File extensions of scene formats raylab reads, in lower case.
+pub const EXTENSIONS: &[&str] = &["obj", "ply", "gltf", "glb"];
+
 /// The MTL values the shader uses; everything else in an MTL file is ignored.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Material {
