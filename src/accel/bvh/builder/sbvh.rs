@@ -460,7 +460,9 @@ fn bin_parts(
     } else {
         (sections.at(lo), lo)
     };
-    for (bin, slot) in boxes.iter_mut().enumerate().take(last + 1).skip(first) {
+    let within = Within::of(within);
+    for (bin, slot) in boxes[first..=last].iter_mut().enumerate() {
+        let bin = first + bin;
         let (upper, above) = if bin < last {
             let above = grid.plane(bin + 1).min(hi);
             (sections.at(above), above)
@@ -475,7 +477,7 @@ fn bin_parts(
                 b.grow(*p);
             }
         }
-        if let Some(part) = clamped(b, within) {
+        if let Some(part) = within.clamp(b) {
             *slot = slot.union(part);
         }
         lower = upper;
@@ -640,29 +642,49 @@ fn clipped(tri: &[Vec3; 3], axis: usize, from: f32, to: f32, within: &Box4) -> O
 /// is empty or lies outside; a box that only rounding puts outside (by a
 /// 1e-5 of `within`'s magnitude) is clamped into it, not dropped.
 fn clamped(b: Box4, within: &Box4) -> Option<Box4> {
-    if b.lo.x > b.hi.x {
-        return None;
-    }
-    let lo = b.lo.max(within.lo);
-    let hi = b.hi.min(within.hi);
-    let gap = (lo - hi).truncate().max_element();
-    if gap > 0.0 {
-        let w = within.to_aabb();
+    Within::of(within).clamp(b)
+}
+
+/// A reference's box with the rounding slack of [`clamped`], computed once
+/// for all the parts of its triangle that are clamped into it.
+struct Within {
+    bounds: Box4,
+    /// 1e-5 of the box's magnitude (its largest coordinate or extent).
+    slack: Vec4,
+}
+
+impl Within {
+    #[inline(always)]
+    fn of(bounds: &Box4) -> Within {
+        let w = bounds.to_aabb();
         let magnitude = w
             .min
             .abs()
             .max(w.max.abs())
             .max_element()
             .max(w.extent().max_element());
-        if gap > magnitude * 1e-5 {
-            return None;
+        Within {
+            bounds: *bounds,
+            slack: Vec4::splat(magnitude * 1e-5),
         }
     }
-    // Where rounding crossed them, the two sides swap, still within `within`.
-    Some(Box4 {
-        lo: lo.min(hi).max(within.lo),
-        hi: hi.max(lo).min(within.hi),
-    })
+
+    /// [`clamped`]: `b` clamped into the box, `None` when it is empty or
+    /// lies outside by more than the slack on some axis.
+    #[inline(always)]
+    fn clamp(&self, b: Box4) -> Option<Box4> {
+        let lo = b.lo.max(self.bounds.lo);
+        let hi = b.hi.min(self.bounds.hi);
+        // An empty `b` (infinite bounds) lies outside on every axis.
+        if (lo - hi).cmpgt(self.slack).bitmask() & 0b111 != 0 {
+            return None;
+        }
+        // Where rounding crossed them, the two sides swap, still within.
+        Some(Box4 {
+            lo: lo.min(hi).max(self.bounds.lo),
+            hi: hi.max(lo).min(self.bounds.hi),
+        })
+    }
 }
 
 /// Appends the subtree `sub` to `out` depth-first (left child next, right
