@@ -65,9 +65,9 @@ impl BinnedSah {
 /// number. Sized by the node's bin count ([`bins_for`]), so that a small node
 /// clears and merges only the bins it uses.
 #[derive(Clone)]
-struct Bins<const B: usize> {
-    boxes: [[Box4; 3]; B],
-    counts: [[u32; 3]; B],
+pub(super) struct Bins<const B: usize> {
+    pub(super) boxes: [[Box4; 3]; B],
+    pub(super) counts: [[u32; 3]; B],
 }
 
 impl<const B: usize> Bins<B> {
@@ -116,7 +116,7 @@ pub fn bins_for(n: usize) -> usize {
 /// whether it reads a bin that an earlier update is still writing; and even
 /// and odd primitives go to separate bin sets merged at the end, since
 /// neighbours often fall in the same bins.
-fn bin_pairs<const B: usize>(prims: &[PrimRef], lo: Vec4, scale: Vec4) -> Bins<B> {
+pub(super) fn bin_pairs<const B: usize>(prims: &[PrimRef], lo: Vec4, scale: Vec4) -> Bins<B> {
     debug_assert!(B.is_power_of_two());
     let mut even = Bins::<B>::empty();
     let mut odd = Bins::<B>::empty();

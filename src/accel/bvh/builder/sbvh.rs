@@ -579,16 +579,9 @@ fn object_split(
         Vec4::splat(B as f32) / extent,
         Vec4::ZERO,
     );
-    let mut boxes = [[Box4::EMPTY; 3]; B];
-    let mut counts = [[0u32; 3]; B];
-    for r in refs {
-        let q = ((r.centroid2() - lo) * scale).max(Vec4::ZERO);
-        for axis in 0..3 {
-            let bin = (q[axis] as usize).min(B - 1);
-            boxes[bin][axis] = boxes[bin][axis].union(Box4 { lo: r.lo, hi: r.hi });
-            counts[bin][axis] += 1;
-        }
-    }
+    // The SAH builder's binning (its updates kept from waiting on one
+    // another); the centroids lie at or above `lo`, so no bin is negative.
+    let super::sah::Bins { boxes, counts } = super::sah::bin_pairs::<B>(refs, lo, scale);
     let mut best: Option<(f32, Box4, Box4)> = None;
     for axis in 0..3 {
         if scale[axis] <= 0.0 {
