@@ -89,16 +89,32 @@ pub(super) fn side_legend<DB: DrawingBackend>(
 where
     DB::ErrorType: 'static,
 {
-    let style = TextStyle::from((FONT, 13).into_font()).pos(Pos::new(HPos::Left, VPos::Center));
+    // Rows of 19 pixels, closer (and their text smaller) where that many
+    // would run off the strip.
+    let (_, height) = area.dim_in_pixel();
+    let (step, size) = legend_rows(entries.len(), height);
+    let style = TextStyle::from((FONT, size).into_font()).pos(Pos::new(HPos::Left, VPos::Center));
+    let half = (step / 4).clamp(2, 5);
     for (i, (name, c)) in entries.iter().enumerate() {
-        let y = 50 + 19 * i as i32;
+        let y = 50 + step * i as i32;
         match swatch {
-            Swatch::Bar => area.draw(&Rectangle::new([(8, y - 5), (20, y + 5)], c.filled()))?,
-            Swatch::Dot => area.draw(&Circle::new((14, y), 5, c.filled()))?,
+            Swatch::Bar => {
+                area.draw(&Rectangle::new([(8, y - half), (20, y + half)], c.filled()))?
+            }
+            Swatch::Dot => area.draw(&Circle::new((14, y), half as u32, c.filled()))?,
         }
         area.draw(&Text::new(name.clone(), (28, y), style.clone()))?;
     }
     Ok(())
+}
+
+/// The row step and font size of a side legend of `entries` rows in a strip
+/// `height` pixels tall (starting 50 pixels down): 19 and 13 where they
+/// fit, else the rows share the height, down to 8 pixels and size 8.
+fn legend_rows(entries: usize, height: u32) -> (i32, u32) {
+    let room = height.saturating_sub(60) as i32;
+    let step = (room / entries.max(1) as i32).clamp(8, 19);
+    (step, (step as u32 * 13 / 19).clamp(8, 13))
 }
 
 /// A labelled line through `points` with a dot on each.
@@ -297,14 +313,50 @@ where
         .map(|(i, (name, _))| (name.clone(), color(i)))
         .collect();
     side_legend(&side, &entries, Swatch::Bar)?;
-    for (gi, (first, second)) in b.groups.iter().enumerate() {
-        let (px, py) = chart.backend_coord(&(gi as f64 + 0.5, y.start));
-        let style = TextStyle::from((FONT, 13).into_font()).pos(Pos::new(HPos::Center, VPos::Top));
-        plot.draw(&Text::new(first.clone(), (px, py + 6), style.clone()))?;
-        plot.draw(&Text::new(second.clone(), (px, py + 23), style))?;
+    // Under each group its second label; under each run of groups that
+    // share a first label (a scene's ray kinds or views), that label once.
+    // Each is shrunk to fit its room: long scene names and many groups
+    // made neighbouring labels overlap.
+    let x_px = |x: f64| chart.backend_coord(&(x, y.start));
+    let group_px = (x_px(1.0).0 - x_px(0.0).0).max(1) as u32;
+    let style = |size: u32| {
+        TextStyle::from((FONT, size).into_font()).pos(Pos::new(HPos::Center, VPos::Top))
+    };
+    let width_at = |text: &str, size: u32| {
+        plot.estimate_text_size(text, &style(size))
+            .map_or(0, |(w, _)| w)
+    };
+    for (gi, (_, second)) in b.groups.iter().enumerate() {
+        let (px, py) = x_px(gi as f64 + 0.5);
+        let size = label_size(|size| width_at(second, size), group_px);
+        plot.draw(&Text::new(second.clone(), (px, py + 6), style(size)))?;
+    }
+    let mut start = 0;
+    while start < b.groups.len() {
+        let first = &b.groups[start].0;
+        let end = start
+            + b.groups[start..]
+                .iter()
+                .take_while(|g| g.0 == *first)
+                .count();
+        let (px, py) = x_px((start + end) as f64 / 2.0);
+        let room = group_px * (end - start) as u32;
+        let size = label_size(|size| width_at(first, size), room);
+        plot.draw(&Text::new(first.clone(), (px, py + 23), style(size)))?;
+        start = end;
     }
     root.present()?;
     Ok(())
+}
+
+/// The font size, from 13 down to 7, at which a label is narrower than
+/// `room` pixels (as `width_at` measures it), less a small gap; 7 when none
+/// is.
+fn label_size(width_at: impl Fn(u32) -> u32, room: u32) -> u32 {
+    (7..=13)
+        .rev()
+        .find(|&size| width_at(size) + 4 <= room)
+        .unwrap_or(7)
 }
 
 /// The distinct values of `items`, in first-seen order (the scenes or
@@ -321,6 +373,26 @@ pub(super) fn distinct<'a>(items: impl Iterator<Item = &'a str>) -> Vec<&'a str>
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn labels_shrink_to_fit_their_room() {
+        // A label 6 pixels wide per point of font size.
+        let width = |size: u32| 6 * size;
+        assert_eq!(super::label_size(width, 200), 13);
+        assert_eq!(super::label_size(width, 6 * 10 + 4), 10);
+        assert_eq!(super::label_size(width, 6 * 10 + 3), 9);
+        assert_eq!(super::label_size(width, 10), 7);
+    }
+
+    #[test]
+    fn legends_of_many_series_fit_their_strip() {
+        assert_eq!(super::legend_rows(8, 560), (19, 13));
+        // 31 series in a 560-pixel chart: rows of 16 pixels end at 530.
+        let (step, size) = super::legend_rows(31, 560);
+        assert!(50 + step * 30 <= 560 - 10, "step {step}");
+        assert!((8..13).contains(&size));
+        assert_eq!(super::legend_rows(500, 560), (8, 8));
+    }
+
     #[test]
     fn bar_labels_are_short() {
         assert_eq!(super::short("cornell-water"), "water");
