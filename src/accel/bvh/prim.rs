@@ -25,6 +25,20 @@ pub trait Triangles: Sync {
     fn prefetch(&self, _i: usize, _stage: u8) {}
 }
 
+/// Every triangle's vertices, gathered in index order (in parallel when
+/// `parallel`): for builders that read triangles at random or need a slice.
+pub(crate) fn gathered<T: Triangles + ?Sized>(triangles: &T, parallel: bool) -> Vec<[Vec3; 3]> {
+    if parallel {
+        use rayon::prelude::*;
+        (0..triangles.count())
+            .into_par_iter()
+            .map(|i| triangles.get(i))
+            .collect()
+    } else {
+        (0..triangles.count()).map(|i| triangles.get(i)).collect()
+    }
+}
+
 /// Slices and vectors of vertex triples.
 impl<L: AsRef<[[Vec3; 3]]> + Sync + ?Sized> Triangles for L {
     #[inline]

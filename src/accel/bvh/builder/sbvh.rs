@@ -48,20 +48,7 @@ pub(crate) fn build<T: Triangles + ?Sized>(
     block: usize,
     parallel: bool,
 ) -> Skeleton {
-    // The spatial search and the splits read a straddling reference's
-    // triangle in the references' order, at random in the scene's arrays:
-    // one read of three vertices from one place, not an index triple and
-    // then three vertices from elsewhere.
-    let gathered: Vec<[Vec3; 3]> = if parallel {
-        use rayon::prelude::*;
-        (0..triangles.count())
-            .into_par_iter()
-            .map(|i| triangles.get(i))
-            .collect()
-    } else {
-        (0..triangles.count()).map(|i| triangles.get(i)).collect()
-    };
-    build_giving_up(&gathered, max_leaf, block, parallel, SBVH_GIVE_UP).0
+    build_giving_up(triangles, max_leaf, block, parallel, SBVH_GIVE_UP).0
 }
 
 /// [`build`] with a subtree giving up its spatial search after a plane
