@@ -7,7 +7,7 @@ DEB_PACKAGES := build-essential pkg-config libclang-dev libembree-dev fonts-deja
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 RAYLAB := target/release/raylab
 
-.PHONY: deps browser real-scenes build run test bench bench-quick criterion lint clean
+.PHONY: deps browser real-scenes sponza sponza-path build run test bench bench-quick criterion lint clean
 
 deps:
 	@missing=""; \
@@ -34,6 +34,21 @@ real-scenes:
 	  echo "installing Debian package: assimp-testmodels"; \
 	  $(SUDO) apt-get update -qq && \
 	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq assimp-testmodels; }
+
+# A real architecture scene: Marko Dabrovic's Sponza atrium (66,450 triangles:
+# arcades, columns, long thin walls), which the bvh crate ships in its sources
+# (media/sponza.obj; cargo fetches it with raylab's dependencies). Its path,
+# and a render from inside, where its structure is seen.
+SPONZA = $(shell $(CARGO) metadata --format-version 1 2>/dev/null | python3 -c \
+  'import json,sys,os; d=json.load(sys.stdin); print(next(os.path.join(os.path.dirname(p["manifest_path"]),"media","sponza.obj") for p in d["packages"] if p["name"]=="bvh"))' 2>/dev/null)
+SPONZA_VIEW := --eye=-14,2,0 --look 10,5,0 --fov 70
+
+sponza-path: deps
+	@test -f "$(SPONZA)" || { echo "sponza.obj not found in the bvh crate's sources (run cargo fetch)"; exit 1; }
+	@echo "$(SPONZA)"
+
+sponza: build sponza-path
+	$(RAYLAB) render "$(SPONZA)" $(SPONZA_VIEW) -o sponza.png
 
 build: deps
 	$(CARGO) build --release
