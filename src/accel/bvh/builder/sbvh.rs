@@ -316,7 +316,7 @@ impl<T: Triangles + ?Sized> Sbvh<'_, T> {
             } else if grids.bins(r.lo)[axis] as usize >= plane.bin {
                 right.push(*r);
             } else {
-                let whole = Box4 { lo: r.lo, hi: r.hi };
+                let whole = Within::of(&Box4 { lo: r.lo, hi: r.hi });
                 let tri = self.triangles.get(r.index() as usize);
                 let l = clipped(&tri, axis, f32::NEG_INFINITY, at, &whole);
                 let rr = clipped(&tri, axis, at, f32::INFINITY, &whole);
@@ -610,8 +610,8 @@ fn intersection(a: Box4, b: Box4) -> Box4 {
 /// `None` when the triangle does not reach there. The slab's polygon is
 /// the triangle's vertices inside it and its edges' crossings of the two
 /// planes. A box that rounding alone makes empty against `within` is
-/// clamped into it, not dropped.
-fn clipped(tri: &[Vec3; 3], axis: usize, from: f32, to: f32, within: &Box4) -> Option<Box4> {
+/// clamped into it, not dropped ([`Within::clamp`]).
+fn clipped(tri: &[Vec3; 3], axis: usize, from: f32, to: f32, within: &Within) -> Option<Box4> {
     let mut b = Box4::EMPTY;
     for i in 0..3 {
         let (a, c) = (tri[i], tri[(i + 1) % 3]);
@@ -628,18 +628,12 @@ fn clipped(tri: &[Vec3; 3], axis: usize, from: f32, to: f32, within: &Box4) -> O
             }
         }
     }
-    clamped(b, within)
+    within.clamp(b)
 }
 
-/// `b` (the box of a triangle's part) within `within`, or `None` when `b`
-/// is empty or lies outside; a box that only rounding puts outside (by a
-/// 1e-5 of `within`'s magnitude) is clamped into it, not dropped.
-fn clamped(b: Box4, within: &Box4) -> Option<Box4> {
-    Within::of(within).clamp(b)
-}
-
-/// A reference's box with the rounding slack of [`clamped`], computed once
-/// for all the parts of its triangle that are clamped into it.
+/// A reference's box with the slack that rounding may put a part of its
+/// triangle outside it by (1e-5 of the box's magnitude), computed once for
+/// all the parts of its triangle that are clamped into it.
 struct Within {
     bounds: Box4,
     /// 1e-5 of the box's magnitude (its largest coordinate or extent).
@@ -662,8 +656,9 @@ impl Within {
         }
     }
 
-    /// [`clamped`]: `b` clamped into the box, `None` when it is empty or
-    /// lies outside by more than the slack on some axis.
+    /// `b` (the box of a triangle's part) clamped into the box; `None` when
+    /// it is empty or lies outside by more than the slack on some axis: a
+    /// box that only rounding puts outside is clamped in, not dropped.
     #[inline(always)]
     fn clamp(&self, b: Box4) -> Option<Box4> {
         let lo = b.lo.max(self.bounds.lo);
@@ -732,16 +727,16 @@ mod tests {
             lo: Vec4::splat(-1.0),
             hi: Vec4::splat(5.0),
         };
-        let b = clipped(&tri, 0, 1.0, 2.0, &all).unwrap();
+        let b = clipped(&tri, 0, 1.0, 2.0, &Within::of(&all)).unwrap();
         assert_eq!(b.lo.truncate(), Vec3::new(1.0, 0.0, 0.0));
         assert_eq!(b.hi.truncate(), Vec3::new(2.0, 3.0, 0.0));
-        assert!(clipped(&tri, 0, 5.0, 6.0, &all).is_none());
+        assert!(clipped(&tri, 0, 5.0, 6.0, &Within::of(&all)).is_none());
         // Within an already clipped box.
         let half = Box4 {
             lo: Vec4::splat(-1.0),
             hi: Vec4::new(5.0, 1.0, 5.0, 0.0),
         };
-        let b = clipped(&tri, 0, 1.0, 2.0, &half).unwrap();
+        let b = clipped(&tri, 0, 1.0, 2.0, &Within::of(&half)).unwrap();
         assert_eq!(b.hi.truncate(), Vec3::new(2.0, 1.0, 0.0));
     }
 
