@@ -97,13 +97,16 @@ pub fn builtin(name: &str) -> Result<Scene> {
             b.city(n as usize, PI / 4.0);
         }
         _ => {
-            let names: Vec<&str> = BUILTIN_SCENES.iter().map(|(n, _)| *n).collect();
+            let names: Vec<&str> = BUILTIN_SCENES
+                .iter()
+                .chain(PROCEDURAL_SCENES)
+                .map(|(n, _)| *n)
+                .collect();
             let files: Vec<String> = super::EXTENSIONS.iter().map(|e| format!(".{e}")).collect();
             return Err(Error::usage(
                 "SCENE",
                 format!(
-                    "'{name}' is neither a scene file ({}) nor a built-in scene ({}, \
-                     mesh:N, grass:N, city:N, city45:N)",
+                    "'{name}' is neither a scene file ({}) nor a built-in scene ({})",
                     files.join(", "),
                     names.join(", ")
                 ),
