@@ -4,7 +4,8 @@
 mod common;
 
 use common::{
-    assert_one_line_error, assert_success, embree_packets, own_packets, raylab, temp_dir,
+    assert_one_line_error, assert_one_line_error_naming, assert_success, embree_packets,
+    own_packets, raylab, temp_dir,
 };
 
 #[test]
@@ -43,16 +44,17 @@ fn bad_scenes_fail_with_one_line_naming_the_file() {
     );
     assert_one_line_error(&["render", "cornell-nope", "-o", o], "cornell-nope");
     // The error lists every kind of scene the command takes.
-    for kind in [
-        ".ply",
-        ".glb",
-        "cornell-water",
-        "mesh:N",
-        "grass:N",
-        "city45:N",
-    ] {
-        assert_one_line_error(&["render", "nope", "-o", o], kind);
-    }
+    assert_one_line_error_naming(
+        &["render", "nope", "-o", o],
+        &[
+            ".ply",
+            ".glb",
+            "cornell-water",
+            "mesh:N",
+            "grass:N",
+            "city45:N",
+        ],
+    );
     let bad = d.join("bad.obj");
     std::fs::write(&bad, "v 0 0 0\nv 1 0 0\nv 0 nan 0\nf 1 2 3\n").unwrap();
     assert_one_line_error(&["render", bad.to_str().unwrap(), "-o", o], "bad.obj:3:");

@@ -94,6 +94,12 @@ pub fn temp_dir(tag: &str) -> PathBuf {
 
 /// Asserts a failed run with exactly one line on stderr containing `needle`.
 pub fn assert_one_line_error(args: &[&str], needle: &str) {
+    assert_one_line_error_naming(args, &[needle]);
+}
+
+/// As [`assert_one_line_error`], the one line holding every one of `needles`
+/// (one run of the command).
+pub fn assert_one_line_error_naming(args: &[&str], needles: &[&str]) {
     let out = raylab(args);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "{args:?} succeeded");
@@ -103,10 +109,12 @@ pub fn assert_one_line_error(args: &[&str], needle: &str) {
         "{args:?}: stderr was:\n{err}"
     );
     assert!(!err.contains("panicked"), "{args:?}: {err}");
-    assert!(
-        err.contains(needle),
-        "{args:?}: expected '{needle}' in: {err}"
-    );
+    for needle in needles {
+        assert!(
+            err.contains(needle),
+            "{args:?}: expected '{needle}' in: {err}"
+        );
+    }
 }
 
 /// The binary tree of `params`' splits, built through the one entry point.
