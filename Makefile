@@ -43,10 +43,10 @@ SPONZA = $(shell $(CARGO) metadata --format-version 1 2>/dev/null | python3 -c \
   'import json,sys,os; d=json.load(sys.stdin); print(next(os.path.join(os.path.dirname(p["manifest_path"]),"media","sponza.obj") for p in d["packages"] if p["name"]=="bvh"))' 2>/dev/null)
 SPONZA_VIEW := --eye=-14,2,0 --look 10,5,0 --fov 70
 
-# Only the path on stdout (scripts capture it): no package check here.
+# Only the path on stdout (scripts capture it): no package check here, and
+# one recipe line: $(SPONZA) runs cargo metadata each time it is expanded.
 sponza-path:
-	@test -f "$(SPONZA)" || { echo "sponza.obj not found in the bvh crate's sources (run cargo fetch)"; exit 1; }
-	@echo "$(SPONZA)"
+	@p="$(SPONZA)"; test -f "$$p" || { echo "sponza.obj not found in the bvh crate's sources (run cargo fetch)" >&2; exit 1; }; echo "$$p"
 
 sponza: build sponza-path
 	$(RAYLAB) render "$(SPONZA)" $(SPONZA_VIEW) -o sponza.png
