@@ -359,6 +359,26 @@ fn tree_is_identical_for_any_thread_count() {
             );
         }
     }
+    // The 8-wide trees whose lanes are ordered for the any-hit walk.
+    for params in [
+        BuildParams::for_builder(BuilderKind::Sbvh),
+        BuildParams::for_quality(raylab::accel::bvh::params::Quality::High),
+    ] {
+        let params = params.with_width(8);
+        assert!(params.orders_lanes());
+        let wide = |threads| match build(&tris, &params.with_threads(threads)).unwrap() {
+            Tree::Wide8(t) => t,
+            _ => unreachable!("an 8-wide tree"),
+        };
+        let one = wide(1);
+        for threads in [2, 4] {
+            let many = wide(threads);
+            assert!(
+                one.nodes == many.nodes && one.blocks == many.blocks,
+                "{params:?} 8-wide on {threads} threads"
+            );
+        }
+    }
 }
 
 #[test]

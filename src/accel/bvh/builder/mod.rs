@@ -29,7 +29,7 @@ use super::params::{BuildParams, BuilderKind, PARALLEL_CUTOFF};
 use super::prim::{gathered, NodeInfo, PrimRef, Triangles, MAX_TRIANGLES};
 use super::simd::Kernel;
 use super::tree::Tree;
-use super::wide::WideBvh;
+use super::wide::{order_for_any_hit, WideBvh};
 use topdown::{Split, Splitter};
 
 /// Builds the tree `params` describe over `triangles` (indexed as in the
@@ -162,7 +162,11 @@ pub(crate) fn wide<const N: usize, T: Triangles + ?Sized>(
         }
         None => {
             let skeleton = skeleton(triangles, params)?.compact();
-            WideBvh::from_skeleton(&skeleton, triangles, parallel)
+            let mut tree = WideBvh::from_skeleton(&skeleton, triangles, parallel)?;
+            if params.orders_lanes() {
+                order_for_any_hit(&mut tree);
+            }
+            Ok(tree)
         }
     }
 }

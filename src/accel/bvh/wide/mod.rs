@@ -2,7 +2,8 @@
 //! structure-of-arrays rows so that one SIMD operation tests all of them
 //! ([`super::simd`]), and leaf triangles in blocks of four tested together
 //! ([`super::leaf`]). [`node`] is the layout, `collapse` makes a wide tree
-//! from a binary one, `traverse` answers the queries.
+//! from a binary one, `order` arranges the lanes for the any-hit walk,
+//! `traverse` answers the queries.
 //!
 //! The layout, kernels and traversal choices and their measurements:
 //! `docs/design.md`, "Wide trees".
@@ -10,11 +11,13 @@
 mod collapse;
 pub mod cost;
 pub mod node;
+mod order;
 mod packet;
 mod traverse;
 
 pub use cost::TraversalCosts;
 pub use node::{Bvh4, Bvh8, WideBvh, WideNode, EMPTY, MAX_LEAF, MAX_SLOTS};
+pub(crate) use order::order_for_any_hit;
 
 #[cfg(test)]
 mod tests {

@@ -132,7 +132,8 @@ impl<const N: usize> WideBvh<N> {
     /// saves (measured on AO rays). The order is not neutral: on Sponza,
     /// Embree's (the last hit lane first) makes shadow rays 1.25-1.4x faster
     /// and AO rays 1.1-1.3x slower, there and on other scenes (docs/results.md,
-    /// "A real architecture scene: Sponza").
+    /// "A real architecture scene: Sponza"). The spatial-split builder's trees
+    /// put their lanes in an order made for this walk (`super::order`).
     #[inline(always)]
     pub(crate) fn any_with<K: NodeKernel<N>, T: BlockTest, C: Counter, const S: usize>(
         &self,
