@@ -18,6 +18,8 @@
 //! orders_lanes`); measured there, and why the other builders keep theirs:
 //! `ORDER_BLOCK_COST`'s notes.
 
+use arrayvec::ArrayVec;
+
 use super::node::{leaf_slots, WideBvh, WideNode, EMPTY, LEAF};
 use crate::accel::bvh::leaf::LANES;
 use crate::accel::bvh::params::ORDER_BLOCK_COST;
@@ -51,7 +53,7 @@ pub(crate) fn order_for_any_hit<const N: usize>(tree: &mut WideBvh<N>) {
 /// those of its child nodes) and returns the node's own cost.
 fn order_node<const N: usize>(node: &mut WideNode<N>, costs: &[f32]) -> f32 {
     // (lane, cost of the child, its box's surface area)
-    let mut lanes: Vec<(usize, f32, f32)> = Vec::with_capacity(N);
+    let mut lanes: ArrayVec<(usize, f32, f32), N> = ArrayVec::new();
     for lane in (0..N).filter(|&l| node.child[l] != EMPTY) {
         let child = node.child[lane];
         let cost = if child & LEAF != 0 {
