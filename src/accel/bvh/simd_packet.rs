@@ -192,6 +192,65 @@ pub struct NodeHits {
     pub lanes: u32,
 }
 
+/// A packet's closest hits so far, by lanes (so that the AVX-512 kernel
+/// keeps them in registers through a leaf): ray `r` has no hit while
+/// `tri[r]` is [`EMPTY_ID`] (no scene triangle has that index), and then
+/// `t[r]` is infinite, so any hit is closer.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(64))]
+pub struct PacketHits<const R: usize> {
+    pub t: [f32; R],
+    pub u: [f32; R],
+    pub v: [f32; R],
+    pub tri: [u32; R],
+}
+
+impl<const R: usize> PacketHits<R> {
+    /// No ray has a hit.
+    pub fn none() -> Self {
+        PacketHits {
+            t: [f32::INFINITY; R],
+            u: [0.0; R],
+            v: [0.0; R],
+            tri: [EMPTY_ID; R],
+        }
+    }
+
+    /// Ray `r`'s hit.
+    #[inline(always)]
+    pub fn get(&self, r: usize) -> Option<Hit> {
+        (self.tri[r] != EMPTY_ID).then(|| Hit {
+            t: self.t[r],
+            u: self.u[r],
+            v: self.v[r],
+            tri: self.tri[r],
+        })
+    }
+
+    /// Sets ray `r`'s hit.
+    #[inline(always)]
+    pub fn set(&mut self, r: usize, hit: Option<Hit>) {
+        let hit = hit.unwrap_or(Hit {
+            t: f32::INFINITY,
+            u: 0.0,
+            v: 0.0,
+            tri: EMPTY_ID,
+        });
+        (self.t[r], self.u[r], self.v[r], self.tri[r]) = (hit.t, hit.u, hit.v, hit.tri);
+    }
+
+    /// Keeps `hit` for ray `r` if it beats the ray's hit by
+    /// [`Hit::is_closer_than`] (any hit beats none); returns whether it did.
+    #[inline(always)]
+    pub fn offer(&mut self, r: usize, hit: Hit) -> bool {
+        let closer = hit.t < self.t[r] || (hit.t == self.t[r] && hit.tri < self.tri[r]);
+        if closer {
+            self.set(r, Some(hit));
+        }
+        closer
+    }
+}
+
 /// Tests of a packet of up to `R` rays against nodes and leaf blocks.
 pub trait PacketKernel<const R: usize>: Copy {
     /// The packet prepared for the tests.
@@ -214,9 +273,9 @@ pub trait PacketKernel<const R: usize>: Copy {
         tmax: &[f32; R],
     ) -> NodeHits;
     /// Closest-hit test of the rays of `active` against the lanes `in_leaf` of
-    /// `block`: a ray whose hit beats `hits[r]` (by [`Hit::is_closer_than`],
-    /// hits with `t` below `tmax[r]` only) gets it. Returns the rays whose
-    /// hit changed.
+    /// `block`: a ray whose hit beats its hit in `hits` (by
+    /// [`Hit::is_closer_than`], hits with `t` below `tmax[r]` only) gets it.
+    /// Returns the rays whose hit changed.
     fn leaf_closest(
         self,
         block: &Tri4,
@@ -224,7 +283,7 @@ pub trait PacketKernel<const R: usize>: Copy {
         rays: &Self::Rays,
         active: u32,
         tmax: &[f32; R],
-        hits: &mut [Option<Hit>],
+        hits: &mut PacketHits<R>,
     ) -> u32;
     /// The rays of `active` that hit a lane `in_leaf` of `block` within their
     /// segment.
@@ -465,7 +524,7 @@ impl<K: NodeKernel<8>, T: BlockTest, const R: usize> PacketKernel<R> for PerRay<
         lanes: &Self::Rays,
         active: u32,
         tmax: &[f32; R],
-        hits: &mut [Option<Hit>],
+        hits: &mut PacketHits<R>,
     ) -> u32 {
         let mut changed = 0;
         for r in bits(active) {
@@ -477,8 +536,7 @@ impl<K: NodeKernel<8>, T: BlockTest, const R: usize> PacketKernel<R> for PerRay<
             let mut found = T::test4(&lane.prepared, &lane.ray4, &test_ray, block);
             found.mask &= in_leaf;
             if let Some(hit) = found.closest(&block.ids) {
-                if hits[r].is_none_or(|b| hit.is_closer_than(&b)) {
-                    hits[r] = Some(hit);
+                if hits.offer(r, hit) {
                     changed |= 1 << r;
                 }
             }
@@ -525,7 +583,7 @@ fn leaf_closest_by_lanes<L: TriangleLanes<R>, const R: usize>(
     p: &L::Rays,
     active: u32,
     tmax: &[f32; R],
-    hits: &mut [Option<Hit>],
+    hits: &mut PacketHits<R>,
 ) -> u32 {
     let mut changed = 0;
     let mut tmax = *tmax;
@@ -542,8 +600,7 @@ fn leaf_closest_by_lanes<L: TriangleLanes<R>, const R: usize>(
                 v: v[r],
                 tri: block.ids[i],
             };
-            if hits[r].is_none_or(|b| hit.is_closer_than(&b)) {
-                hits[r] = Some(hit);
+            if hits.offer(r, hit) {
                 tmax[r] = hit.t.next_up();
                 changed |= 1 << r;
             }
@@ -863,7 +920,7 @@ impl PacketKernel<PACKET> for Avx2Packet {
         p: &RaysSoa,
         active: u32,
         tmax: &[f32; 8],
-        hits: &mut [Option<Hit>],
+        hits: &mut PacketHits<8>,
     ) -> u32 {
         leaf_closest_by_lanes(self, block, in_leaf, p, active, tmax, hits)
     }
@@ -1254,9 +1311,55 @@ impl PacketKernel<PACKET16> for Avx512Packet {
         p: &RaysSoa16,
         active: u32,
         tmax: &[f32; PACKET16],
-        hits: &mut [Option<Hit>],
+        hits: &mut PacketHits<PACKET16>,
     ) -> u32 {
-        leaf_closest_by_lanes(self, block, in_leaf, p, active, tmax, hits)
+        use std::arch::x86_64::*;
+        // As `leaf_closest_by_lanes`, with the hits and the rays' `tmax` in
+        // registers through the block: a lane takes a triangle's hit where
+        // it is closer by `Hit::is_closer_than` (t below, or equal with a
+        // lower index; the index compare unsigned, as `u32`'s), and its
+        // `tmax` becomes the hit's `t.next_up()`: for the positive `t` a hit
+        // has (above `tmin >= 0`), the next float up is the bits plus one.
+        // SAFETY: `self.0` proves AVX-512F; loads and stores read and write
+        // sixteen lanes of `hits` (64-byte aligned) or `tmax` (unaligned).
+        unsafe {
+            let mut limit = _mm512_loadu_ps(tmax.as_ptr());
+            let mut best_t = _mm512_load_ps(hits.t.as_ptr());
+            let mut best_u = _mm512_load_ps(hits.u.as_ptr());
+            let mut best_v = _mm512_load_ps(hits.v.as_ptr());
+            let mut best_tri = _mm512_load_si512(hits.tri.as_ptr() as *const _);
+            let one = _mm512_set1_epi32(1);
+            let mut changed: __mmask16 = 0;
+            for i in bits(in_leaf) {
+                let id = block.ids[i];
+                if id == EMPTY_ID {
+                    continue;
+                }
+                let (ok, t, u, v) = self.triangle16(block, i, p, limit);
+                let found = ok & active as __mmask16;
+                if found == 0 {
+                    continue;
+                }
+                let idv = _mm512_set1_epi32(id as i32);
+                let closer = _mm512_mask_cmp_ps_mask::<_CMP_LT_OQ>(found, t, best_t)
+                    | (_mm512_mask_cmp_ps_mask::<_CMP_EQ_OQ>(found, t, best_t)
+                        & _mm512_cmplt_epu32_mask(idv, best_tri));
+                best_t = _mm512_mask_mov_ps(best_t, closer, t);
+                best_u = _mm512_mask_mov_ps(best_u, closer, u);
+                best_v = _mm512_mask_mov_ps(best_v, closer, v);
+                best_tri = _mm512_mask_mov_epi32(best_tri, closer, idv);
+                let next_up = _mm512_castsi512_ps(_mm512_add_epi32(_mm512_castps_si512(t), one));
+                limit = _mm512_mask_mov_ps(limit, closer, next_up);
+                changed |= closer;
+            }
+            if changed != 0 {
+                _mm512_store_ps(hits.t.as_mut_ptr(), best_t);
+                _mm512_store_ps(hits.u.as_mut_ptr(), best_u);
+                _mm512_store_ps(hits.v.as_mut_ptr(), best_v);
+                _mm512_store_si512(hits.tri.as_mut_ptr() as *mut _, best_tri);
+            }
+            changed as u32
+        }
     }
 
     #[inline(always)]
@@ -1280,6 +1383,44 @@ impl TriangleLanes<PACKET16> for Avx512Packet {
         tmax: &[f32; PACKET16],
     ) -> (u32, [f32; 16], [f32; 16], [f32; 16]) {
         use std::arch::x86_64::*;
+        // SAFETY: `self.0` proves AVX-512F; the load reads sixteen f32 of
+        // `tmax` (unaligned), the stores write sixteen f32 to local arrays.
+        unsafe {
+            let (ok, t, u, v) = self.triangle16(block, i, p, _mm512_loadu_ps(tmax.as_ptr()));
+            let (mut ts, mut us, mut vs) = ([0f32; 16], [0f32; 16], [0f32; 16]);
+            if ok != 0 {
+                _mm512_storeu_ps(ts.as_mut_ptr(), t);
+                _mm512_storeu_ps(us.as_mut_ptr(), u);
+                _mm512_storeu_ps(vs.as_mut_ptr(), v);
+            }
+            (ok as u32, ts, us, vs)
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Avx512Packet {
+    /// The triangle test of [`TriangleLanes::triangle`] with `tmax` and the
+    /// results in registers: the rays that hit within `(tmin, tmax)`, and
+    /// each lane's t, u and v (meaningful where they hit).
+    ///
+    /// # Safety
+    /// The CPU must run AVX-512F (`self.0` proves it; `unsafe` only because
+    /// the registers are its types).
+    #[inline(always)]
+    unsafe fn triangle16(
+        self,
+        block: &Tri4,
+        i: usize,
+        p: &RaysSoa16,
+        tmax: std::arch::x86_64::__m512,
+    ) -> (
+        std::arch::x86_64::__mmask16,
+        std::arch::x86_64::__m512,
+        std::arch::x86_64::__m512,
+        std::arch::x86_64::__m512,
+    ) {
+        use std::arch::x86_64::*;
         let [v0, v1, v2] = &block.v;
         let e1 = [
             v1[0][i] - v0[0][i],
@@ -1292,8 +1433,7 @@ impl TriangleLanes<PACKET16> for Avx512Packet {
             v2[2][i] - v0[2][i],
         ];
         // SAFETY: `self.0` proves AVX-512F; loads read 64-byte aligned rows
-        // of `p` (RaysSoa16 is aligned to 64) or sixteen f32 of `tmax`
-        // (unaligned load); stores write sixteen f32 to local arrays.
+        // of `p` (RaysSoa16 is aligned to 64).
         unsafe {
             macro_rules! s {
                 ($x:expr) => {
@@ -1351,7 +1491,8 @@ impl TriangleLanes<PACKET16> for Avx512Packet {
             let outside = cmp!(_CMP_LT_OQ, signed, sub!(s!(0.0), margin))
                 | cmp!(_CMP_GT_OQ, signed, add!(abs_det, margin));
             if outside == 0xFFFF {
-                return (0, [0f32; 16], [0f32; 16], [0f32; 16]);
+                let zero = _mm512_setzero_ps();
+                return (0, zero, zero, zero);
             }
             let inv_det = _mm512_div_ps(s!(1.0), det);
             let u = mul!(u_num, inv_det);
@@ -1372,14 +1513,8 @@ impl TriangleLanes<PACKET16> for Avx512Packet {
                 & cmp!(_CMP_GE_OQ, v, s!(0.0))
                 & cmp!(_CMP_LE_OQ, add!(u, v), s!(1.0))
                 & cmp!(_CMP_GT_OQ, t, row!(p.tmin))
-                & cmp!(_CMP_LT_OQ, t, _mm512_loadu_ps(tmax.as_ptr()));
-            let (mut ts, mut us, mut vs) = ([0f32; 16], [0f32; 16], [0f32; 16]);
-            if ok != 0 {
-                _mm512_storeu_ps(ts.as_mut_ptr(), t);
-                _mm512_storeu_ps(us.as_mut_ptr(), u);
-                _mm512_storeu_ps(vs.as_mut_ptr(), v);
-            }
-            (ok as u32, ts, us, vs)
+                & cmp!(_CMP_LT_OQ, t, tmax);
+            (ok, t, u, v)
         }
     }
 }

@@ -26,7 +26,7 @@ use arrayvec::ArrayVec;
 use super::super::leaf::BlockTest;
 use super::super::params::{CULL_SLACK, PACKET_MIN_RAYS, PACKET_MIN_RAYS_INCOHERENT, SLAB_SLACK};
 use super::super::simd::NodeKernel;
-use super::super::simd_packet::{bits, PacketKernel};
+use super::super::simd_packet::{bits, PacketHits, PacketKernel};
 use super::super::traverse::NoCount;
 use super::node::{for_leaf_blocks, WideBvh, LEAF};
 use super::traverse::push_sorted;
@@ -79,6 +79,7 @@ impl WideBvh<8> {
         if self.nodes.is_empty() {
             return;
         }
+        let mut best = PacketHits::<R>::none();
         let (prepared, active) = packet.prepare(rays);
         let min_rays = min_rays::<P, R>(&prepared);
         // Per ray: triangles are tested below `tmax` (just above its best t),
@@ -96,23 +97,28 @@ impl WideBvh<8> {
             let mut changed = 0;
             if mask.count_ones() < min_rays {
                 for r in bits(mask) {
-                    hits[r] = self.closest_from::<K, T, NoCount, S>(
+                    let hit = self.closest_from::<K, T, NoCount, S>(
                         kernel,
                         &rays[r],
                         current,
-                        hits[r],
+                        best.get(r),
                         &mut NoCount,
                     );
+                    best.set(r, hit);
                 }
                 changed = mask;
             } else if current & LEAF != 0 {
                 for_leaf_blocks(current, |b, in_leaf| {
-                    let found =
-                        packet.leaf_closest(&self.blocks[b], in_leaf, &prepared, mask, &tmax, hits);
+                    let found = packet.leaf_closest(
+                        &self.blocks[b],
+                        in_leaf,
+                        &prepared,
+                        mask,
+                        &tmax,
+                        &mut best,
+                    );
                     for r in bits(found) {
-                        if let Some(hit) = hits[r] {
-                            tmax[r] = hit.t.next_up();
-                        }
+                        tmax[r] = best.t[r].next_up();
                     }
                     changed |= found;
                     false
@@ -140,7 +146,7 @@ impl WideBvh<8> {
                 }
             }
             for r in bits(changed) {
-                if let Some(hit) = hits[r] {
+                if let Some(hit) = best.get(r) {
                     tmax[r] = hit.t.next_up();
                     cut[r] = hit.t * (1.0 + CULL_SLACK);
                 }
@@ -155,6 +161,9 @@ impl WideBvh<8> {
                     break;
                 }
             }
+        }
+        for (r, hit) in hits.iter_mut().enumerate() {
+            *hit = best.get(r);
         }
     }
 
