@@ -170,7 +170,6 @@ impl BuildParams {
         self
     }
 
-    /// Reinsertion optimisation after the build, or not.
     /// Whether the wide tree's lanes are reordered for the any-hit
     /// traversals (`wide::order`): for the spatial-split builder only
     /// ([`ORDER_BLOCK_COST`]'s notes). Trees made directly wide by the
@@ -179,6 +178,7 @@ impl BuildParams {
         matches!(self.builder, BuilderKind::Sbvh)
     }
 
+    /// Reinsertion optimisation after the build, or not.
     pub const fn with_optimize(mut self, optimize: bool) -> Self {
         self.optimize = optimize;
         self
