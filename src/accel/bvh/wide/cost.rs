@@ -28,7 +28,7 @@ use std::time::Instant;
 use glam::Vec3;
 use serde::Serialize;
 
-use super::node::{for_leaf_blocks, leaf_ref, WideBvh, WideNode, EMPTY};
+use super::node::{leaf_block_count, leaf_ref, WideBvh, WideNode, EMPTY};
 use crate::accel::bvh::leaf::{BlockTest, Tri4, LANES};
 use crate::accel::bvh::simd::Kernel;
 use crate::accel::bvh::traverse::{NoCount, Traversal};
@@ -171,10 +171,7 @@ impl<const N: usize> WideBvh<N> {
         let Some(root) = self.nodes.first() else {
             return 0.0;
         };
-        let root_box = (0..N)
-            .filter(|&lane| root.child[lane] != EMPTY)
-            .fold(Aabb::EMPTY, |b, lane| b.union(root.lane_bounds(lane)));
-        let root_area = (root_box.surface_area() as f64).max(f64::MIN_POSITIVE);
+        let root_area = (root.used_box().surface_area() as f64).max(f64::MIN_POSITIVE);
         let mut cost = 0.0;
         let mut stack = vec![(0usize, 1.0f64)];
         while let Some((i, reach)) = stack.pop() {
@@ -187,11 +184,7 @@ impl<const N: usize> WideBvh<N> {
                 }
                 let lane_reach = node.lane_bounds(lane).surface_area() as f64 / root_area;
                 if node.is_leaf(lane) {
-                    let mut blocks = 0usize;
-                    for_leaf_blocks(child, |_, _| {
-                        blocks += 1;
-                        false
-                    });
+                    let blocks = leaf_block_count(child);
                     cost += lane_reach * blocks as f64 * costs.block_ns;
                 } else {
                     stack.push((child as usize, lane_reach));

@@ -82,6 +82,14 @@ pub(super) fn leaf_slots(child: u32) -> (usize, usize) {
     (first, first + count)
 }
 
+/// The blocks a leaf reference's triangles span (what [`for_leaf_blocks`]
+/// visits).
+#[inline]
+pub(super) fn leaf_block_count(child: u32) -> usize {
+    let (first, end) = leaf_slots(child);
+    (end - 1) / LANES - first / LANES + 1
+}
+
 /// The part of a leaf in one block: `(block, lanes)`, `lanes` the mask of the
 /// block's lanes that belong to the leaf. Calls `f` for each block in order
 /// and stops early when it returns `true`; returns whether it did.
@@ -148,6 +156,13 @@ impl<const N: usize> WideNode<N> {
             min: b(0),
             max: b(1),
         }
+    }
+
+    /// The union of the used lanes' boxes (the node's own box).
+    pub fn used_box(&self) -> Aabb {
+        (0..N)
+            .filter(|&lane| self.child[lane] != EMPTY)
+            .fold(Aabb::EMPTY, |b, lane| b.union(self.lane_bounds(lane)))
     }
 
     /// Whether lane `lane` holds a leaf.

@@ -20,8 +20,7 @@
 
 use arrayvec::ArrayVec;
 
-use super::node::{leaf_slots, WideBvh, WideNode, EMPTY, LEAF};
-use crate::accel::bvh::leaf::LANES;
+use super::node::{leaf_block_count, WideBvh, WideNode, EMPTY, LEAF};
 use crate::accel::bvh::params::ORDER_BLOCK_COST;
 
 /// Reorders every node's lanes of `tree` as the module notes say. The tree
@@ -57,19 +56,13 @@ fn order_node<const N: usize>(node: &mut WideNode<N>, costs: &[f32]) -> f32 {
     for lane in (0..N).filter(|&l| node.child[l] != EMPTY) {
         let child = node.child[lane];
         let cost = if child & LEAF != 0 {
-            let (first, end) = leaf_slots(child);
-            let blocks = (end - 1) / LANES - first / LANES + 1;
-            ORDER_BLOCK_COST * blocks as f32
+            ORDER_BLOCK_COST * leaf_block_count(child) as f32
         } else {
             costs[child as usize]
         };
         lanes.push((lane, cost, node.lane_bounds(lane).surface_area()));
     }
-    let area = lanes
-        .iter()
-        .map(|&(lane, ..)| node.lane_bounds(lane))
-        .reduce(|a, b| a.union(b))
-        .map_or(0.0, |b| b.surface_area());
+    let area = node.used_box().surface_area();
     let own = 1.0
         + lanes
             .iter()
@@ -138,7 +131,7 @@ mod tests {
     }
 
     #[test]
-    fn reordering_keeps_every_lane_and_the_answers() {
+    fn reordering_keeps_every_lane_box_and_block() {
         let tris = random_tris(3000, 11);
         let bvh = binary(&tris, &BuildParams::sah().with_width(8));
         let before = WideBvh::<8>::collapse(&bvh).unwrap();
