@@ -206,44 +206,55 @@ pub struct PacketHits<const R: usize> {
 }
 
 impl<const R: usize> PacketHits<R> {
+    /// What a ray without a hit holds.
+    const NONE: Hit = Hit {
+        t: f32::INFINITY,
+        u: 0.0,
+        v: 0.0,
+        tri: EMPTY_ID,
+    };
+
     /// No ray has a hit.
     pub fn none() -> Self {
+        let n = Self::NONE;
         PacketHits {
-            t: [f32::INFINITY; R],
-            u: [0.0; R],
-            v: [0.0; R],
-            tri: [EMPTY_ID; R],
+            t: [n.t; R],
+            u: [n.u; R],
+            v: [n.v; R],
+            tri: [n.tri; R],
+        }
+    }
+
+    /// Ray `r`'s lanes as a hit ([`Self::NONE`] when it has none).
+    #[inline(always)]
+    fn lanes(&self, r: usize) -> Hit {
+        Hit {
+            t: self.t[r],
+            u: self.u[r],
+            v: self.v[r],
+            tri: self.tri[r],
         }
     }
 
     /// Ray `r`'s hit.
     #[inline(always)]
     pub fn get(&self, r: usize) -> Option<Hit> {
-        (self.tri[r] != EMPTY_ID).then(|| Hit {
-            t: self.t[r],
-            u: self.u[r],
-            v: self.v[r],
-            tri: self.tri[r],
-        })
+        (self.tri[r] != EMPTY_ID).then(|| self.lanes(r))
     }
 
     /// Sets ray `r`'s hit.
     #[inline(always)]
     pub fn set(&mut self, r: usize, hit: Option<Hit>) {
-        let hit = hit.unwrap_or(Hit {
-            t: f32::INFINITY,
-            u: 0.0,
-            v: 0.0,
-            tri: EMPTY_ID,
-        });
+        let hit = hit.unwrap_or(Self::NONE);
         (self.t[r], self.u[r], self.v[r], self.tri[r]) = (hit.t, hit.u, hit.v, hit.tri);
     }
 
     /// Keeps `hit` for ray `r` if it beats the ray's hit by
-    /// [`Hit::is_closer_than`] (any hit beats none); returns whether it did.
+    /// [`Hit::is_closer_than`] (any hit beats [`Self::NONE`]: its `t` is
+    /// infinite); returns whether it did.
     #[inline(always)]
     pub fn offer(&mut self, r: usize, hit: Hit) -> bool {
-        let closer = hit.t < self.t[r] || (hit.t == self.t[r] && hit.tri < self.tri[r]);
+        let closer = hit.is_closer_than(&self.lanes(r));
         if closer {
             self.set(r, Some(hit));
         }
