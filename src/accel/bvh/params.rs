@@ -299,8 +299,10 @@ pub const SBVH_PARALLEL_BINNING: usize = 8192;
 
 // ---- The wide tree's lane order (`wide::order`) ----
 
-/// A leaf block's test over a node visit in the lane-order cost
-/// (`raylab stats` measures 18.4 ns against 15.1 on Zen 4).
+/// A leaf block's test over a node visit in the lane-order cost. The
+/// in-cache probes of `raylab stats` put it between 0.7 and 1.2 on Zen 4
+/// (7.9 / 11.5 ns and 18.4 / 15.1 ns in two runs); the counts below are
+/// with 1.2.
 ///
 /// Which trees get the order ([`BuildParams::orders_lanes`]): the
 /// spatial-split builder's (the high rung's). Counted over 400k recorded
