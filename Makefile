@@ -7,7 +7,7 @@ DEB_PACKAGES := build-essential pkg-config libclang-dev libembree-dev fonts-deja
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 RAYLAB := target/release/raylab
 
-.PHONY: deps browser real-scenes sponza sponza-path build run test bench bench-quick criterion lint clean
+.PHONY: deps browser real-scenes sponza sponza-path sponza-view build run test bench bench-quick criterion lint clean
 
 deps:
 	@missing=""; \
@@ -47,6 +47,10 @@ SPONZA_VIEW := --eye=-14,2,0 --look 10,5,0 --fov 70
 # one recipe line: $(SPONZA) runs cargo metadata each time it is expanded.
 sponza-path:
 	@p="$(SPONZA)"; test -f "$$p" || { echo "sponza.obj not found in the bvh crate's sources (run cargo fetch)" >&2; exit 1; }; echo "$$p"
+
+# The view from inside, for scripts (CI renders and validates from it).
+sponza-view:
+	@echo "$(SPONZA_VIEW)"
 
 sponza: build sponza-path
 	$(RAYLAB) render "$(SPONZA)" $(SPONZA_VIEW) -o sponza.png
