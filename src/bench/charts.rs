@@ -184,7 +184,16 @@ pub(super) fn log_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f6
         return 0.1..10.0;
     }
     let hi = if hi <= lo { lo * 10.0 } else { hi };
-    lo / 1.5..hi * 1.5
+    let (mut lo, hi) = (lo / 1.5, hi * 1.5);
+    // plotters places a log axis's ticks at the powers of ten inside its
+    // range and at steps above each, so a range without one got no tick
+    // and no label at all (the ladder's trace times on Sponza, 33-53 ms):
+    // widen it down to the power of ten below.
+    let below = 10f64.powf(hi.log10().floor());
+    if below < lo {
+        lo = below;
+    }
+    lo..hi
 }
 
 /// Labels of a log axis: only 1, 2 and 5 times a power of ten, so they never crowd.
@@ -373,6 +382,21 @@ pub(super) fn distinct<'a>(items: impl Iterator<Item = &'a str>) -> Vec<&'a str>
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn log_ranges_hold_a_power_of_ten() {
+        // 22-79 widens to 14.7-118.5, which holds 100.
+        let r = super::log_range([22.0, 79.0].into_iter());
+        assert!((r.start - 22.0 / 1.5).abs() < 1e-9 && (r.end - 79.0 * 1.5).abs() < 1e-9);
+        // 30-40 (20-60 with room) has none: widened down to 10.
+        let r = super::log_range([30.0, 40.0].into_iter());
+        assert_eq!(r.start, 10.0);
+        assert!((r.end - 60.0).abs() < 1e-9);
+        // 250-500 (167-750): down to 100.
+        let r = super::log_range([250.0, 500.0].into_iter());
+        assert_eq!(r.start, 100.0);
+        assert!((r.end - 750.0).abs() < 1e-9);
+    }
+
     #[test]
     fn labels_shrink_to_fit_their_room() {
         // A label 6 pixels wide per point of font size.
