@@ -210,7 +210,16 @@ fn quick_bench_runs_every_experiment() {
     for p in json["ladder"].as_array().unwrap() {
         assert!(p["render_ms"]["median"].as_f64().unwrap() > 0.0, "{p}");
         assert!(p["build_ms_1t"]["median"].as_f64().unwrap() > 0.0, "{p}");
+        // Every rung traced every kind of the recorded rays on each thread
+        // count; its render's rays take some time.
+        for rates in ["trace_mrays_1t", "trace_mrays_nt"] {
+            let rates = p[rates].as_array().unwrap();
+            assert_eq!(rates.len(), 4, "{p}");
+            assert!(rates.iter().all(|r| r.as_f64().unwrap() > 0.0), "{p}");
+        }
+        assert!(p["trace_ms_nt"].as_f64().unwrap() > 0.0, "{p}");
         if p["structure"] == "raylab" {
+            assert_eq!(p["differing"], 0, "{p}");
             assert!(p["sah_ns_per_ray"].as_f64().unwrap() > 0.0, "{p}");
             let refs = p["references_per_triangle"].as_f64().unwrap();
             let split = p["rung"] == "high";

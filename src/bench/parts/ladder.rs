@@ -1,10 +1,15 @@
 //! The `ladder` part: each rung of the build-quality ladder (`--quality low,
 //! medium, high`) for raylab's 8-wide tree and for Embree's own scene, on
 //! every bench scene: build time on one thread and on the bench's threads,
-//! SAH cost (raylab's), and the render's throughput per ray kind on each
-//! structure's fastest query path (raylab's trees traced by raylab, Embree's
-//! by Embree). Its chart is the Pareto front per scene: build time against
-//! render time.
+//! SAH cost (raylab's), the render time, and the trace throughput per ray
+//! kind of one render's recorded rays on each structure's fastest query path
+//! (raylab's trees traced by raylab, Embree's by Embree; the trace part's
+//! measurement, rungs interleaved run by run). A render of the half-size
+//! image lasts about 50 ms here, and its per-kind times moved by 10-15%
+//! between runs, more than the rungs differ; the recorded rays are traced
+//! in runs of at least [`MIN_RUN_S`](super::trace::MIN_RUN_S), every rung in
+//! turn. Its chart is the Pareto front per scene: build time against the
+//! time to trace one render's rays.
 
 use std::path::Path;
 
@@ -25,7 +30,10 @@ use crate::bench::config::BenchConfig;
 use crate::bench::measure::Stat;
 use crate::error::Result;
 use crate::progress::{Progress, StepBar};
-use crate::render::{render, AoMode, RenderStats, Schedule};
+use crate::render::{render, AoMode, Schedule};
+use crate::validate::RaySet;
+
+use super::trace::{self, TracePoint, KINDS};
 use crate::scene::Scene;
 use crate::table::{
     Align::{Left, Right},
@@ -35,7 +43,7 @@ use crate::table::{
 pub const SECTION: ChartSection = ChartSection {
     title: "Build-quality ladder",
     stem: "ladder",
-    caption: "Build time against render time per scene, each rung of raylab's and Embree's ladders: the lower left is better, a rung pays where it moves down more than right.",
+    caption: "Build time against the time to trace one render's primary, shadow and AO rays (no shading), per scene, each rung of raylab's and Embree's ladders on the bench's threads: the lower left is better, a rung pays where it moves down more than right.",
 };
 
 const RUNGS: [Quality; 3] = [Quality::Low, Quality::Medium, Quality::High];
@@ -64,15 +72,26 @@ pub struct LadderPoint {
     pub references_per_triangle: f64,
     /// Render time (tiles schedule, the bench's threads), median.
     pub render_ms: Stat,
-    /// Throughput per thread per ray kind over the median render.
-    pub primary_mrays: f64,
-    pub shadow_mrays: f64,
-    pub ao_mrays: f64,
+    /// Trace throughput of one render's recorded rays per kind, in
+    /// [`KINDS`] order (primary, shadow, AO, diffuse): the median Mrays/s on
+    /// one thread and on the bench's threads (NaN where a kind had no rays).
+    pub trace_mrays_1t: [f64; 4],
+    pub trace_mrays_nt: [f64; 4],
+    /// The time (ms) to trace one render's primary, shadow and AO rays at
+    /// those rates, on one thread and on the bench's threads: the render's
+    /// ray work without its shading.
+    pub trace_ms_1t: f64,
+    pub trace_ms_nt: f64,
+    /// Answers that differ from raylab's low rung on the recorded rays, all
+    /// kinds: 0 for raylab's rungs (or the bench fails); Embree's ties on
+    /// shared edges and own misses.
+    pub differing: usize,
 }
 
-/// Progress steps: one per scene, rung and structure.
+/// Progress steps: one per scene, rung and structure, and one per scene and
+/// traced ray kind.
 pub fn steps(_cfg: &BenchConfig, scenes: &[Scene]) -> u64 {
-    (scenes.len() * RUNGS.len() * structures().len()) as u64
+    (scenes.len() * (RUNGS.len() * structures().len() + KINDS.len())) as u64
 }
 
 /// The structures on the ladder: raylab's, and Embree's when built in.
@@ -108,6 +127,8 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lad
         let settings = cfg
             .first_view(scene, size)
             .settings(size, AoMode::Paper, 1)?;
+        let mut points = Vec::new();
+        let mut backends = Vec::new();
         for rung in RUNGS {
             for structure in structures() {
                 bar.set_message(format!(
@@ -154,24 +175,14 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lad
                     )
                 };
                 let mut times = Vec::new();
-                let mut kinds: Vec<RenderStats> = Vec::new();
                 render_once()?;
                 for _ in 0..reps.max(1) {
                     let start = std::time::Instant::now();
-                    let (_, stats) = render_once()?;
+                    render_once()?;
                     times.push(start.elapsed().as_secs_f64() * 1e3);
-                    kinds.push(stats);
                 }
-                let render_ms = Stat::of(&times);
-                // The kind throughputs of the median render.
-                let mut order: Vec<usize> = (0..times.len()).collect();
-                order.sort_by(|&a, &b| times[a].total_cmp(&times[b]));
-                let median = &kinds[order[order.len() / 2]];
-                let mrays = |rays: u64, t: std::time::Duration| {
-                    rays as f64 / t.as_secs_f64().max(1e-12) / 1e6
-                };
                 bar.step();
-                out.push(LadderPoint {
+                points.push(LadderPoint {
                     scene: scene.name.clone(),
                     triangles: scene.triangle_count(),
                     rung: rung.name().to_string(),
@@ -182,36 +193,99 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lad
                     build_threads: cfg.threads,
                     sah_ns_per_ray,
                     references_per_triangle,
-                    render_ms,
-                    primary_mrays: mrays(median.primary_rays, median.primary_time),
-                    shadow_mrays: mrays(median.shadow_rays, median.shadow_time),
-                    ao_mrays: mrays(median.ao_rays, median.ao_time),
+                    render_ms: Stat::of(&times),
+                    trace_mrays_1t: [f64::NAN; 4],
+                    trace_mrays_nt: [f64::NAN; 4],
+                    trace_ms_1t: f64::NAN,
+                    trace_ms_nt: f64::NAN,
+                    differing: 0,
                 });
+                backends.push((built, Vec::new()));
             }
         }
+        // Every rung's structure traces the same recorded rays, the rungs in
+        // turn within each run; raylab's rungs must answer as its low rung
+        // does, bit for bit.
+        let traced = trace::trace_backends(
+            scene,
+            &settings,
+            &backends,
+            &trace::thread_counts(cfg),
+            trace::trace_reps(cfg),
+            trace::min_run_s(cfg),
+            bar,
+        )?;
+        for p in &mut points {
+            add_trace(p, &traced, cfg.threads);
+        }
+        out.extend(points);
     }
     Ok(out)
 }
 
-/// The part's table: one row per scene, rung and structure, and each
-/// raylab rung's build and render time against Embree's same rung.
+/// Fills `p`'s trace figures from the trace points of its backend.
+fn add_trace(p: &mut LadderPoint, traced: &[TracePoint], threads: usize) {
+    let mut rays = [0usize; 4];
+    for t in traced.iter().filter(|t| t.backend == p.backend) {
+        let Some(k) = KINDS.iter().position(|k| k.name() == t.kind) else {
+            continue;
+        };
+        rays[k] = t.rays;
+        if t.threads == 1 {
+            p.trace_mrays_1t[k] = t.mrays.median;
+            p.differing += t.differing;
+        }
+        if t.threads == threads {
+            p.trace_mrays_nt[k] = t.mrays.median;
+        }
+    }
+    // One render's rays: the kinds a render casts (no diffuse bounces).
+    let render_kinds = [RaySet::Primary, RaySet::Shadow, RaySet::Ao];
+    let ms = |mrays: &[f64; 4]| {
+        KINDS
+            .iter()
+            .zip(mrays.iter().zip(rays))
+            .filter(|(k, _)| render_kinds.contains(k))
+            .map(|(_, (&rate, n))| if n == 0 { 0.0 } else { n as f64 / rate / 1e3 })
+            .sum::<f64>()
+    };
+    p.trace_ms_1t = ms(&p.trace_mrays_1t);
+    p.trace_ms_nt = ms(&p.trace_mrays_nt);
+}
+
+/// Four rates (or ratios) as `a/b/c/d`, `-` where not measured.
+fn by_kind(values: [f64; 4]) -> String {
+    values
+        .map(|v| {
+            if v.is_finite() {
+                format!("{v:.2}")
+            } else {
+                "-".to_string()
+            }
+        })
+        .join("/")
+}
+
+/// The part's tables: one row per scene, rung and structure, with each
+/// raylab rung's build and trace time against Embree's same rung; then each
+/// structure's low and high rung against its medium rung, per ray kind.
 pub fn markdown(points: &[LadderPoint]) -> String {
     let threads = points.first().map_or(1, |p| p.build_threads);
+    let nt =
+        |what: &str| -> &'static str { Box::leak(format!("{what} {threads}T").into_boxed_str()) };
     let mut t = Table::new([
         ("scene", Left),
         ("rung", Left),
         ("backend", Left),
         ("build ms 1T", Right),
-        (
-            Box::leak(format!("build ms {threads}T").into_boxed_str()),
-            Right,
-        ),
+        (nt("build ms"), Right),
         ("SAH ns/ray", Right),
         ("refs/tri", Right),
         ("render ms", Right),
-        ("Mrays/s P/S/AO", Right),
+        ("trace Mrays/s P/S/AO/D 1T", Right),
+        (nt("trace Mrays/s P/S/AO/D"), Right),
         ("build / Embree's 1T, NT", Right),
-        ("render / Embree's", Right),
+        ("trace time / Embree's 1T, NT", Right),
     ]);
     let num = |v: f64, digits: usize| {
         if v.is_finite() {
@@ -224,14 +298,18 @@ pub fn markdown(points: &[LadderPoint]) -> String {
         let embree = points
             .iter()
             .find(|e| e.structure == "embree" && e.scene == p.scene && e.rung == p.rung);
-        let (build_ratio, render_ratio) = match embree {
+        let (build_ratio, trace_ratio) = match embree {
             Some(e) if p.structure == "raylab" => (
                 format!(
                     "{:.2}, {:.2}",
                     p.build_ms_1t.median / e.build_ms_1t.median,
                     p.build_ms_nt.median / e.build_ms_nt.median
                 ),
-                format!("{:.2}", p.render_ms.median / e.render_ms.median),
+                format!(
+                    "{}, {}",
+                    num(p.trace_ms_1t / e.trace_ms_1t, 2),
+                    num(p.trace_ms_nt / e.trace_ms_nt, 2)
+                ),
             ),
             _ => ("-".to_string(), "-".to_string()),
         };
@@ -244,18 +322,39 @@ pub fn markdown(points: &[LadderPoint]) -> String {
             num(p.sah_ns_per_ray, 1),
             num(p.references_per_triangle, 2),
             format!("{:.1}", p.render_ms.median),
-            format!(
-                "{:.2}/{:.2}/{:.2}",
-                p.primary_mrays, p.shadow_mrays, p.ao_mrays
-            ),
+            by_kind(p.trace_mrays_1t),
+            by_kind(p.trace_mrays_nt),
             build_ratio,
-            render_ratio,
+            trace_ratio,
+        ]);
+    }
+    let mut gain = Table::new([
+        ("scene", Left),
+        ("structure", Left),
+        ("rung", Left),
+        ("over medium P/S/AO/D 1T", Right),
+        (nt("over medium P/S/AO/D"), Right),
+    ]);
+    for p in points.iter().filter(|p| p.rung != Quality::Medium.name()) {
+        let Some(medium) = points.iter().find(|m| {
+            m.scene == p.scene && m.structure == p.structure && m.rung == Quality::Medium.name()
+        }) else {
+            continue;
+        };
+        let over = |a: [f64; 4], b: [f64; 4]| by_kind(std::array::from_fn(|k| a[k] / b[k]));
+        gain.row([
+            p.scene.clone(),
+            p.structure.clone(),
+            p.rung.clone(),
+            over(p.trace_mrays_1t, medium.trace_mrays_1t),
+            over(p.trace_mrays_nt, medium.trace_mrays_nt),
         ]);
     }
     format!(
-        "### Build-quality ladder\n\nEach rung (`--quality`) of raylab's 8-wide tree (low: LBVH, medium: binned SAH, high: SBVH with reinsertion) and of Embree's scene (its build quality of the same name), each on its fastest query path. SAH ns/ray: raylab's 8-wide tree as traversed, expected ns per ray in node visits and block tests at the measured {} (docs/design.md, \"The SAH cost of a wide tree\"). Mrays/s per thread over the median render.\n\n{}\n",
+        "### Build-quality ladder\n\nEach rung (`--quality`) of raylab's 8-wide tree (low: LBVH, medium: binned SAH, high: SBVH with reinsertion) and of Embree's scene (its build quality of the same name), each on its fastest query path. SAH ns/ray: raylab's 8-wide tree as traversed, expected ns per ray in node visits and block tests at the measured {} (docs/design.md, \"The SAH cost of a wide tree\"). Trace: one render's recorded rays per kind (primary, shadow, AO, and one diffuse bounce per primary hit), median Mrays/s of wall time, every rung in turn in each run; trace time: the time of the render's primary, shadow and AO rays at those rates.\n\n{}\n\nTrace speed of each rung over its structure's medium rung, per ray kind (above 1: faster):\n\n{}\n",
         TraversalCosts::of_default_path().describe(),
-        t.markdown()
+        t.markdown(),
+        gain.markdown()
     )
 }
 
@@ -304,12 +403,12 @@ where
             .y_label_area_size(55)
             .build_cartesian_2d(
                 log_range(here.iter().map(|p| p.build_ms_nt.median.max(1e-3))).log_scale(),
-                log_range(here.iter().map(|p| p.render_ms.median.max(1e-3))).log_scale(),
+                log_range(here.iter().map(|p| p.trace_ms_nt.max(1e-3))).log_scale(),
             )?;
         chart
             .configure_mesh()
             .x_desc("build ms (log)")
-            .y_desc("render ms (log)")
+            .y_desc("trace ms of one render's rays (log)")
             .x_label_formatter(&log_label)
             .y_label_formatter(&log_label)
             .draw()?;
@@ -320,7 +419,7 @@ where
                 .filter_map(|r| {
                     here.iter()
                         .find(|p| p.structure == *name && p.rung == r.name())
-                        .map(|p| (p.build_ms_nt.median.max(1e-3), p.render_ms.median.max(1e-3)))
+                        .map(|p| (p.build_ms_nt.median.max(1e-3), p.trace_ms_nt.max(1e-3)))
                 })
                 .collect();
             chart.draw_series(LineSeries::new(line.clone(), c.stroke_width(2)))?;
@@ -341,4 +440,88 @@ where
     side_legend(&side, &entries, Swatch::Dot)?;
     root.present()?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn traced(backend: &str, kind: RaySet, threads: usize, rays: usize, mrays: f64) -> TracePoint {
+        TracePoint {
+            scene: "s".into(),
+            triangles: 1,
+            backend: backend.into(),
+            structure: backend.into(),
+            query: "packet16".into(),
+            embree: false,
+            library: false,
+            kind: kind.name().into(),
+            threads,
+            rays,
+            mrays: Stat::of(&[mrays]),
+            differing: usize::from(threads == 1),
+            build_ms: f64::NAN,
+            memory_bytes: None,
+        }
+    }
+
+    fn point(rung: Quality, backend: &str) -> LadderPoint {
+        LadderPoint {
+            scene: "s".into(),
+            triangles: 1,
+            rung: rung.name().into(),
+            structure: "raylab".into(),
+            backend: backend.into(),
+            build_ms_1t: Stat::of(&[1.0]),
+            build_ms_nt: Stat::of(&[1.0]),
+            build_threads: 2,
+            sah_ns_per_ray: 1.0,
+            references_per_triangle: 1.0,
+            render_ms: Stat::of(&[1.0]),
+            trace_mrays_1t: [f64::NAN; 4],
+            trace_mrays_nt: [f64::NAN; 4],
+            trace_ms_1t: f64::NAN,
+            trace_ms_nt: f64::NAN,
+            differing: 0,
+        }
+    }
+
+    #[test]
+    fn trace_figures_come_from_the_backends_own_points() {
+        // 2000 primary rays at 1 Mrays/s (2 ms), 1000 shadow at 2 (0.5 ms),
+        // 4000 AO at 4 (1 ms) on one thread, twice those rates on two; the
+        // diffuse rays are not part of a render's trace time. Another
+        // backend's points must not leak in.
+        let mut pts = Vec::new();
+        for (threads, x) in [(1, 1.0), (2, 2.0)] {
+            pts.push(traced("b", RaySet::Primary, threads, 2000, x));
+            pts.push(traced("b", RaySet::Shadow, threads, 1000, 2.0 * x));
+            pts.push(traced("b", RaySet::Ao, threads, 4000, 4.0 * x));
+            pts.push(traced("b", RaySet::Diffuse, threads, 2000, 0.1 * x));
+            pts.push(traced("other", RaySet::Primary, threads, 2000, 100.0));
+        }
+        let mut p = point(Quality::Medium, "b");
+        add_trace(&mut p, &pts, 2);
+        assert_eq!(p.trace_mrays_1t, [1.0, 2.0, 4.0, 0.1]);
+        assert_eq!(p.trace_mrays_nt, [2.0, 4.0, 8.0, 0.2]);
+        assert!((p.trace_ms_1t - 3.5).abs() < 1e-9, "{}", p.trace_ms_1t);
+        assert!((p.trace_ms_nt - 1.75).abs() < 1e-9, "{}", p.trace_ms_nt);
+        // Differing answers are summed over the kinds once (one thread).
+        assert_eq!(p.differing, 4);
+    }
+
+    #[test]
+    fn the_gain_table_divides_each_rung_by_its_medium_rung() {
+        let mut medium = point(Quality::Medium, "m");
+        medium.trace_mrays_1t = [10.0, 10.0, 10.0, 10.0];
+        medium.trace_mrays_nt = [20.0, 20.0, 20.0, 20.0];
+        let mut high = point(Quality::High, "h");
+        high.trace_mrays_1t = [12.0, 11.0, 9.0, f64::NAN];
+        high.trace_mrays_nt = [30.0, 20.0, 10.0, 40.0];
+        let md = markdown(&[medium, high]);
+        assert!(
+            md.contains("| s | raylab | high | 1.20/1.10/0.90/- | 1.50/1.00/0.50/2.00 |"),
+            "{md}"
+        );
+    }
 }

@@ -53,7 +53,7 @@ pub const SECTION: ChartSection = ChartSection {
 };
 
 /// The thread counts measured: one, and all bench threads.
-fn thread_counts(cfg: &BenchConfig) -> Vec<usize> {
+pub(crate) fn thread_counts(cfg: &BenchConfig) -> Vec<usize> {
     if cfg.threads > 1 {
         vec![1, cfg.threads]
     } else {
@@ -70,14 +70,24 @@ pub fn steps(cfg: &BenchConfig, scenes: &[Scene]) -> u64 {
     }
 }
 
+/// Timed runs per backend, ray kind and thread count.
+pub(crate) fn trace_reps(cfg: &BenchConfig) -> usize {
+    if cfg.quick {
+        1
+    } else {
+        cfg.reps.clamp(1, 5)
+    }
+}
+
 /// The ray kinds measured.
-const KINDS: [RaySet; 4] = [RaySet::Primary, RaySet::Shadow, RaySet::Ao, RaySet::Diffuse];
+pub(crate) const KINDS: [RaySet; 4] =
+    [RaySet::Primary, RaySet::Shadow, RaySet::Ao, RaySet::Diffuse];
 
 /// Throughput of every backend of the bench's variants on each of `scenes`
 /// (the rays of one render from its first view, paper AO).
 pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<TracePoint>> {
     let specs = trace_specs(&cfg.variants, cfg.threads);
-    let reps = if cfg.quick { 1 } else { cfg.reps.clamp(1, 5) };
+    let reps = trace_reps(cfg);
     let mut out = Vec::new();
     if specs.is_empty() {
         return Ok(out);
