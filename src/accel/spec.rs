@@ -370,12 +370,30 @@ pub struct Built {
     pub spec: BackendSpec,
     pub backend: Box<dyn Backend>,
     pub build_time: Duration,
+    /// The threads the build ran on: the spec's
+    /// ([`BackendSpec::build_threads`]), but for Embree's scene the most any
+    /// live Embree device asked for ([`crate::accel::embree::tasking_threads`]).
+    pub build_threads: usize,
 }
 
 impl Built {
     /// [`BackendSpec::name`].
     pub fn name(&self) -> String {
         self.spec.name()
+    }
+
+    /// An error unless the build ran on the threads its spec asked for: a
+    /// timed build must be what it is named.
+    pub fn check_build_threads(&self) -> crate::Result<()> {
+        if self.build_threads == self.spec.build_threads() {
+            return Ok(());
+        }
+        Err(crate::Error::Other(format!(
+            "{}: its build on {} thread(s) ran on {} (Embree builds on the most threads any live Embree device asked for): the timing would be wrong",
+            self.name(),
+            self.spec.build_threads(),
+            self.build_threads
+        )))
     }
 }
 
@@ -399,6 +417,7 @@ impl std::ops::Deref for Built {
 pub fn build_backend<'a>(spec: &BackendSpec, mesh: impl Into<MeshRef<'a>>) -> crate::Result<Built> {
     let mesh = mesh.into();
     let start = Instant::now();
+    let mut build_threads = spec.build_threads();
     let backend: Box<dyn Backend> = match *spec {
         BackendSpec::Naive { intersector } => {
             Box::new(Naive::from_triangles(mesh.triangle_vertices()).with_intersector(intersector))
@@ -418,16 +437,17 @@ pub fn build_backend<'a>(spec: &BackendSpec, mesh: impl Into<MeshRef<'a>>) -> cr
             robust,
             threads,
             query,
-        } => Box::new(
-            super::embree::EmbreeBackend::from_mesh(
+        } => {
+            let embree = super::embree::EmbreeBackend::from_mesh(
                 mesh.positions,
                 mesh.triangles,
                 quality,
                 robust,
                 threads,
-            )?
-            .with_query(query)?,
-        ),
+            )?;
+            build_threads = embree.build_threads();
+            Box::new(embree.with_query(query)?)
+        }
         #[cfg(not(feature = "embree"))]
         BackendSpec::Embree { .. } => return Err(super::embree::unavailable()),
         BackendSpec::Library { library, threads } => build_library(&library, &mesh, threads)?,
@@ -436,6 +456,7 @@ pub fn build_backend<'a>(spec: &BackendSpec, mesh: impl Into<MeshRef<'a>>) -> cr
         spec: *spec,
         backend,
         build_time: start.elapsed(),
+        build_threads,
     })
 }
 

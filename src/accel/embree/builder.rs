@@ -19,6 +19,38 @@ use crate::accel::bvh::params::embree_split_replications;
 use crate::error::{Error, Result};
 use crate::geometry::Aabb;
 
+/// The builder's device, kept between builds (device start-up, its thread
+/// pool, is not part of a build) for one thread count at a time: Embree's
+/// builds run on the most threads any live device asked for
+/// ([`super::tasking_threads`]), so a device kept for two threads would put
+/// every later one-thread Embree build on two. Asking for another count, or an
+/// Embree scene build on fewer threads ([`release_device_above`]), lets it go.
+static KEPT: std::sync::Mutex<Option<(usize, Arc<Device>)>> = std::sync::Mutex::new(None);
+
+/// The builder's device for `threads` build threads.
+pub(crate) fn device(threads: usize) -> Result<Arc<Device>> {
+    let threads = threads.max(1);
+    let mut kept = KEPT.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some((t, device)) = kept.as_ref() {
+        if *t == threads {
+            return Ok(device.clone());
+        }
+    }
+    // Let the old device go before the new one is made.
+    *kept = None;
+    let device = Device::new(&format!("threads={threads}"))?;
+    *kept = Some((threads, device.clone()));
+    Ok(device)
+}
+
+/// Lets the kept builder device go if it asked for more than `threads`.
+pub(crate) fn release_device_above(threads: usize) {
+    let mut kept = KEPT.lock().unwrap_or_else(|e| e.into_inner());
+    if kept.as_ref().is_some_and(|(t, _)| *t > threads) {
+        *kept = None;
+    }
+}
+
 /// Marks the first field of every callback-allocated node.
 const INNER: u32 = 0;
 const LEAF: u32 = 1;

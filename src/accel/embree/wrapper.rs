@@ -18,9 +18,42 @@ use crate::scene::Scene;
 /// Messages passed to the device's error callback, oldest first.
 type ErrorLog = Mutex<Vec<String>>;
 
+/// The `threads=` of every live device (`usize::MAX` where the config sets
+/// none or 0: Embree then takes every hardware thread), one entry per device.
+///
+/// Embree runs the builds of all devices on one tasking system, sized to the
+/// most threads any live device asked for (`getMaxNumThreads` in its
+/// device.cpp, Embree 3 and 4): a build on a one-thread device runs on two
+/// threads while a two-thread device lives. The bench once timed Embree's
+/// "one-thread" builds that way (as fast as its two-thread builds) while it
+/// held two-thread scenes; [`tasking_threads`] lets a timed build say what it
+/// really ran on.
+static LIVE_THREADS: Mutex<Vec<usize>> = Mutex::new(Vec::new());
+
+/// The threads Embree's builds run on now: the most any live device asked for
+/// (0 with no device alive).
+pub fn tasking_threads() -> usize {
+    LIVE_THREADS
+        .lock()
+        .map_or(0, |live| live.iter().copied().max().unwrap_or(0))
+}
+
+/// The build threads a device config asks for, as Embree reads it.
+fn config_threads(config: &str) -> usize {
+    config
+        .split(',')
+        .find_map(|kv| kv.trim().strip_prefix("threads="))
+        .and_then(|n| n.trim().parse::<usize>().ok())
+        .filter(|&n| n > 0)
+        .unwrap_or(usize::MAX)
+}
+
 /// An Embree device. Dropping the last handle releases it.
 pub struct Device {
     raw: ffi::RTCDevice,
+    /// Its `threads=` ([`config_threads`]), registered in [`LIVE_THREADS`]
+    /// while it lives.
+    threads: usize,
     /// Boxed so its address, given to Embree as the callback's user pointer,
     /// stays fixed; it outlives the device because `Drop` releases the device first.
     errors: Box<ErrorLog>,
@@ -73,8 +106,13 @@ impl Device {
                 "embree: cannot create a device with config '{config}' (error code {code})"
             )));
         }
+        let threads = config_threads(config);
+        if let Ok(mut live) = LIVE_THREADS.lock() {
+            live.push(threads);
+        }
         let device = Device {
             raw,
+            threads,
             errors: Box::new(Mutex::new(Vec::new())),
             memory: Box::new(AtomicI64::new(0)),
         };
@@ -145,6 +183,11 @@ impl Drop for Device {
         // SAFETY: releases our reference; no callback can run after the device is
         // gone, and `errors` is dropped after this body.
         unsafe { ffi::rtcReleaseDevice(self.raw) };
+        if let Ok(mut live) = LIVE_THREADS.lock() {
+            if let Some(i) = live.iter().position(|&t| t == self.threads) {
+                live.swap_remove(i);
+            }
+        }
     }
 }
 
@@ -520,6 +563,9 @@ pub struct EmbreeBackend {
     query: Query,
     /// Packet widths the device traces natively.
     native: Vec<usize>,
+    /// The threads its build ran on ([`tasking_threads`] once its device
+    /// was made): more than asked while a device of more threads lived.
+    build_threads: usize,
 }
 
 impl EmbreeBackend {
@@ -538,6 +584,11 @@ impl EmbreeBackend {
         }
         self.query = query;
         Ok(self)
+    }
+
+    /// The threads its build ran on (see [`tasking_threads`]).
+    pub fn build_threads(&self) -> usize {
+        self.build_threads
     }
 
     /// Packet widths the device traces natively (others it emulates).
@@ -566,15 +617,19 @@ impl EmbreeBackend {
     ) -> Result<Self> {
         // Spatial splits at high quality get raylab's SBVH budget, not
         // Embree's default of 1.2 references per triangle (params.rs).
+        // A kept builder device of more threads would widen this build.
+        super::builder::release_device_above(threads);
         let device = Device::new(&format!(
             "threads={threads},max_spatial_split_replications={}",
             embree_split_replications()
         ))?;
+        let build_threads = tasking_threads();
         let embree = EmbreeScene::new(&device, positions, triangles, quality, robust)?;
         Ok(EmbreeBackend {
             scene: embree,
             query: Query::Single,
             native: device.native_packets(),
+            build_threads,
         })
     }
 }

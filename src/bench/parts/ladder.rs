@@ -127,24 +127,27 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lad
         let settings = cfg
             .first_view(scene, size)
             .settings(size, AoMode::Paper, 1)?;
+        // Builds first, with no structure of this scene held: Embree builds
+        // on the most threads any live Embree device asked for, so a kept
+        // two-thread scene would make its one-thread builds two-thread ones
+        // (`Built::check_build_threads`).
         let mut points = Vec::new();
-        let mut backends = Vec::new();
         for rung in RUNGS {
             for structure in structures() {
                 bar.set_message(format!(
-                    "ladder: {structure} {} on {}",
+                    "ladder: builds of {structure} {} on {}",
                     rung.name(),
                     scene.name
                 ));
-                // Each series starts with an untimed build and render: the
-                // first Embree build on a thread count makes its device (14 ms
-                // against 0.2 for cornell-empty), the first render wakes the
-                // pool and faults the pages in.
+                // Each series starts with an untimed build: the first Embree
+                // build on a thread count makes its device (14 ms against 0.2
+                // for cornell-empty).
                 let builds = |threads: usize| -> Result<Stat> {
                     build_backend(&spec(structure, rung, threads), scene)?;
                     let mut times = Vec::new();
                     for _ in 0..reps.max(1) {
                         let built = build_backend(&spec(structure, rung, threads), scene)?;
+                        built.check_build_threads()?;
                         times.push(built.build_time.as_secs_f64() * 1e3);
                     }
                     Ok(Stat::of(&times))
@@ -163,45 +166,60 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lad
                 } else {
                     (f64::NAN, f64::NAN)
                 };
-                let built = build_backend(&spec(structure, rung, cfg.threads), scene)?;
-                let render_once = || {
-                    render(
-                        scene,
-                        built.backend.as_ref(),
-                        &settings,
-                        Schedule::Tiles,
-                        cfg.threads,
-                        &Progress::new(),
-                    )
-                };
-                let mut times = Vec::new();
-                render_once()?;
-                for _ in 0..reps.max(1) {
-                    let start = std::time::Instant::now();
-                    render_once()?;
-                    times.push(start.elapsed().as_secs_f64() * 1e3);
-                }
-                bar.step();
                 points.push(LadderPoint {
                     scene: scene.name.clone(),
                     triangles: scene.triangle_count(),
                     rung: rung.name().to_string(),
                     structure: structure.to_string(),
-                    backend: built.name(),
+                    backend: spec(structure, rung, cfg.threads).name(),
                     build_ms_1t,
                     build_ms_nt,
                     build_threads: cfg.threads,
                     sah_ns_per_ray,
                     references_per_triangle,
-                    render_ms: Stat::of(&times),
+                    render_ms: Stat::default(),
                     trace_mrays_1t: [f64::NAN; 4],
                     trace_mrays_nt: [f64::NAN; 4],
                     trace_ms_1t: f64::NAN,
                     trace_ms_nt: f64::NAN,
                     differing: 0,
                 });
-                backends.push((built, Vec::new()));
             }
+        }
+        // Then each structure on the bench's threads, kept for the traces.
+        let mut backends = Vec::new();
+        for (p, (rung, structure)) in points.iter_mut().zip(
+            RUNGS
+                .iter()
+                .flat_map(|&r| structures().into_iter().map(move |s| (r, s))),
+        ) {
+            bar.set_message(format!(
+                "ladder: renders of {structure} {} on {}",
+                rung.name(),
+                scene.name
+            ));
+            let built = build_backend(&spec(structure, rung, cfg.threads), scene)?;
+            let render_once = || {
+                render(
+                    scene,
+                    built.backend.as_ref(),
+                    &settings,
+                    Schedule::Tiles,
+                    cfg.threads,
+                    &Progress::new(),
+                )
+            };
+            // The first render wakes the pool and faults the pages in.
+            let mut times = Vec::new();
+            render_once()?;
+            for _ in 0..reps.max(1) {
+                let start = std::time::Instant::now();
+                render_once()?;
+                times.push(start.elapsed().as_secs_f64() * 1e3);
+            }
+            bar.step();
+            p.render_ms = Stat::of(&times);
+            backends.push((built, Vec::new()));
         }
         // Every rung's structure traces the same recorded rays, the rungs in
         // turn within each run; raylab's rungs must answer as its low rung

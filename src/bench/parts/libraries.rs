@@ -204,7 +204,9 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lib
             };
             let mut times = Vec::new();
             for _ in 0..reps.max(1) {
-                times.push(build_backend(&spec, scene)?.build_time.as_secs_f64() * 1e3);
+                let built = build_backend(&spec, scene)?;
+                built.check_build_threads()?;
+                times.push(built.build_time.as_secs_f64() * 1e3);
             }
             let others = PATHS
                 .iter()

@@ -323,6 +323,7 @@ pub fn trace_throughput(
             ));
             for (si, spec) in specs.iter().enumerate() {
                 let b = build_backend(&spec.with_build_threads(threads), scene)?;
+                b.check_build_threads()?;
                 if run > 0 {
                     builds[si][ti].push(ms(b.build_time));
                 }
@@ -826,6 +827,7 @@ mod tests {
             spec: BackendSpec::bvh(wide),
             backend: Box::new(Planted(BvhBackend::new(&scene.mesh(), &wide).unwrap())),
             build_time: std::time::Duration::ZERO,
+            build_threads: 1,
         };
         let backends = vec![(right, Vec::new()), (planted, Vec::new())];
         let bar = StepBar::new(0, true);

@@ -3,8 +3,6 @@
 //! can be measured with raylab's own traversal. The FFI side lives in
 //! [`crate::accel::embree::builder`].
 
-#[cfg(feature = "embree")]
-use super::pool::KeptPerThreads;
 use crate::accel::bvh::node::Skeleton;
 use crate::accel::bvh::BuildParams;
 use glam::Vec3;
@@ -15,13 +13,8 @@ pub(super) fn build_with_embree(
     params: &BuildParams,
     quality: crate::accel::embree::Quality,
 ) -> crate::Result<Skeleton> {
-    use crate::accel::embree::Device;
-    // One device per thread count, made once: device start-up (thread pool) is
-    // not part of a build.
-    static DEVICES: KeptPerThreads<Device> = KeptPerThreads::new();
-    let device = DEVICES.get(params.threads, || {
-        Device::new(&format!("threads={}", params.threads.max(1)))
-    })?;
+    // Kept between builds, one thread count at a time (see there).
+    let device = crate::accel::embree::builder::device(params.threads)?;
     crate::accel::embree::builder::build(
         &device,
         triangles,

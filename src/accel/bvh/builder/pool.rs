@@ -8,8 +8,9 @@
 /// Code inside passes `parallel = threads > 1` down and runs serially when
 /// it is false, so one thread means no other thread at all.
 ///
-/// Pools are made once per thread count and kept, as the Embree builder's
-/// devices are: starting threads is not part of a build, and a pool made
+/// Pools are made once per thread count and kept (raylab's pools, unlike
+/// Embree's devices, do not widen one another): starting threads is not
+/// part of a build, and a pool made
 /// per build also gave each build fresh per-thread heaps whose pages all
 /// faulted again (mesh:1e5 on 2 threads: 1770 page faults a build).
 pub(crate) fn in_pool<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> R {
@@ -38,8 +39,7 @@ pub(crate) fn in_pool<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> 
 }
 
 /// Values made once per thread count and kept for the process: the build
-/// thread pools and the Embree builder's devices (starting threads is not
-/// part of a build).
+/// thread pools (starting threads is not part of a build).
 pub(crate) struct KeptPerThreads<T>(
     std::sync::OnceLock<std::sync::Mutex<std::collections::HashMap<usize, std::sync::Arc<T>>>>,
 );
