@@ -277,6 +277,13 @@ impl EmbreeScene {
             ffi::rtcNewGeometry(raw_device, ffi::RTCGeometryType_RTC_GEOMETRY_TYPE_TRIANGLE)
         };
         device.check("rtcNewGeometry")?;
+        // The geometry's quality too: a scene at LOW is built by Embree's
+        // two-level builder, which builds each mesh at the mesh's own quality
+        // (MEDIUM unless set), so without this "LOW" was a binned SAH build
+        // (Embree 3.13's bvh_builder_twolevel_internal.h, `MeshBuilder`), not
+        // its Morton builder.
+        // SAFETY: a live geometry; a plain setter.
+        unsafe { ffi::rtcSetGeometryBuildQuality(geometry, quality) };
         // Embree allocates both buffers itself, which takes care of its alignment
         // and of the padding it reads past the last vertex.
         // SAFETY: a live geometry; Embree returns a buffer of `count` items of
