@@ -115,6 +115,24 @@ impl PrimRef {
         self.lo.w.to_bits() - INDEX_BIAS
     }
 
+    /// The reference carrying `key` (below 2^30) in its maximum's w lane,
+    /// biased as the index is so that it is a normal float: the LBVH keeps
+    /// each reference's Morton code there (the lane is otherwise unused).
+    #[inline]
+    pub fn with_key(self, key: u32) -> PrimRef {
+        debug_assert!(key < 1 << 30);
+        PrimRef {
+            lo: self.lo,
+            hi: self.hi.truncate().extend(f32::from_bits(key + INDEX_BIAS)),
+        }
+    }
+
+    /// The key [`PrimRef::with_key`] put in.
+    #[inline]
+    pub fn key(&self) -> u32 {
+        self.hi.w.to_bits() - INDEX_BIAS
+    }
+
     #[cfg(test)]
     pub fn bounds(&self) -> Aabb {
         Aabb {

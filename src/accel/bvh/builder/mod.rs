@@ -148,8 +148,9 @@ fn built_skeleton<T: Triangles + ?Sized>(
 
 /// The `N`-wide tree of `params`' builder on the current thread pool:
 /// directly top-down ([`nary`]) for the builders that split in place
-/// (median, SAH), by collapsing the binary tree for the others (LBVH, SBVH,
-/// Embree's) and for optimised trees.
+/// (median, SAH) and for the LBVH (its references sorted by Morton code
+/// first), by collapsing the binary tree for the others (SBVH, Embree's)
+/// and for optimised trees.
 pub(crate) fn wide<const N: usize, T: Triangles + ?Sized>(
     triangles: &T,
     params: &BuildParams,
@@ -159,6 +160,11 @@ pub(crate) fn wide<const N: usize, T: Triangles + ?Sized>(
         Some(splitter) => {
             checked_count(triangles)?;
             nary::build(triangles, &splitter, parallel, Kernel::detect())
+        }
+        None if params.builder == BuilderKind::Lbvh && !params.optimize => {
+            checked_count(triangles)?;
+            let (prims, splitter) = lbvh::sorted_refs(triangles, params.max_leaf_size, parallel);
+            nary::build_over(triangles, prims, &splitter, parallel, Kernel::detect())
         }
         None => {
             let skeleton = skeleton(triangles, params)?.compact();

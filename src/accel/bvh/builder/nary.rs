@@ -525,8 +525,25 @@ pub fn build<const N: usize, T: Triangles + ?Sized, S: Splitter>(
     parallel: bool,
     kernel: Kernel,
 ) -> Result<WideBvh<N>> {
+    build_over(
+        triangles,
+        prim_refs(triangles, parallel),
+        splitter,
+        parallel,
+        kernel,
+    )
+}
+
+/// [`build`] over references already made (and ordered as `splitter`
+/// expects: the LBVH's sorted by Morton code).
+pub(crate) fn build_over<const N: usize, T: Triangles + ?Sized, S: Splitter>(
+    triangles: &T,
+    mut prims: Vec<PrimRef>,
+    splitter: &S,
+    parallel: bool,
+    kernel: Kernel,
+) -> Result<WideBvh<N>> {
     let mut out = WideBvh::empty(kernel);
-    let mut prims = prim_refs(triangles, parallel);
     if prims.is_empty() {
         return Ok(out);
     }
@@ -585,12 +602,22 @@ mod tests {
                     BuildParams::sah().with_width(8),
                     BuildParams::sah().with_width(8).with_max_leaf_size(9),
                     BuildParams::median().with_width(8),
+                    BuildParams::for_builder(crate::accel::bvh::BuilderKind::Lbvh).with_width(8),
+                    BuildParams::for_builder(crate::accel::bvh::BuilderKind::Lbvh)
+                        .with_width(8)
+                        .with_max_leaf_size(7),
                 ] {
                     same_as_collapse::<8>(&tris, &params.with_threads(threads));
                 }
                 same_as_collapse::<4>(
                     &tris,
                     &BuildParams::sah().with_width(4).with_threads(threads),
+                );
+                same_as_collapse::<4>(
+                    &tris,
+                    &BuildParams::for_builder(crate::accel::bvh::BuilderKind::Lbvh)
+                        .with_width(4)
+                        .with_threads(threads),
                 );
             }
         }
