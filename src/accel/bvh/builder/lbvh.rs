@@ -40,20 +40,18 @@ pub(crate) fn build<T: Triangles + ?Sized>(
     max_leaf: usize,
     parallel: bool,
 ) -> Skeleton {
-    let prims = prim_refs(triangles, parallel);
+    let (prims, split) = sorted_refs(triangles, max_leaf, parallel);
     if prims.is_empty() {
         return Skeleton::default();
     }
-    let info = NodeInfo::of(&prims, parallel);
-    let (prims, codes) = sorted_by_code(prims, &info, parallel);
     let count = 2 * prims.len() - 1;
     let mut nodes = crate::os::huge_vec(count);
     nodes.resize(count, UNUSED);
     let ctx = Ctx {
-        max_leaf: max_leaf.max(1),
+        max_leaf: split.max_leaf,
         parallel,
     };
-    ctx.recurse(&prims, &codes, 0, 0, &mut nodes);
+    ctx.recurse(&prims, 0, 0, &mut nodes);
     Skeleton {
         nodes,
         tri_ids: prims.iter().map(PrimRef::index).collect(),
@@ -77,7 +75,7 @@ impl Splitter for MortonSplit {
         if n <= self.max_leaf {
             return None;
         }
-        let mid = split_point(prims, PrimRef::key);
+        let mid = split_point(prims);
         let (left, right) = side_infos(prims, mid, parallel);
         Some((mid, left, right))
     }
@@ -93,7 +91,7 @@ pub(crate) fn sorted_refs<T: Triangles + ?Sized>(
 ) -> (Vec<PrimRef>, MortonSplit) {
     let prims = prim_refs(triangles, parallel);
     let info = NodeInfo::of(&prims, parallel);
-    let (prims, _) = sorted_by_code(prims, &info, parallel);
+    let prims = sorted_by_code(prims, &info, parallel);
     let max_leaf = max_leaf.max(1);
     (prims, MortonSplit { max_leaf })
 }
@@ -117,16 +115,9 @@ fn spread(v: u32) -> u32 {
     (x | x << 2) & 0x0924_9249
 }
 
-/// `prims` sorted by (Morton code, index), and the codes in that order.
-/// The codes are made in parallel when `parallel`; the sort is a stable
-/// least-significant-digit radix sort of (code, position) pairs, and the
-/// input is in index order, so equal codes keep index order.
-fn sorted_by_code(
-    prims: Vec<PrimRef>,
-    info: &NodeInfo,
-    parallel: bool,
-) -> (Vec<PrimRef>, Vec<u32>) {
-    use rayon::prelude::*;
+/// The Morton grid over `info`'s centres: its corner, and cells per unit
+/// along each axis (none along an axis where all centres coincide).
+fn grid(info: &NodeInfo) -> (Vec4, Vec4) {
     let lo = info.centroids.lo;
     let extent = info.centroids.hi - lo;
     let cells = (1u32 << BITS) as f32;
@@ -135,6 +126,17 @@ fn sorted_by_code(
         Vec4::splat(cells) / extent,
         Vec4::ZERO,
     );
+    (lo, scale)
+}
+
+/// `prims` sorted by (Morton code, index), each carrying its code
+/// ([`PrimRef::key`]: what the splits read). The codes are made in
+/// parallel when `parallel`; the sort is a stable
+/// least-significant-digit radix sort of (code, position) pairs, and the
+/// input is in index order, so equal codes keep index order.
+fn sorted_by_code(prims: Vec<PrimRef>, info: &NodeInfo, parallel: bool) -> Vec<PrimRef> {
+    use rayon::prelude::*;
+    let (lo, scale) = grid(info);
     let key =
         |(i, p): (usize, &PrimRef)| (morton(p.centroid2(), lo, scale) as u64) << 32 | i as u64;
     let mut keys: Vec<u64> = if parallel {
@@ -164,30 +166,27 @@ fn sorted_by_code(
         }
         std::mem::swap(&mut keys, &mut spare);
     }
-    // Each reference keeps its code (the wide build's splits read it).
     let gather = |&k: &u64| prims[k as u32 as usize].with_key((k >> 32) as u32);
-    let sorted = if parallel {
+    if parallel {
         keys.par_iter().map(gather).collect()
     } else {
         keys.iter().map(gather).collect()
-    };
-    let codes = keys.iter().map(|&k| (k >> 32) as u32).collect();
-    (sorted, codes)
+    }
 }
 
-/// Where a range of items sorted by code (`code` of each) splits: at the
-/// first code with the highest differing bit of the first and last set, or
-/// in the middle when all are equal. Always in `1..items.len()` for two or
-/// more items.
-fn split_point<T>(items: &[T], code: impl Fn(&T) -> u32) -> usize {
-    let (first, last) = (code(&items[0]), code(&items[items.len() - 1]));
+/// Where a range of references sorted by code ([`PrimRef::key`]) splits:
+/// at the first code with the highest differing bit of the first and last
+/// set, or in the middle when all are equal. Always in `1..prims.len()` for
+/// two or more references.
+fn split_point(prims: &[PrimRef]) -> usize {
+    let (first, last) = (prims[0].key(), prims[prims.len() - 1].key());
     if first == last {
-        return items.len() / 2;
+        return prims.len() / 2;
     }
     let bit = 31 - (first ^ last).leading_zeros();
     // Every code in the range shares the bits above `bit`, so those with
     // it set form the tail.
-    items.partition_point(|c| code(c) & (1 << bit) == 0)
+    prims.partition_point(|p| p.key() & (1 << bit) == 0)
 }
 
 struct Ctx {
@@ -199,14 +198,7 @@ impl Ctx {
     /// Builds the subtree of `prims` (leaf slots from `start` on) into
     /// `nodes`, its `2 * prims.len() - 1` slots, the first at index `base`
     /// of the whole array; returns the subtree's (unpadded) box.
-    fn recurse(
-        &self,
-        prims: &[PrimRef],
-        codes: &[u32],
-        start: usize,
-        base: usize,
-        nodes: &mut [Node],
-    ) -> Box4 {
+    fn recurse(&self, prims: &[PrimRef], start: usize, base: usize, nodes: &mut [Node]) -> Box4 {
         let n = prims.len();
         if n <= self.max_leaf {
             let b = prims
@@ -221,14 +213,13 @@ impl Ctx {
             };
             return b;
         }
-        let mid = split_point(codes, |&c| c);
+        let mid = split_point(prims);
         let right_base = base + 2 * mid;
         let (lp, rp) = prims.split_at(mid);
-        let (lc, rc) = codes.split_at(mid);
         let (first, rest) = nodes.split_at_mut(1);
         let (ln, rn) = rest.split_at_mut(2 * mid - 1);
-        let mut left = move || self.recurse(lp, lc, start, base + 1, ln);
-        let mut right = move || self.recurse(rp, rc, start + mid, right_base, rn);
+        let mut left = move || self.recurse(lp, start, base + 1, ln);
+        let mut right = move || self.recurse(rp, start + mid, right_base, rn);
         let (lb, rb) = if self.parallel && n >= PARALLEL_CUTOFF {
             rayon::join(left, right)
         } else {
@@ -271,7 +262,13 @@ mod tests {
 
     #[test]
     fn splits_fall_where_the_highest_differing_bit_changes() {
-        let at = |codes: &[u32]| split_point(codes, |&c| c);
+        let at = |codes: &[u32]| {
+            let point = crate::geometry::Aabb::from_points(&[glam::Vec3::ZERO; 3]);
+            let prims: Vec<PrimRef> = (0..codes.len() as u32)
+                .map(|i| PrimRef::new(&point, i).with_key(codes[i as usize]))
+                .collect();
+            split_point(&prims)
+        };
         assert_eq!(at(&[0b000, 0b001, 0b100, 0b101]), 2);
         assert_eq!(at(&[0b000, 0b010, 0b011, 0b011, 0b100]), 4);
         assert_eq!(at(&[7, 7, 7]), 1);
@@ -284,11 +281,16 @@ mod tests {
         for parallel in [false, true] {
             let prims = prim_refs(&tris, parallel);
             let info = NodeInfo::of(&prims, parallel);
-            let (sorted, codes) = sorted_by_code(prims.clone(), &info, parallel);
+            let sorted = sorted_by_code(prims.clone(), &info, parallel);
             assert_eq!(sorted.len(), prims.len());
-            for w in sorted.windows(2).zip(codes.windows(2)) {
-                let ((a, b), (ca, cb)) = ((w.0[0], w.0[1]), (w.1[0], w.1[1]));
-                assert!(ca < cb || (ca == cb && a.index() < b.index()));
+            for w in sorted.windows(2) {
+                let (a, b) = (w[0], w[1]);
+                assert!(a.key() < b.key() || (a.key() == b.key() && a.index() < b.index()));
+            }
+            // Each carries its own Morton code.
+            let (lo, scale) = grid(&info);
+            for p in &sorted {
+                assert_eq!(p.key(), morton(p.centroid2(), lo, scale));
             }
             let mut ids: Vec<u32> = sorted.iter().map(PrimRef::index).collect();
             ids.sort();
