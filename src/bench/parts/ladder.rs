@@ -122,6 +122,11 @@ fn spec(structure: &str, rung: Quality, threads: usize) -> BackendSpec {
 pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<LadderPoint>> {
     let size = cfg.smaller(2);
     let reps = cfg.extra_reps();
+    // Every rung of every structure, in the order of the rows.
+    let series: Vec<(Quality, &str)> = RUNGS
+        .iter()
+        .flat_map(|&rung| structures().into_iter().map(move |s| (rung, s)))
+        .collect();
     let mut out = Vec::new();
     for scene in scenes {
         let settings = cfg
@@ -132,67 +137,61 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lad
         // two-thread scene would make its one-thread builds two-thread ones
         // (`Built::check_build_threads`).
         let mut points = Vec::new();
-        for rung in RUNGS {
-            for structure in structures() {
-                bar.set_message(format!(
-                    "ladder: builds of {structure} {} on {}",
-                    rung.name(),
-                    scene.name
-                ));
-                // Each series starts with an untimed build: the first Embree
-                // build on a thread count makes its device (14 ms against 0.2
-                // for cornell-empty).
-                let builds = |threads: usize| -> Result<Stat> {
-                    build_backend(&spec(structure, rung, threads), scene)?;
-                    let mut times = Vec::new();
-                    for _ in 0..reps.max(1) {
-                        let built = build_backend(&spec(structure, rung, threads), scene)?;
-                        built.check_build_threads()?;
-                        times.push(built.build_time.as_secs_f64() * 1e3);
-                    }
-                    Ok(Stat::of(&times))
+        for &(rung, structure) in &series {
+            bar.set_message(format!(
+                "ladder: builds of {structure} {} on {}",
+                rung.name(),
+                scene.name
+            ));
+            // Each series starts with an untimed build: the first Embree
+            // build on a thread count makes its device (14 ms against 0.2
+            // for cornell-empty).
+            let builds = |threads: usize| -> Result<Stat> {
+                build_backend(&spec(structure, rung, threads), scene)?;
+                let mut times = Vec::new();
+                for _ in 0..reps.max(1) {
+                    let built = build_backend(&spec(structure, rung, threads), scene)?;
+                    built.check_build_threads()?;
+                    times.push(built.build_time.as_secs_f64() * 1e3);
+                }
+                Ok(Stat::of(&times))
+            };
+            let build_ms_1t = builds(1)?;
+            let build_ms_nt = builds(cfg.threads)?;
+            let (sah_ns_per_ray, references_per_triangle) = if structure == "raylab" {
+                let params = BuildParams::for_quality(rung).with_width(8);
+                let Tree::Wide8(tree) = build(&scene.mesh(), &params)? else {
+                    unreachable!("width 8 builds an 8-wide tree")
                 };
-                let build_ms_1t = builds(1)?;
-                let build_ms_nt = builds(cfg.threads)?;
-                let (sah_ns_per_ray, references_per_triangle) = if structure == "raylab" {
-                    let params = BuildParams::for_quality(rung).with_width(8);
-                    let Tree::Wide8(tree) = build(&scene.mesh(), &params)? else {
-                        unreachable!("width 8 builds an 8-wide tree")
-                    };
-                    (
-                        tree.sah_cost(&TraversalCosts::of_default_path()),
-                        tree.triangle_count() as f64 / scene.triangle_count().max(1) as f64,
-                    )
-                } else {
-                    (f64::NAN, f64::NAN)
-                };
-                points.push(LadderPoint {
-                    scene: scene.name.clone(),
-                    triangles: scene.triangle_count(),
-                    rung: rung.name().to_string(),
-                    structure: structure.to_string(),
-                    backend: spec(structure, rung, cfg.threads).name(),
-                    build_ms_1t,
-                    build_ms_nt,
-                    build_threads: cfg.threads,
-                    sah_ns_per_ray,
-                    references_per_triangle,
-                    render_ms: Stat::default(),
-                    trace_mrays_1t: [f64::NAN; 4],
-                    trace_mrays_nt: [f64::NAN; 4],
-                    trace_ms_1t: f64::NAN,
-                    trace_ms_nt: f64::NAN,
-                    differing: 0,
-                });
-            }
+                (
+                    tree.sah_cost(&TraversalCosts::of_default_path()),
+                    tree.triangle_count() as f64 / scene.triangle_count().max(1) as f64,
+                )
+            } else {
+                (f64::NAN, f64::NAN)
+            };
+            points.push(LadderPoint {
+                scene: scene.name.clone(),
+                triangles: scene.triangle_count(),
+                rung: rung.name().to_string(),
+                structure: structure.to_string(),
+                backend: spec(structure, rung, cfg.threads).name(),
+                build_ms_1t,
+                build_ms_nt,
+                build_threads: cfg.threads,
+                sah_ns_per_ray,
+                references_per_triangle,
+                render_ms: Stat::default(),
+                trace_mrays_1t: [f64::NAN; 4],
+                trace_mrays_nt: [f64::NAN; 4],
+                trace_ms_1t: f64::NAN,
+                trace_ms_nt: f64::NAN,
+                differing: 0,
+            });
         }
         // Then each structure on the bench's threads, kept for the traces.
         let mut backends = Vec::new();
-        for (p, (rung, structure)) in points.iter_mut().zip(
-            RUNGS
-                .iter()
-                .flat_map(|&r| structures().into_iter().map(move |s| (r, s))),
-        ) {
+        for (p, &(rung, structure)) in points.iter_mut().zip(&series) {
             bar.set_message(format!(
                 "ladder: renders of {structure} {} on {}",
                 rung.name(),
@@ -271,17 +270,18 @@ fn add_trace(p: &mut LadderPoint, traced: &[TracePoint], threads: usize) {
     p.trace_ms_nt = ms(&p.trace_mrays_nt);
 }
 
+/// `v` with `digits` decimals, `-` where not measured (NaN).
+fn fixed(v: f64, digits: usize) -> String {
+    if v.is_finite() {
+        format!("{v:.digits$}")
+    } else {
+        "-".to_string()
+    }
+}
+
 /// Four rates (or ratios) as `a/b/c/d`, `-` where not measured.
 fn by_kind(values: [f64; 4]) -> String {
-    values
-        .map(|v| {
-            if v.is_finite() {
-                format!("{v:.2}")
-            } else {
-                "-".to_string()
-            }
-        })
-        .join("/")
+    values.map(|v| fixed(v, 2)).join("/")
 }
 
 /// The part's tables: one row per scene, rung and structure, with each
@@ -305,13 +305,6 @@ pub fn markdown(points: &[LadderPoint]) -> String {
         ("build / Embree's 1T, NT", Right),
         ("trace time / Embree's 1T, NT", Right),
     ]);
-    let num = |v: f64, digits: usize| {
-        if v.is_finite() {
-            format!("{v:.digits$}")
-        } else {
-            "-".to_string()
-        }
-    };
     for p in points {
         let embree = points
             .iter()
@@ -325,8 +318,8 @@ pub fn markdown(points: &[LadderPoint]) -> String {
                 ),
                 format!(
                     "{}, {}",
-                    num(p.trace_ms_1t / e.trace_ms_1t, 2),
-                    num(p.trace_ms_nt / e.trace_ms_nt, 2)
+                    fixed(p.trace_ms_1t / e.trace_ms_1t, 2),
+                    fixed(p.trace_ms_nt / e.trace_ms_nt, 2)
                 ),
             ),
             _ => ("-".to_string(), "-".to_string()),
@@ -337,8 +330,8 @@ pub fn markdown(points: &[LadderPoint]) -> String {
             p.backend.clone(),
             format!("{:.2}", p.build_ms_1t.median),
             format!("{:.2}", p.build_ms_nt.median),
-            num(p.sah_ns_per_ray, 1),
-            num(p.references_per_triangle, 2),
+            fixed(p.sah_ns_per_ray, 1),
+            fixed(p.references_per_triangle, 2),
             format!("{:.1}", p.render_ms.median),
             by_kind(p.trace_mrays_1t),
             by_kind(p.trace_mrays_nt),
