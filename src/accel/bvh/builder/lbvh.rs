@@ -2,28 +2,27 @@
 //! the low rung of the quality ladder, built for speed, not for the SAH.
 //!
 //! Each triangle's box centre is quantised to a 1024^3 grid over the scene's
-//! centres and interleaved into a 30-bit Morton code; the references are
+//! centres and interleaved into a 30-bit Morton code; the triangles are
 //! sorted by (code, scene index) with a stable radix sort. A node's range of
-//! sorted references then splits where the highest bit in which its first
+//! sorted triangles then splits where the highest bit in which its first
 //! and last codes differ changes (a binary search), so every split is a
 //! plane of the grid, found without looking at boxes; equal codes split at
-//! the middle. The binary tree ([`build`]: boxes are unions of the
-//! children's, made on the way back up) serves the binary and optimised
-//! trees; the wide trees the renderer traverses are made directly by the
-//! top-down wide builder with the same splits ([`MortonSplit`]), which
-//! reads each node's references again for its box but never writes, renumbers
-//! and collapses a binary tree.
+//! the middle. This file makes the codes, the sort and the binary tree
+//! ([`build`]: boxes are unions of the children's, made on the way back up),
+//! which serves the binary and optimised trees; the wide trees the renderer
+//! traverses are made with the same splits by [`super::lbvh_wide`].
 //!
 //! Determinism: the sort is by code then index, and the splits depend only
 //! on the sorted codes, so the tree is the same for any thread count.
 
 use glam::Vec4;
 
-use super::topdown::{prim_refs, side_infos, Split, Splitter};
+use super::topdown::prim_refs;
 use crate::accel::bvh::node::{padded, Skeleton, UNUSED};
 use crate::accel::bvh::params::PARALLEL_CUTOFF;
 use crate::accel::bvh::prim::{Box4, NodeInfo, PrimRef, Triangles};
 use crate::accel::bvh::Node;
+use crate::geometry::Aabb;
 
 /// Bits of the Morton code per axis (30 in all: the depth of the code's
 /// splits stays below `MAX_SPLIT_DEPTH`, so the tree fits the traversal
@@ -40,7 +39,7 @@ pub(crate) fn build<T: Triangles + ?Sized>(
     max_leaf: usize,
     parallel: bool,
 ) -> Skeleton {
-    let (prims, split) = sorted_refs(triangles, max_leaf, parallel);
+    let prims = sorted_refs(triangles, parallel);
     if prims.is_empty() {
         return Skeleton::default();
     }
@@ -48,7 +47,7 @@ pub(crate) fn build<T: Triangles + ?Sized>(
     let mut nodes = crate::os::huge_vec(count);
     nodes.resize(count, UNUSED);
     let ctx = Ctx {
-        max_leaf: split.max_leaf,
+        max_leaf: max_leaf.max(1),
         parallel,
     };
     ctx.recurse(&prims, 0, 0, &mut nodes);
@@ -58,42 +57,49 @@ pub(crate) fn build<T: Triangles + ?Sized>(
     }
 }
 
-/// The Morton split as a [`Splitter`], for the wide builder that makes its
-/// nodes directly ([`super::nary`]): over references sorted by code, each
-/// carrying its code ([`sorted_refs`]), a range of more than `max_leaf`
-/// splits where [`split_point`] puts it. So its tree is the collapse of
-/// [`build`]'s, node for node (tested), made without the binary tree: that
-/// build wrote 2n binary nodes, renumbered them and read them back to
-/// collapse them (engine, 110k triangles: 1.2-1.5x the time on one thread).
-pub(crate) struct MortonSplit {
-    max_leaf: usize,
-}
-
-impl Splitter for MortonSplit {
-    fn split(&self, prims: &mut [PrimRef], _: &NodeInfo, _: u32, parallel: bool) -> Split {
-        let n = prims.len();
-        if n <= self.max_leaf {
-            return None;
-        }
-        let mid = split_point(prims);
-        let (left, right) = side_infos(prims, mid, parallel);
-        Some((mid, left, right))
-    }
-}
-
 /// The references of `triangles` sorted by (Morton code, index), each
-/// carrying its code ([`PrimRef::key`]), and the splitter that splits them
-/// as [`build`] does (leaves of at most `max_leaf`).
-pub(crate) fn sorted_refs<T: Triangles + ?Sized>(
-    triangles: &T,
-    max_leaf: usize,
-    parallel: bool,
-) -> (Vec<PrimRef>, MortonSplit) {
+/// carrying its code ([`PrimRef::key`]): what [`build`] splits.
+fn sorted_refs<T: Triangles + ?Sized>(triangles: &T, parallel: bool) -> Vec<PrimRef> {
     let prims = prim_refs(triangles, parallel);
     let info = NodeInfo::of(&prims, parallel);
-    let prims = sorted_by_code(prims, &info, parallel);
-    let max_leaf = max_leaf.max(1);
-    (prims, MortonSplit { max_leaf })
+    sorted_by_code(prims, &info, parallel)
+}
+
+/// Every triangle of `triangles` as `code << 32 | index`, sorted: the same
+/// codes and order as [`build`]'s references, made from the triangles
+/// without references (what the wide build, [`super::lbvh_wide`], reads).
+/// Each triangle's doubled box centre is made once, in parallel when
+/// `parallel`, and kept for the codes.
+pub(super) fn sorted_keys<T: Triangles + ?Sized>(triangles: &T, parallel: bool) -> Vec<u64> {
+    use rayon::prelude::*;
+    let centre = |i: usize| {
+        let b = Aabb::from_points(&triangles.get(i));
+        (b.min + b.max).extend(0.0)
+    };
+    let n = triangles.count();
+    let centres: Vec<Vec4> = if parallel {
+        (0..n).into_par_iter().map(centre).collect()
+    } else {
+        (0..n).map(centre).collect()
+    };
+    let mut bounds = Box4::EMPTY;
+    for &c in &centres {
+        bounds.grow(c);
+    }
+    radix_sort(keys(&centres, &bounds, parallel))
+}
+
+/// `code << 32 | position` of each of `centres` (doubled centres, within
+/// `bounds`), on the grid over `bounds`.
+fn keys(centres: &[Vec4], bounds: &Box4, parallel: bool) -> Vec<u64> {
+    use rayon::prelude::*;
+    let (lo, scale) = grid(bounds);
+    let key = |(i, &c): (usize, &Vec4)| (morton(c, lo, scale) as u64) << 32 | i as u64;
+    if parallel {
+        centres.par_iter().enumerate().map(key).collect()
+    } else {
+        centres.iter().enumerate().map(key).collect()
+    }
 }
 
 /// The 30-bit Morton code of a doubled centre `c2` on the grid of
@@ -115,11 +121,12 @@ fn spread(v: u32) -> u32 {
     (x | x << 2) & 0x0924_9249
 }
 
-/// The Morton grid over `info`'s centres: its corner, and cells per unit
-/// along each axis (none along an axis where all centres coincide).
-fn grid(info: &NodeInfo) -> (Vec4, Vec4) {
-    let lo = info.centroids.lo;
-    let extent = info.centroids.hi - lo;
+/// The Morton grid over the doubled centres in `centres`: its corner, and
+/// cells per unit along each axis (none along an axis where all centres
+/// coincide).
+fn grid(centres: &Box4) -> (Vec4, Vec4) {
+    let lo = centres.lo;
+    let extent = centres.hi - lo;
     let cells = (1u32 << BITS) as f32;
     let scale = Vec4::select(
         extent.cmpgt(Vec4::ZERO),
@@ -130,20 +137,23 @@ fn grid(info: &NodeInfo) -> (Vec4, Vec4) {
 }
 
 /// `prims` sorted by (Morton code, index), each carrying its code
-/// ([`PrimRef::key`]: what the splits read). The codes are made in
-/// parallel when `parallel`; the sort is a stable
-/// least-significant-digit radix sort of (code, position) pairs, and the
-/// input is in index order, so equal codes keep index order.
+/// ([`PrimRef::key`]: what the splits read).
 fn sorted_by_code(prims: Vec<PrimRef>, info: &NodeInfo, parallel: bool) -> Vec<PrimRef> {
     use rayon::prelude::*;
-    let (lo, scale) = grid(info);
-    let key =
-        |(i, p): (usize, &PrimRef)| (morton(p.centroid2(), lo, scale) as u64) << 32 | i as u64;
-    let mut keys: Vec<u64> = if parallel {
-        prims.par_iter().enumerate().map(key).collect()
+    let centres: Vec<Vec4> = prims.iter().map(PrimRef::centroid2).collect();
+    let keys = radix_sort(keys(&centres, &info.centroids, parallel));
+    let gather = |&k: &u64| prims[k as u32 as usize].with_key((k >> 32) as u32);
+    if parallel {
+        keys.par_iter().map(gather).collect()
     } else {
-        prims.iter().enumerate().map(key).collect()
-    };
+        keys.iter().map(gather).collect()
+    }
+}
+
+/// `keys` (`code << 32 | position`, positions in increasing order) sorted
+/// by code, equal codes in position order: a stable
+/// least-significant-digit radix sort of the code's bits.
+fn radix_sort(mut keys: Vec<u64>) -> Vec<u64> {
     let mut spare = vec![0u64; keys.len()];
     let buckets = 1usize << RADIX_BITS;
     for pass in 0..(3 * BITS).div_ceil(RADIX_BITS) {
@@ -166,12 +176,7 @@ fn sorted_by_code(prims: Vec<PrimRef>, info: &NodeInfo, parallel: bool) -> Vec<P
         }
         std::mem::swap(&mut keys, &mut spare);
     }
-    let gather = |&k: &u64| prims[k as u32 as usize].with_key((k >> 32) as u32);
-    if parallel {
-        keys.par_iter().map(gather).collect()
-    } else {
-        keys.iter().map(gather).collect()
-    }
+    keys
 }
 
 /// Where a range of references sorted by code ([`PrimRef::key`]) splits:
@@ -179,14 +184,20 @@ fn sorted_by_code(prims: Vec<PrimRef>, info: &NodeInfo, parallel: bool) -> Vec<P
 /// set, or in the middle when all are equal. Always in `1..prims.len()` for
 /// two or more references.
 fn split_point(prims: &[PrimRef]) -> usize {
-    let (first, last) = (prims[0].key(), prims[prims.len() - 1].key());
+    split_by_code(prims, PrimRef::key)
+}
+
+/// Where a range of `items` sorted by `code` splits ([`split_point`]).
+#[inline]
+pub(super) fn split_by_code<K>(items: &[K], code: impl Fn(&K) -> u32) -> usize {
+    let (first, last) = (code(&items[0]), code(&items[items.len() - 1]));
     if first == last {
-        return prims.len() / 2;
+        return items.len() / 2;
     }
     let bit = 31 - (first ^ last).leading_zeros();
     // Every code in the range shares the bits above `bit`, so those with
     // it set form the tail.
-    prims.partition_point(|p| p.key() & (1 << bit) == 0)
+    items.partition_point(|k| code(k) & (1 << bit) == 0)
 }
 
 struct Ctx {
@@ -288,7 +299,7 @@ mod tests {
                 assert!(a.key() < b.key() || (a.key() == b.key() && a.index() < b.index()));
             }
             // Each carries its own Morton code.
-            let (lo, scale) = grid(&info);
+            let (lo, scale) = grid(&info.centroids);
             for p in &sorted {
                 assert_eq!(p.key(), morton(p.centroid2(), lo, scale));
             }

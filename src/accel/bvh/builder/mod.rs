@@ -16,6 +16,7 @@
 
 mod embree;
 pub(crate) mod lbvh;
+pub(crate) mod lbvh_wide;
 pub(crate) mod median;
 pub(crate) mod nary;
 pub(crate) mod pool;
@@ -148,9 +149,9 @@ fn built_skeleton<T: Triangles + ?Sized>(
 
 /// The `N`-wide tree of `params`' builder on the current thread pool:
 /// directly top-down ([`nary`]) for the builders that split in place
-/// (median, SAH) and for the LBVH (its references sorted by Morton code
-/// first), by collapsing the binary tree for the others (SBVH, Embree's)
-/// and for optimised trees.
+/// (median, SAH), by the LBVH's own wide builder ([`lbvh_wide`]: children
+/// opened by count, boxes made bottom-up), by collapsing the binary tree for
+/// the others (SBVH, Embree's) and for optimised trees.
 pub(crate) fn wide<const N: usize, T: Triangles + ?Sized>(
     triangles: &T,
     params: &BuildParams,
@@ -163,8 +164,7 @@ pub(crate) fn wide<const N: usize, T: Triangles + ?Sized>(
         }
         None if params.builder == BuilderKind::Lbvh && !params.optimize => {
             checked_count(triangles)?;
-            let (prims, splitter) = lbvh::sorted_refs(triangles, params.max_leaf_size, parallel);
-            nary::build_over(triangles, prims, &splitter, parallel, Kernel::detect())
+            lbvh_wide::build(triangles, params.max_leaf_size, parallel, Kernel::detect())
         }
         None => {
             let skeleton = skeleton(triangles, params)?.compact();

@@ -198,7 +198,7 @@ impl<S: Splitter> Ctx<'_, S> {
     ) -> Result<(u32, usize)> {
         let index = piece.nodes.len();
         piece.nodes.push(WideNode::empty());
-        let mut node = self.node_with_leaves(prims, kids, &mut piece.slot_ids)?;
+        let mut node = self.node_with_leaves(prims, kids, &mut piece.slots.ids)?;
         let mut deepest = 0;
         let mut grand = ArrayVec::new();
         for (lane, kid) in kids.iter().enumerate().filter(|(_, k)| !k.is_leaf()) {
@@ -219,8 +219,8 @@ impl<S: Splitter> Ctx<'_, S> {
         prims: &mut [PrimRef],
         kids: &ArrayVec<Kid, N>,
     ) -> Result<Built<N>> {
-        let mut slot_ids = Vec::new();
-        let node = self.node_with_leaves(prims, kids, &mut slot_ids)?;
+        let mut slots = Slots::default();
+        let node = self.node_with_leaves(prims, kids, &mut slots.ids)?;
         // The interior children's primitive ranges, carved apart so that each
         // task owns its own.
         let mut order: ArrayVec<usize, N> = (0..kids.len()).collect();
@@ -267,50 +267,70 @@ impl<S: Splitter> Ctx<'_, S> {
         children.sort_by_key(|&(lane, _)| lane);
         Ok(Built::Node {
             node,
-            slot_ids,
+            slots,
             children,
             need: kids.len() - 1 + deepest,
         })
     }
 }
 
+/// The triangle slots of a segment's leaves, four to a block: either the
+/// scene index of each (the final pass fills the blocks: the top-down
+/// builders' references carry boxes, not vertices) or the blocks already
+/// filled (the LBVH reads every leaf triangle for its box and fills its
+/// blocks then, [`super::lbvh_wide`]). A builder uses one of the two.
+#[derive(Default)]
+pub(super) struct Slots {
+    /// [`EMPTY_ID`] where a slot is unused.
+    pub ids: Vec<u32>,
+    pub blocks: Vec<Tri4>,
+}
+
+impl Slots {
+    fn count(&self) -> usize {
+        self.ids.len() + self.blocks.len() * LANES
+    }
+}
+
 /// A subtree made serially: nodes and leaf slots indexed from its own
 /// arrays' starts, its root node first.
-struct Piece<const N: usize> {
-    nodes: Vec<WideNode<N>>,
-    /// Scene index of each triangle slot, four slots to a block.
-    slot_ids: Vec<u32>,
-    need: usize,
+pub(super) struct Piece<const N: usize> {
+    pub nodes: Vec<WideNode<N>>,
+    pub slots: Slots,
+    pub need: usize,
 }
 
 impl<const N: usize> Piece<N> {
     /// Room for the subtree of `prims` triangles as trees usually come out
     /// (more than that is a regrowth, not an error; reserving touches no
     /// memory).
-    fn with_capacity(prims: usize) -> Self {
+    pub fn with_capacity(prims: usize) -> Self {
         Piece {
             nodes: Vec::with_capacity(prims / (N - 1) + 1),
-            slot_ids: Vec::with_capacity(2 * prims + LANES),
+            slots: Slots {
+                ids: Vec::with_capacity(2 * prims + LANES),
+                blocks: Vec::new(),
+            },
             need: 0,
         }
     }
 }
 
 /// A subtree: a piece, or a node whose children were made in parallel.
-enum Built<const N: usize> {
+pub(super) enum Built<const N: usize> {
     Piece(Piece<N>),
     Node {
-        /// Leaf lanes refer to `slot_ids`; interior lanes' children are set
+        /// Leaf lanes refer to `slots`; interior lanes' children are set
         /// when laid out ([`Layout::node`]).
         node: WideNode<N>,
-        slot_ids: Vec<u32>,
+        slots: Slots,
         children: Vec<(usize, Built<N>)>,
         need: usize,
     },
 }
 
 impl<const N: usize> Built<N> {
-    fn need(&self) -> usize {
+    pub fn need(&self) -> usize {
         match self {
             Built::Piece(p) => p.need,
             Built::Node { need, .. } => *need,
@@ -326,13 +346,13 @@ impl<const N: usize> Built<N> {
             Built::Piece(p) => out.push(Segment::Piece(p)),
             Built::Node {
                 node,
-                slot_ids,
+                slots,
                 children,
                 ..
             } => {
                 out.push(Segment::Node {
                     node,
-                    slot_ids,
+                    slots,
                     children: Vec::new(),
                 });
                 let ids: Vec<(usize, usize)> = children
@@ -353,7 +373,7 @@ impl<const N: usize> Built<N> {
 enum Segment<const N: usize> {
     Node {
         node: WideNode<N>,
-        slot_ids: Vec<u32>,
+        slots: Slots,
         children: Vec<(usize, usize)>,
     },
     Piece(Piece<N>),
@@ -363,8 +383,8 @@ impl<const N: usize> Segment<N> {
     /// Nodes and triangle slots.
     fn size(&self) -> (usize, usize) {
         match self {
-            Segment::Node { slot_ids, .. } => (1, slot_ids.len()),
-            Segment::Piece(p) => (p.nodes.len(), p.slot_ids.len()),
+            Segment::Node { slots, .. } => (1, slots.count()),
+            Segment::Piece(p) => (p.nodes.len(), p.slots.count()),
         }
     }
 }
@@ -385,6 +405,12 @@ fn shifted<const N: usize>(
         }
     }
     node
+}
+
+/// Where a block of the final array comes from ([`Layout::block_source`]).
+enum BlockSource<'a> {
+    Filled(&'a Tri4),
+    Ids(&'a [u32]),
 }
 
 /// The segments in their final order and where each one's nodes and
@@ -445,16 +471,20 @@ impl<const N: usize> Layout<N> {
         }
     }
 
-    /// The scene indices of block `b`'s four slots.
-    fn block_ids(&self, b: usize, hint: &mut usize) -> &[u32] {
+    /// Block `b`: filled already, or the scene indices of its four slots.
+    fn block_source(&self, b: usize, hint: &mut usize) -> BlockSource<'_> {
         let slot = b * LANES;
         let s = segment_of(&self.first_slot, slot, hint);
         let local = slot - self.first_slot[s];
-        let ids = match &self.segments[s] {
-            Segment::Piece(p) => &p.slot_ids,
-            Segment::Node { slot_ids, .. } => slot_ids,
+        let slots = match &self.segments[s] {
+            Segment::Piece(p) => &p.slots,
+            Segment::Node { slots, .. } => slots,
         };
-        &ids[local..local + LANES]
+        if slots.blocks.is_empty() {
+            BlockSource::Ids(&slots.ids[local..local + LANES])
+        } else {
+            BlockSource::Filled(&slots.blocks[local / LANES])
+        }
     }
 
     /// The tree's nodes, each written once into a fresh array, in parallel
@@ -478,15 +508,25 @@ impl<const N: usize> Layout<N> {
         nodes
     }
 
-    /// The leaf blocks, each written once into a fresh array, in parallel
-    /// when `parallel`. Leaf order jumps about the scene's triangle order, so
-    /// each block's reads are asked for [`FILL_AHEAD`] blocks early: the fill
-    /// was bound by waiting for them.
-    fn blocks<T: Triangles + ?Sized>(&self, triangles: &T, parallel: bool) -> Vec<Tri4> {
+    /// The leaf blocks, each written once into a fresh array (copied where
+    /// a builder filled them), in parallel when `parallel`; a lone piece's
+    /// filled blocks are taken as they are. Leaf order jumps about the
+    /// scene's triangle order, so each block's reads are asked for
+    /// [`FILL_AHEAD`] blocks early: the fill was bound by waiting for them.
+    fn blocks<T: Triangles + ?Sized>(&mut self, triangles: &T, parallel: bool) -> Vec<Tri4> {
         let count = *self.first_slot.last().unwrap() / LANES;
+        if let [Segment::Piece(p)] = &mut self.segments[..] {
+            if !p.slots.blocks.is_empty() {
+                return std::mem::take(&mut p.slots.blocks);
+            }
+        }
+        let this = &*self;
         let ask = |b: usize, stage: u8, hint: &mut usize| {
-            if b < count {
-                for &id in self.block_ids(b, hint).iter().filter(|&&id| id != EMPTY_ID) {
+            if b >= count {
+                return;
+            }
+            if let BlockSource::Ids(ids) = this.block_source(b, hint) {
+                for &id in ids.iter().filter(|&&id| id != EMPTY_ID) {
                     triangles.prefetch(id as usize, stage);
                 }
             }
@@ -494,13 +534,18 @@ impl<const N: usize> Layout<N> {
         let block = |hints: &mut [usize; 3], b: usize| {
             ask(b + 2 * FILL_AHEAD, 0, &mut hints[0]);
             ask(b + FILL_AHEAD, 1, &mut hints[1]);
-            let mut block = Tri4::empty();
-            for (lane, &id) in self.block_ids(b, &mut hints[2]).iter().enumerate() {
-                if id != EMPTY_ID {
-                    block.set_lane(lane, &triangles.get(id as usize), id);
+            match this.block_source(b, &mut hints[2]) {
+                BlockSource::Filled(block) => *block,
+                BlockSource::Ids(ids) => {
+                    let mut block = Tri4::empty();
+                    for (lane, &id) in ids.iter().enumerate() {
+                        if id != EMPTY_ID {
+                            block.set_lane(lane, &triangles.get(id as usize), id);
+                        }
+                    }
+                    block
                 }
             }
-            block
         };
         let mut blocks = crate::os::huge_vec(count);
         if parallel {
@@ -525,27 +570,9 @@ pub fn build<const N: usize, T: Triangles + ?Sized, S: Splitter>(
     parallel: bool,
     kernel: Kernel,
 ) -> Result<WideBvh<N>> {
-    build_over(
-        triangles,
-        prim_refs(triangles, parallel),
-        splitter,
-        parallel,
-        kernel,
-    )
-}
-
-/// [`build`] over references already made (and ordered as `splitter`
-/// expects: the LBVH's sorted by Morton code).
-pub(crate) fn build_over<const N: usize, T: Triangles + ?Sized, S: Splitter>(
-    triangles: &T,
-    mut prims: Vec<PrimRef>,
-    splitter: &S,
-    parallel: bool,
-    kernel: Kernel,
-) -> Result<WideBvh<N>> {
-    let mut out = WideBvh::empty(kernel);
+    let mut prims = prim_refs(triangles, parallel);
     if prims.is_empty() {
-        return Ok(out);
+        return Ok(WideBvh::empty(kernel));
     }
     let ctx = Ctx { splitter, parallel };
     let info = NodeInfo::of(&prims, parallel);
@@ -561,8 +588,20 @@ pub(crate) fn build_over<const N: usize, T: Triangles + ?Sized, S: Splitter>(
         piece.need = need;
         Built::Piece(piece)
     };
-    out.stack_need = built.need() + 1;
     drop(prims);
+    finish(triangles, built, parallel, kernel)
+}
+
+/// The tree of `built` (its root's subtree, from a wide builder): nodes and
+/// blocks laid out and filled, in parallel when `parallel`.
+pub(super) fn finish<const N: usize, T: Triangles + ?Sized>(
+    triangles: &T,
+    built: Built<N>,
+    parallel: bool,
+    kernel: Kernel,
+) -> Result<WideBvh<N>> {
+    let mut out = WideBvh::empty(kernel);
+    out.stack_need = built.need() + 1;
     let mut segments = Vec::new();
     built.segments(&mut segments);
     let mut layout = Layout::new(segments)?;
@@ -602,22 +641,12 @@ mod tests {
                     BuildParams::sah().with_width(8),
                     BuildParams::sah().with_width(8).with_max_leaf_size(9),
                     BuildParams::median().with_width(8),
-                    BuildParams::for_builder(crate::accel::bvh::BuilderKind::Lbvh).with_width(8),
-                    BuildParams::for_builder(crate::accel::bvh::BuilderKind::Lbvh)
-                        .with_width(8)
-                        .with_max_leaf_size(7),
                 ] {
                     same_as_collapse::<8>(&tris, &params.with_threads(threads));
                 }
                 same_as_collapse::<4>(
                     &tris,
                     &BuildParams::sah().with_width(4).with_threads(threads),
-                );
-                same_as_collapse::<4>(
-                    &tris,
-                    &BuildParams::for_builder(crate::accel::bvh::BuilderKind::Lbvh)
-                        .with_width(4)
-                        .with_threads(threads),
                 );
             }
         }

@@ -20,7 +20,7 @@ pub use node::{Bvh4, Bvh8, WideBvh, WideNode, EMPTY, MAX_LEAF, MAX_SLOTS};
 pub(crate) use order::order_for_any_hit;
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::node::{for_leaf_blocks, leaf_ref, leaf_slots, LEAF};
     use super::*;
     use crate::accel::bvh::leaf::{Tri4, LANES};
@@ -102,6 +102,52 @@ mod tests {
         assert_eq!(calls, 1);
     }
 
+    /// Checks what every wide tree over `tris` must be: each triangle in
+    /// exactly one block lane and one leaf slot, every leaf lane's slots
+    /// holding triangles inside its box, every child node inside its
+    /// parent's lane box, and a stack need within [`STACK`].
+    pub(crate) fn assert_sound<const N: usize>(wide: &WideBvh<N>, tris: &[[Vec3; 3]]) {
+        let n = tris.len();
+        let mut ids: Vec<u32> = wide
+            .blocks
+            .iter()
+            .flat_map(|b| b.ids)
+            .filter(|&i| i != u32::MAX)
+            .collect();
+        ids.sort();
+        assert_eq!(ids, (0..n as u32).collect::<Vec<_>>(), "n = {n}");
+        assert_eq!(wide.triangle_count(), n);
+        let mut slots: Vec<usize> = Vec::new();
+        for node in &wide.nodes {
+            for lane in 0..N {
+                for slot in node.leaf_slots(lane) {
+                    let block = &wide.blocks[slot / LANES];
+                    assert_ne!(block.ids[slot % LANES], u32::MAX);
+                    let tri = block.triangle(slot % LANES);
+                    assert_eq!(tri, tris[block.ids[slot % LANES] as usize]);
+                    let b = node.lane_bounds(lane);
+                    assert!(tri.iter().all(|&v| b.contains(&Aabb::from_points(&[v]))));
+                    slots.push(slot);
+                }
+            }
+        }
+        slots.sort();
+        slots.dedup();
+        assert_eq!(slots.len(), n, "each slot in exactly one leaf");
+        for node in &wide.nodes {
+            for lane in 0..N {
+                let c = node.child[lane];
+                if c != EMPTY && c & LEAF == 0 {
+                    let child = &wide.nodes[c as usize];
+                    for l in 0..child.used() {
+                        assert!(node.lane_bounds(lane).contains(&child.lane_bounds(l)));
+                    }
+                }
+            }
+        }
+        assert!(wide.stack_need <= STACK);
+    }
+
     fn check_collapse<const N: usize>() {
         for n in [1, 2, 3, 5, 9, 64, 1000] {
             let tris = random_tris(n, n as u64);
@@ -111,18 +157,8 @@ mod tests {
             ] {
                 let bvh = binary(&tris, &params);
                 let wide = WideBvh::<N>::collapse(&bvh).unwrap();
-                // Every triangle lands in exactly one block lane.
-                let mut ids: Vec<u32> = wide
-                    .blocks
-                    .iter()
-                    .flat_map(|b| b.ids)
-                    .filter(|&i| i != u32::MAX)
-                    .collect();
-                ids.sort();
-                assert_eq!(ids, (0..n as u32).collect::<Vec<_>>(), "n = {n}");
-                assert_eq!(wide.triangle_count(), n);
-                // Packing never takes more blocks than a block run per leaf,
-                // and every leaf lane's slots hold exactly that leaf's triangles.
+                assert_sound(&wide, &tris);
+                // Packing never takes more blocks than a block run per leaf.
                 let leaves: usize = bvh
                     .nodes
                     .iter()
@@ -130,38 +166,9 @@ mod tests {
                     .map(|n| (n.count as usize).div_ceil(LANES))
                     .sum();
                 assert!(wide.blocks.len() <= leaves);
-                let mut slots: Vec<usize> = Vec::new();
-                for node in &wide.nodes {
-                    for lane in 0..N {
-                        for slot in node.leaf_slots(lane) {
-                            let block = &wide.blocks[slot / LANES];
-                            assert_ne!(block.ids[slot % LANES], u32::MAX);
-                            let tri = block.triangle(slot % LANES);
-                            let b = node.lane_bounds(lane);
-                            assert!(tri.iter().all(|&v| b.contains(&Aabb::from_points(&[v]))));
-                            slots.push(slot);
-                        }
-                    }
-                }
-                slots.sort();
-                slots.dedup();
-                assert_eq!(slots.len(), n, "each slot in exactly one leaf");
-                // Each child's box lies inside its parent's lane box.
-                for node in &wide.nodes {
-                    for lane in 0..N {
-                        let c = node.child[lane];
-                        if c != EMPTY && c & LEAF == 0 {
-                            let child = &wide.nodes[c as usize];
-                            for l in 0..child.used() {
-                                assert!(node.lane_bounds(lane).contains(&child.lane_bounds(l)));
-                            }
-                        }
-                    }
-                }
                 if n >= 64 {
                     assert!(wide.nodes.len() * (N / 2) < bvh.nodes.len());
                 }
-                assert!(wide.stack_need <= STACK);
             }
         }
         assert!(WideBvh::<N>::collapse(&Bvh::default())
