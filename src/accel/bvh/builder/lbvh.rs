@@ -20,7 +20,7 @@ use glam::Vec4;
 use super::topdown::prim_refs;
 use crate::accel::bvh::node::{padded, Skeleton, UNUSED};
 use crate::accel::bvh::params::PARALLEL_CUTOFF;
-use crate::accel::bvh::prim::{Box4, NodeInfo, PrimRef, Triangles};
+use crate::accel::bvh::prim::{Box4, PrimRef, Triangles};
 use crate::accel::bvh::Node;
 use crate::geometry::Aabb;
 
@@ -60,46 +60,62 @@ pub(crate) fn build<T: Triangles + ?Sized>(
 /// The references of `triangles` sorted by (Morton code, index), each
 /// carrying its code ([`PrimRef::key`]): what [`build`] splits.
 fn sorted_refs<T: Triangles + ?Sized>(triangles: &T, parallel: bool) -> Vec<PrimRef> {
-    let prims = prim_refs(triangles, parallel);
-    let info = NodeInfo::of(&prims, parallel);
-    sorted_by_code(prims, &info, parallel)
+    sorted_by_code(prim_refs(triangles, parallel), parallel)
 }
 
 /// Every triangle of `triangles` as `code << 32 | index`, sorted: the same
 /// codes and order as [`build`]'s references, made from the triangles
 /// without references (what the wide build, [`super::lbvh_wide`], reads).
-/// Each triangle's doubled box centre is made once, in parallel when
-/// `parallel`, and kept for the codes.
-pub(super) fn sorted_keys<T: Triangles + ?Sized>(triangles: &T, parallel: bool) -> Vec<u64> {
-    use rayon::prelude::*;
-    let centre = |i: usize| {
-        let b = Aabb::from_points(&triangles.get(i));
-        (b.min + b.max).extend(0.0)
-    };
+/// Each triangle is read once, in parallel when `parallel`; with
+/// `with_boxes` its box is kept and returned (indexed as the scene), else
+/// only its centre is kept, for the codes, and no boxes are returned.
+pub(super) fn sorted_keys<T: Triangles + ?Sized>(
+    triangles: &T,
+    parallel: bool,
+    with_boxes: bool,
+) -> (Vec<u64>, Vec<Box4>) {
     let n = triangles.count();
-    let centres: Vec<Vec4> = if parallel {
-        (0..n).into_par_iter().map(centre).collect()
-    } else {
-        (0..n).map(centre).collect()
+    let box_of = |i: usize| {
+        let b = Aabb::from_points(&triangles.get(i));
+        Box4 {
+            lo: b.min.extend(0.0),
+            hi: b.max.extend(0.0),
+        }
     };
-    let mut bounds = Box4::EMPTY;
-    for &c in &centres {
-        bounds.grow(c);
+    if with_boxes {
+        let boxes = collect(n, parallel, box_of);
+        let keys = keys(n, |i| boxes[i].lo + boxes[i].hi, parallel);
+        (keys, boxes)
+    } else {
+        let centres = collect(n, parallel, |i| {
+            let b = box_of(i);
+            b.lo + b.hi
+        });
+        (keys(n, |i| centres[i], parallel), Vec::new())
     }
-    radix_sort(keys(&centres, &bounds, parallel))
 }
 
-/// `code << 32 | position` of each of `centres` (doubled centres, within
-/// `bounds`), on the grid over `bounds`.
-fn keys(centres: &[Vec4], bounds: &Box4, parallel: bool) -> Vec<u64> {
+/// `f` of `0..n`, in parallel when `parallel`.
+fn collect<V: Send>(n: usize, parallel: bool, f: impl Fn(usize) -> V + Sync + Send) -> Vec<V> {
     use rayon::prelude::*;
-    let (lo, scale) = grid(bounds);
-    let key = |(i, &c): (usize, &Vec4)| (morton(c, lo, scale) as u64) << 32 | i as u64;
     if parallel {
-        centres.par_iter().enumerate().map(key).collect()
+        (0..n).into_par_iter().map(f).collect()
     } else {
-        centres.iter().enumerate().map(key).collect()
+        (0..n).map(f).collect()
     }
+}
+
+/// The sorted `code << 32 | index` of `n` doubled centres (`centre(i)`, w
+/// lane 0), on the grid over their bounds.
+fn keys(n: usize, centre: impl Fn(usize) -> Vec4 + Sync + Send, parallel: bool) -> Vec<u64> {
+    let mut bounds = Box4::EMPTY;
+    for i in 0..n {
+        bounds.grow(centre(i));
+    }
+    let (lo, scale) = grid(&bounds);
+    radix_sort(collect(n, parallel, |i| {
+        (morton(centre(i), lo, scale) as u64) << 32 | i as u64
+    }))
 }
 
 /// The 30-bit Morton code of a doubled centre `c2` on the grid of
@@ -138,10 +154,9 @@ fn grid(centres: &Box4) -> (Vec4, Vec4) {
 
 /// `prims` sorted by (Morton code, index), each carrying its code
 /// ([`PrimRef::key`]: what the splits read).
-fn sorted_by_code(prims: Vec<PrimRef>, info: &NodeInfo, parallel: bool) -> Vec<PrimRef> {
+fn sorted_by_code(prims: Vec<PrimRef>, parallel: bool) -> Vec<PrimRef> {
     use rayon::prelude::*;
-    let centres: Vec<Vec4> = prims.iter().map(PrimRef::centroid2).collect();
-    let keys = radix_sort(keys(&centres, &info.centroids, parallel));
+    let keys = keys(prims.len(), |i| prims[i].centroid2(), parallel);
     let gather = |&k: &u64| prims[k as u32 as usize].with_key((k >> 32) as u32);
     if parallel {
         keys.par_iter().map(gather).collect()
@@ -291,8 +306,8 @@ mod tests {
         let tris = random_tris(5000, 3);
         for parallel in [false, true] {
             let prims = prim_refs(&tris, parallel);
-            let info = NodeInfo::of(&prims, parallel);
-            let sorted = sorted_by_code(prims.clone(), &info, parallel);
+            let info = crate::accel::bvh::prim::NodeInfo::of(&prims, parallel);
+            let sorted = sorted_by_code(prims.clone(), parallel);
             assert_eq!(sorted.len(), prims.len());
             for w in sorted.windows(2) {
                 let (a, b) = (w[0], w[1]);

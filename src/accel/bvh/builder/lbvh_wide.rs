@@ -31,7 +31,7 @@ use crate::accel::bvh::leaf::{Tri4, EMPTY_ID, LANES};
 use crate::accel::bvh::node::padded;
 use crate::accel::bvh::params::{FILL_AHEAD, MERGE_MAX, PARALLEL_CUTOFF};
 use crate::accel::bvh::prim::{Box4, Triangles};
-use crate::accel::bvh::simd::Kernel;
+use crate::accel::bvh::simd::{prefetch, Kernel};
 use crate::accel::bvh::wide::node::{leaf_ref, pack_leaves};
 use crate::accel::bvh::wide::{WideBvh, WideNode, EMPTY};
 use crate::error::Result;
@@ -50,16 +50,23 @@ struct Ctx<'a, T: ?Sized> {
     /// `code << 32 | index`, sorted.
     keys: &'a [u64],
     max_leaf: usize,
-    /// Whether leaves fill their blocks as they are made: in a serial build,
-    /// whose one piece's blocks are the tree's. A parallel build's pieces
-    /// keep scene indices and the final pass fills the blocks in parallel
-    /// (blocks made in pieces were copied once more, into memory fresh
+    /// Empty in a serial build, whose leaves read their triangles and fill
+    /// their blocks as they are made (its one piece's blocks are the
+    /// tree's). In a parallel build, each triangle's box (scene order): its
+    /// pieces keep scene indices, take leaf boxes from here, and the final
+    /// pass reads the triangles to fill the blocks in parallel (pieces that
+    /// filled blocks of their own were copied once more, into memory fresh
     /// from the kernel twice: mesh:50000 on two threads took as long as on
     /// one).
-    fill: bool,
+    boxes: &'a [Box4],
 }
 
 impl<T: Triangles + ?Sized> Ctx<'_, T> {
+    /// Whether leaves fill their blocks as they are made (see `boxes`).
+    fn fills(&self) -> bool {
+        self.boxes.is_empty()
+    }
+
     fn kid(&self, start: usize, len: usize) -> Kid {
         Kid {
             start,
@@ -101,29 +108,35 @@ impl<T: Triangles + ?Sized> Ctx<'_, T> {
     }
 
     /// Puts leaf `kid`'s triangles into `slots` from slot `slot` on (filled
-    /// blocks when [`Ctx::fill`], else scene indices); returns their box. Leaves come roughly in key order, so the triangles
-    /// [`FILL_AHEAD`] leaves on are asked for now (their index triples
-    /// twice as far): scene order is not key order, and the fill waited on
-    /// the reads.
+    /// blocks when filling, else scene indices); returns their box. Leaves
+    /// come roughly in key order, so what the leaves [`FILL_AHEAD`] on read
+    /// is asked for now (the triangles' index triples twice as far): scene
+    /// order is not key order, and the fill waited on the reads.
     fn leaf(&self, kid: &Kid, slot: usize, slots: &mut Slots) -> Box4 {
         let end = kid.start + kid.len;
         let ahead = |from: usize, stage: u8| {
             for &key in self.keys.get(from..from + kid.len).unwrap_or_default() {
-                self.triangles.prefetch(key as u32 as usize, stage);
+                match self.boxes.get(key as u32 as usize) {
+                    Some(b) => prefetch(b),
+                    None => self.triangles.prefetch(key as u32 as usize, stage),
+                }
             }
         };
-        ahead(end + 2 * FILL_AHEAD * kid.len, 0);
+        if self.boxes.is_empty() {
+            ahead(end + 2 * FILL_AHEAD * kid.len, 0);
+        }
         ahead(end + FILL_AHEAD * kid.len, 1);
         let mut b = Box4::EMPTY;
         for (s, &key) in (slot..).zip(&self.keys[kid.start..end]) {
             let id = key as u32;
-            let tri = self.triangles.get(id as usize);
-            for v in tri {
-                b.grow(Vec4::from((v, 0.0)));
-            }
-            if self.fill {
+            if self.boxes.is_empty() {
+                let tri = self.triangles.get(id as usize);
+                for v in tri {
+                    b.grow(Vec4::from((v, 0.0)));
+                }
                 slots.blocks[s / LANES].set_lane(s % LANES, &tri, id);
             } else {
+                b = b.union(self.boxes[id as usize]);
                 slots.ids[s] = id;
             }
         }
@@ -142,13 +155,13 @@ impl<T: Triangles + ?Sized> Ctx<'_, T> {
         let mut bounds = Box4::EMPTY;
         let leaves: ArrayVec<usize, N> = (0..kids.len()).filter(|&l| kids[l].leaf).collect();
         let counts: ArrayVec<usize, N> = leaves.iter().map(|&l| kids[l].len).collect();
-        let first = if self.fill {
+        let first = if self.fills() {
             slots.blocks.len()
         } else {
             slots.ids.len() / LANES
         };
         let (starts, taken) = pack_leaves::<N>(&counts, first)?;
-        if self.fill {
+        if self.fills() {
             slots.blocks.resize(first + taken, Tri4::empty());
         } else {
             slots.ids.resize((first + taken) * LANES, EMPTY_ID);
@@ -191,7 +204,7 @@ impl<T: Triangles + ?Sized> Ctx<'_, T> {
         len: usize,
     ) -> Result<(Built<N>, Box4)> {
         let mut piece = Piece::with_capacity(len);
-        if self.fill {
+        if self.fills() {
             piece.slots.ids = Vec::new();
             piece.slots.blocks = crate::os::huge_vec(len / 2 + 1);
         }
@@ -249,7 +262,8 @@ pub(crate) fn build<const N: usize, T: Triangles + ?Sized>(
     parallel: bool,
     kernel: Kernel,
 ) -> Result<WideBvh<N>> {
-    let keys = lbvh::sorted_keys(triangles, parallel);
+    let split = parallel && triangles.count() >= PARALLEL_CUTOFF;
+    let (keys, boxes) = lbvh::sorted_keys(triangles, parallel, split);
     if keys.is_empty() {
         return Ok(WideBvh::empty(kernel));
     }
@@ -257,15 +271,15 @@ pub(crate) fn build<const N: usize, T: Triangles + ?Sized>(
         triangles,
         keys: &keys,
         max_leaf: max_leaf.max(1),
-        fill: !(parallel && keys.len() >= PARALLEL_CUTOFF),
+        boxes: &boxes,
     };
     let kids = ctx.children::<N>(0, keys.len());
-    let (built, _) = if ctx.fill {
-        ctx.piece(&kids, keys.len())?
-    } else {
+    let (built, _) = if split {
         ctx.parallel(&kids)?
+    } else {
+        ctx.piece(&kids, keys.len())?
     };
-    drop(keys);
+    drop((keys, boxes));
     nary::finish(triangles, built, parallel, kernel)
 }
 
