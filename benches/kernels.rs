@@ -253,6 +253,9 @@ fn stream_queries(c: &mut Criterion) {
 
 /// Build time against triangle count on the procedural meshes, serial and on 2 threads.
 fn bvh_builds(c: &mut Criterion) {
+    // As the binary does: repeated builds reuse freed memory on every thread
+    // count (two-thread builds otherwise fault all their memory in afresh).
+    raylab::os::keep_freed_memory();
     let mut g = c.benchmark_group("bvh_build");
     g.sample_size(10);
     for n in [1_000u64, 10_000, 100_000] {

@@ -57,6 +57,7 @@ pub fn main() -> i32 {
         eprintln!("raylab: internal error{place}: {msg} (please report this)");
     }));
     crate::os::quiet_on_closed_pipe();
+    crate::os::keep_freed_memory();
     use clap::{CommandFactory, FromArgMatches};
     let parsed = Cli::command()
         .try_get_matches()
