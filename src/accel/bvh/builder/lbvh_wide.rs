@@ -5,8 +5,9 @@
 //! ([`lbvh::sorted_keys`]); a wide node then splits the range of its child
 //! with the most triangles at [`lbvh::split_by_code`]'s point (the binary
 //! LBVH's split) until it has `N` children, so opening children needs no
-//! boxes. Boxes are made bottom-up: a leaf's from its triangles, a node's as
-//! the union of its children's, each triangle read once. The binary LBVH
+//! boxes. Boxes are made bottom-up: a leaf's from its triangles (in a
+//! parallel build, from their boxes kept by the key pass), a node's as the
+//! union of its children's. The binary LBVH
 //! ([`lbvh::build`]) opens children by area as the collapse does, which
 //! needs every binary node's box first: made top-down from the references,
 //! that scanned each reference once per level of the tree (O(n log n), the
@@ -54,10 +55,11 @@ struct Ctx<'a, T: ?Sized> {
     /// their blocks as they are made (its one piece's blocks are the
     /// tree's). In a parallel build, each triangle's box (scene order): its
     /// pieces keep scene indices, take leaf boxes from here, and the final
-    /// pass reads the triangles to fill the blocks in parallel (pieces that
-    /// filled blocks of their own were copied once more, into memory fresh
-    /// from the kernel twice: mesh:50000 on two threads took as long as on
-    /// one).
+    /// pass reads the triangles to fill the blocks in parallel. Pieces that
+    /// filled blocks of their own, copied into place at the end, took as
+    /// long on two threads as on one (mesh:50000) while freed memory went
+    /// back to the kernel, and were no faster than this once it was kept
+    /// ([`crate::os::keep_freed_memory`]).
     boxes: &'a [Box4],
 }
 
@@ -122,14 +124,14 @@ impl<T: Triangles + ?Sized> Ctx<'_, T> {
                 }
             }
         };
-        if self.boxes.is_empty() {
+        if self.fills() {
             ahead(end + 2 * FILL_AHEAD * kid.len, 0);
         }
         ahead(end + FILL_AHEAD * kid.len, 1);
         let mut b = Box4::EMPTY;
         for (s, &key) in (slot..).zip(&self.keys[kid.start..end]) {
             let id = key as u32;
-            if self.boxes.is_empty() {
+            if self.fills() {
                 let tri = self.triangles.get(id as usize);
                 for v in tri {
                     b.grow(Vec4::from((v, 0.0)));
