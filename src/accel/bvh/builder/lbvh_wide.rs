@@ -28,12 +28,12 @@ use rayon::prelude::*;
 
 use super::lbvh;
 use super::nary::{self, Built, Piece, Slots};
-use crate::accel::bvh::leaf::{Tri4, EMPTY_ID, LANES};
+use crate::accel::bvh::leaf::LANES;
 use crate::accel::bvh::node::padded;
 use crate::accel::bvh::params::{FILL_AHEAD, MERGE_MAX, PARALLEL_CUTOFF};
 use crate::accel::bvh::prim::{Box4, Triangles};
 use crate::accel::bvh::simd::{prefetch, Kernel};
-use crate::accel::bvh::wide::node::{leaf_ref, pack_leaves};
+use crate::accel::bvh::wide::node::leaf_ref;
 use crate::accel::bvh::wide::{WideBvh, WideNode, EMPTY};
 use crate::error::Result;
 
@@ -157,17 +157,7 @@ impl<T: Triangles + ?Sized> Ctx<'_, T> {
         let mut bounds = Box4::EMPTY;
         let leaves: ArrayVec<usize, N> = (0..kids.len()).filter(|&l| kids[l].leaf).collect();
         let counts: ArrayVec<usize, N> = leaves.iter().map(|&l| kids[l].len).collect();
-        let first = if self.fills() {
-            slots.blocks.len()
-        } else {
-            slots.ids.len() / LANES
-        };
-        let (starts, taken) = pack_leaves::<N>(&counts, first)?;
-        if self.fills() {
-            slots.blocks.resize(first + taken, Tri4::empty());
-        } else {
-            slots.ids.resize((first + taken) * LANES, EMPTY_ID);
-        }
+        let starts = slots.pack::<N>(&counts, self.fills())?;
         for (&lane, &slot) in leaves.iter().zip(&starts) {
             let kid = &kids[lane];
             let b = self.leaf(kid, slot, slots);
@@ -205,11 +195,7 @@ impl<T: Triangles + ?Sized> Ctx<'_, T> {
         kids: &ArrayVec<Kid, N>,
         len: usize,
     ) -> Result<(Built<N>, Box4)> {
-        let mut piece = Piece::with_capacity(len);
-        if self.fills() {
-            piece.slots.ids = Vec::new();
-            piece.slots.blocks = crate::os::huge_vec(len / 2 + 1);
-        }
+        let mut piece = Piece::with_capacity(len, self.fills());
         let (_, need, b) = self.serial(kids, &mut piece)?;
         piece.need = need;
         Ok((Built::Piece(piece), b))

@@ -159,25 +159,23 @@ impl<S: Splitter> Ctx<'_, S> {
     }
 
     /// The node of `kids` over `prims`, its leaves packed into new blocks at
-    /// the end of `slot_ids` (the scene index of each triangle slot, four to
-    /// a block, [`EMPTY_ID`] where unused; leaf references count from its
+    /// the end of `slots`' scene indices (leaf references count from their
     /// start); interior lanes get their box, and their child is left
     /// [`EMPTY`] for the caller to set.
     fn node_with_leaves<const N: usize>(
         &self,
         prims: &[PrimRef],
         kids: &ArrayVec<Kid, N>,
-        slot_ids: &mut Vec<u32>,
+        slots: &mut Slots,
     ) -> Result<WideNode<N>> {
         let mut node = WideNode::empty();
         let leaves: ArrayVec<usize, N> = (0..kids.len()).filter(|&l| kids[l].is_leaf()).collect();
         let counts: ArrayVec<usize, N> = leaves.iter().map(|&l| kids[l].len).collect();
-        let (slots, taken) = pack_leaves::<N>(&counts, slot_ids.len() / LANES)?;
-        slot_ids.resize(slot_ids.len() + taken * LANES, EMPTY_ID);
-        for (&lane, &slot) in leaves.iter().zip(&slots) {
+        let starts = slots.pack::<N>(&counts, false)?;
+        for (&lane, &slot) in leaves.iter().zip(&starts) {
             let kid = &kids[lane];
             let leaf = &prims[kid.start..kid.start + kid.len];
-            for (id, p) in slot_ids[slot..slot + kid.len].iter_mut().zip(leaf) {
+            for (id, p) in slots.ids[slot..slot + kid.len].iter_mut().zip(leaf) {
                 *id = p.index();
             }
             node.set_lane(lane, &kid.bounds, leaf_ref(slot, kid.len));
@@ -198,7 +196,7 @@ impl<S: Splitter> Ctx<'_, S> {
     ) -> Result<(u32, usize)> {
         let index = piece.nodes.len();
         piece.nodes.push(WideNode::empty());
-        let mut node = self.node_with_leaves(prims, kids, &mut piece.slots.ids)?;
+        let mut node = self.node_with_leaves(prims, kids, &mut piece.slots)?;
         let mut deepest = 0;
         let mut grand = ArrayVec::new();
         for (lane, kid) in kids.iter().enumerate().filter(|(_, k)| !k.is_leaf()) {
@@ -220,7 +218,7 @@ impl<S: Splitter> Ctx<'_, S> {
         kids: &ArrayVec<Kid, N>,
     ) -> Result<Built<N>> {
         let mut slots = Slots::default();
-        let node = self.node_with_leaves(prims, kids, &mut slots.ids)?;
+        let node = self.node_with_leaves(prims, kids, &mut slots)?;
         // The interior children's primitive ranges, carved apart so that each
         // task owns its own.
         let mut order: ArrayVec<usize, N> = (0..kids.len()).collect();
@@ -247,7 +245,7 @@ impl<S: Splitter> Ctx<'_, S> {
                 let b = if kid.len >= PARALLEL_CUTOFF {
                     self.parallel(sub, &grand)
                 } else {
-                    let mut piece = Piece::with_capacity(kid.len);
+                    let mut piece = Piece::with_capacity(kid.len, false);
                     self.serial(sub, &grand, &mut piece).map(|(_, need)| {
                         piece.need = need;
                         Built::Piece(piece)
@@ -290,6 +288,29 @@ impl Slots {
     fn count(&self) -> usize {
         self.ids.len() + self.blocks.len() * LANES
     }
+
+    /// Appends the blocks of one node's leaves of `counts` triangles, packed
+    /// by [`pack_leaves`]: as empty blocks to fill when `filled`, else as
+    /// scene indices ([`EMPTY_ID`] until set). Returns each leaf's first
+    /// slot.
+    pub fn pack<const N: usize>(
+        &mut self,
+        counts: &[usize],
+        filled: bool,
+    ) -> Result<ArrayVec<usize, N>> {
+        let first = if filled {
+            self.blocks.len()
+        } else {
+            self.ids.len() / LANES
+        };
+        let (starts, taken) = pack_leaves::<N>(counts, first)?;
+        if filled {
+            self.blocks.resize(first + taken, Tri4::empty());
+        } else {
+            self.ids.resize((first + taken) * LANES, EMPTY_ID);
+        }
+        Ok(starts)
+    }
 }
 
 /// A subtree made serially: nodes and leaf slots indexed from its own
@@ -303,14 +324,24 @@ pub(super) struct Piece<const N: usize> {
 impl<const N: usize> Piece<N> {
     /// Room for the subtree of `prims` triangles as trees usually come out
     /// (more than that is a regrowth, not an error; reserving touches no
-    /// memory).
-    pub fn with_capacity(prims: usize) -> Self {
-        Piece {
-            nodes: Vec::with_capacity(prims / (N - 1) + 1),
-            slots: Slots {
+    /// memory), its slots as filled blocks when `filled` (asked of the
+    /// kernel in huge pages: a serial build's blocks are the tree's), else as
+    /// scene indices.
+    pub fn with_capacity(prims: usize, filled: bool) -> Self {
+        let slots = if filled {
+            Slots {
+                ids: Vec::new(),
+                blocks: crate::os::huge_vec(prims / 2 + 1),
+            }
+        } else {
+            Slots {
                 ids: Vec::with_capacity(2 * prims + LANES),
                 blocks: Vec::new(),
-            },
+            }
+        };
+        Piece {
+            nodes: Vec::with_capacity(prims / (N - 1) + 1),
+            slots,
             need: 0,
         }
     }
@@ -583,7 +614,7 @@ pub fn build<const N: usize, T: Triangles + ?Sized, S: Splitter>(
     let built = if parallel && prims.len() >= PARALLEL_CUTOFF {
         ctx.parallel(&mut prims, &kids)?
     } else {
-        let mut piece = Piece::with_capacity(prims.len());
+        let mut piece = Piece::with_capacity(prims.len(), false);
         let (_, need) = ctx.serial(&mut prims, &kids, &mut piece)?;
         piece.need = need;
         Built::Piece(piece)
