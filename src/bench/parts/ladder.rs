@@ -289,19 +289,23 @@ fn by_kind(values: [f64; 4]) -> String {
 /// structure's low and high rung against its medium rung, per ray kind.
 pub fn markdown(points: &[LadderPoint]) -> String {
     let threads = points.first().map_or(1, |p| p.build_threads);
-    let nt =
-        |what: &str| -> &'static str { Box::leak(format!("{what} {threads}T").into_boxed_str()) };
+    let nt = |what: &str| format!("{what} {threads}T");
+    let (build_nt, trace_nt, over_nt) = (
+        nt("build ms"),
+        nt("trace Mrays/s P/S/AO/D"),
+        nt("over medium P/S/AO/D"),
+    );
     let mut t = Table::new([
         ("scene", Left),
         ("rung", Left),
         ("backend", Left),
         ("build ms 1T", Right),
-        (nt("build ms"), Right),
+        (build_nt.as_str(), Right),
         ("SAH ns/ray", Right),
         ("refs/tri", Right),
         ("render ms", Right),
         ("trace Mrays/s P/S/AO/D 1T", Right),
-        (nt("trace Mrays/s P/S/AO/D"), Right),
+        (trace_nt.as_str(), Right),
         ("build / Embree's 1T, NT", Right),
         ("trace time / Embree's 1T, NT", Right),
     ]);
@@ -344,7 +348,7 @@ pub fn markdown(points: &[LadderPoint]) -> String {
         ("structure", Left),
         ("rung", Left),
         ("over medium P/S/AO/D 1T", Right),
-        (nt("over medium P/S/AO/D"), Right),
+        (over_nt.as_str(), Right),
     ]);
     for p in points.iter().filter(|p| p.rung != Quality::Medium.name()) {
         let Some(medium) = points.iter().find(|m| {
