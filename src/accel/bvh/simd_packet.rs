@@ -134,13 +134,14 @@ impl Frustum {
     }
 
     /// The children of `node` that some ray of the packet may enter, a bit
-    /// per lane.
+    /// per lane, and per lane the least entry distance any ray of the
+    /// packet can have (at least the rays' least `tmin`).
     ///
     /// # Safety
     /// The CPU must run AVX (inlined into the AVX2 and AVX-512 kernels).
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
-    unsafe fn children(&self, node: &WideNode<8>) -> u32 {
+    unsafe fn children(&self, node: &WideNode<8>) -> (u32, [f32; 8]) {
         use crate::geometry::SLAB_GROW;
         use std::arch::x86_64::*;
         // SAFETY: the caller runs AVX; every load reads a row of eight f32
@@ -179,13 +180,21 @@ impl Frustum {
                 _mm256_set1_ps(self.tmax),
             );
             // Skipped only where entry > exit for sure (a NaN keeps the child).
-            !(_mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(entry, exit)) as u32) & 0xFF
+            let mut out = [0f32; 8];
+            _mm256_storeu_ps(out.as_mut_ptr(), entry);
+            (
+                !(_mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(entry, exit)) as u32) & 0xFF,
+                out,
+            )
         }
     }
 }
 
 /// What a node test reports for a packet: per child lane, the rays whose
-/// box test hit it and their least entry distance; and the hit lanes.
+/// box test hit it and a lower bound on their entry distances (their least
+/// entry distance, or a coherent packet's frustum bound); and the hit lanes.
+/// The traversal orders children and culls popped ones by `near`: a lower
+/// bound keeps every culling decision safe.
 pub struct NodeHits {
     pub rays: [u32; 8],
     pub near: [f32; 8],
@@ -274,7 +283,7 @@ pub trait PacketKernel<const R: usize>: Copy {
     /// yes, so its packets keep the one switch threshold.
     fn coherent(rays: &Self::Rays) -> bool;
     /// The box test of every ray of `active` against every child of `node`,
-    /// ray `r` within `(its tmin, tmax[r])`; the least entry distances only
+    /// ray `r` within `(its tmin, tmax[r])`; the entry distance bounds only
     /// when `NEAR` (the any-hit traversal neither sorts nor culls by them).
     fn node<const NEAR: bool>(
         self,
@@ -299,6 +308,16 @@ pub trait PacketKernel<const R: usize>: Copy {
     /// The rays of `active` that hit a lane `in_leaf` of `block` within their
     /// segment.
     fn leaf_any(self, block: &Tri4, in_leaf: u32, rays: &Self::Rays, active: u32) -> u32;
+    /// The rays whose `cut` is at least `near`, a bit per ray: which rays of
+    /// a popped stack entry may still find a closer hit in it.
+    #[inline(always)]
+    fn reach(self, near: f32, cut: &[f32; R]) -> u32 {
+        let mut mask = 0;
+        for (r, &c) in cut.iter().enumerate() {
+            mask |= ((near <= c) as u32) << r;
+        }
+        mask
+    }
 }
 
 /// Floats per [`Ray`] (`repr(C)`: origin, direction, tmin, tmax).
@@ -844,6 +863,15 @@ impl PacketKernel<PACKET> for Avx2Packet {
                 _mm256_and_si256(_mm256_set1_epi32(active as i32), lane_bits),
                 _mm256_setzero_si256(),
             ));
+            // As the AVX-512 kernel: a coherent packet's children are
+            // ordered by the frustum's least possible entry.
+            let (frustum_used, frustum_entry) = match &p.frustum {
+                Some(f) => {
+                    let (m, entry) = f.children(node);
+                    (m, Some(entry))
+                }
+                None => (0xFF, None),
+            };
             let b = &node.bounds;
             // Per axis the single-ray kernel's (plane - origin) * inv with the
             // plane the ray's sign makes near, and the far one: the same row
@@ -871,12 +899,19 @@ impl PacketKernel<PACKET> for Avx2Packet {
                         out.rays[c] = rays;
                     }
                     if NEAR && rays != 0 {
-                        let m = _mm256_blendv_ps(inf, near, hit);
-                        let m =
-                            _mm_min_ps(_mm256_castps256_ps128(m), _mm256_extractf128_ps::<1>(m));
-                        let m = _mm_min_ps(m, _mm_movehl_ps(m, m));
-                        let m = _mm_min_ss(m, _mm_shuffle_ps::<0b01>(m, m));
-                        out.near[c] = _mm_cvtss_f32(m);
+                        out.near[c] = match &frustum_entry {
+                            Some(entry) => entry[c],
+                            None => {
+                                let m = _mm256_blendv_ps(inf, near, hit);
+                                let m = _mm_min_ps(
+                                    _mm256_castps256_ps128(m),
+                                    _mm256_extractf128_ps::<1>(m),
+                                );
+                                let m = _mm_min_ps(m, _mm_movehl_ps(m, m));
+                                let m = _mm_min_ss(m, _mm_shuffle_ps::<0b01>(m, m));
+                                _mm_cvtss_f32(m)
+                            }
+                        };
                     }
                 }};
             }
@@ -886,10 +921,7 @@ impl PacketKernel<PACKET> for Avx2Packet {
                 _mm256_set1_epi32(EMPTY as i32),
             ))) as u32)
                 & 0xFF;
-            let used = match &p.frustum {
-                Some(f) => used & f.children(node),
-                None => used,
-            };
+            let used = used & frustum_used;
             match p.rows {
                 Some([rx, ry, rz]) => {
                     for c in bits(used) {
@@ -939,6 +971,16 @@ impl PacketKernel<PACKET> for Avx2Packet {
     #[inline(always)]
     fn leaf_any(self, block: &Tri4, in_leaf: u32, p: &RaysSoa, active: u32) -> u32 {
         leaf_any_by_lanes(self, block, in_leaf, p, &p.tmax, active)
+    }
+
+    #[inline(always)]
+    fn reach(self, near: f32, cut: &[f32; PACKET]) -> u32 {
+        use std::arch::x86_64::*;
+        // SAFETY: `self.0` proves AVX2; the load reads the eight f32 of `cut`.
+        unsafe {
+            let c = _mm256_loadu_ps(cut.as_ptr());
+            _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(_mm256_set1_ps(near), c)) as u32
+        }
     }
 }
 
@@ -1254,8 +1296,15 @@ impl PacketKernel<PACKET16> for Avx512Packet {
             let tmax = _mm512_loadu_ps(tmax.as_ptr());
             let grow = _mm512_set1_ps(SLAB_GROW);
             let live = active as __mmask16;
+            // A coherent packet's children are ordered (and culled when
+            // popped) by the frustum's least possible entry (as Embree's
+            // coherent packets are): a bound on the rays' own entries, one
+            // vector for all children instead of a reduction per child.
+            let mut frustum_entry = None;
             if let Some(f) = &p.frustum {
-                used &= f.children(node);
+                let (m, entry) = f.children(node);
+                used &= m;
+                frustum_entry = Some(entry);
             }
             let b = &node.bounds;
             macro_rules! plane {
@@ -1276,7 +1325,10 @@ impl PacketKernel<PACKET16> for Avx512Packet {
                         out.lanes |= 1 << c;
                         out.rays[c] = hit as u32;
                         if NEAR {
-                            out.near[c] = _mm512_mask_reduce_min_ps(hit, near);
+                            out.near[c] = match &frustum_entry {
+                                Some(entry) => entry[c],
+                                None => _mm512_mask_reduce_min_ps(hit, near),
+                            };
                         }
                     }
                 }};
@@ -1376,6 +1428,17 @@ impl PacketKernel<PACKET16> for Avx512Packet {
     #[inline(always)]
     fn leaf_any(self, block: &Tri4, in_leaf: u32, p: &RaysSoa16, active: u32) -> u32 {
         leaf_any_by_lanes(self, block, in_leaf, p, &p.tmax, active)
+    }
+
+    #[inline(always)]
+    fn reach(self, near: f32, cut: &[f32; PACKET16]) -> u32 {
+        use std::arch::x86_64::*;
+        // SAFETY: `self.0` proves AVX-512F; the load reads the sixteen f32
+        // of `cut`.
+        unsafe {
+            let c = _mm512_loadu_ps(cut.as_ptr());
+            _mm512_cmp_ps_mask::<_CMP_LE_OQ>(_mm512_set1_ps(near), c) as u32
+        }
     }
 }
 
@@ -1604,14 +1667,26 @@ mod tests {
         node
     }
 
-    fn same(a: &NodeHits, b: &NodeHits, near: bool) -> bool {
-        let near_bits = |h: &NodeHits| h.near.map(f32::to_bits);
-        a.lanes == b.lanes && a.rays == b.rays && (!near || near_bits(a) == near_bits(b))
+    /// Whether `got` reports `want`'s hits, and for each hit child an entry
+    /// bound: `want`'s (the rays' least entry) bit for bit, or with a
+    /// frustum (`bounded`) at most that and not NaN.
+    fn same(want: &NodeHits, got: &NodeHits, near: bool, bounded: bool) -> bool {
+        let entries_agree = bits(want.lanes).all(|c| {
+            let (w, g) = (want.near[c], got.near[c]);
+            if bounded {
+                g <= w
+            } else {
+                g.to_bits() == w.to_bits()
+            }
+        });
+        want.lanes == got.lanes && want.rays == got.rays && (!near || entries_agree)
     }
 
     /// The AVX2 and AVX-512 node tests, frustum and all, report exactly the
     /// single-ray kernel's hits per ray and child on coherent packets aimed
-    /// at box faces and corners; and the frustum does skip children.
+    /// at box faces and corners, with entry bounds at most the rays' least
+    /// entry (equal to it for equal rays); and the frustum does skip
+    /// children.
     #[test]
     fn the_frustum_keeps_every_child_a_ray_enters() {
         let Some(avx2) = Avx2::detect() else {
@@ -1620,7 +1695,7 @@ mod tests {
         };
         let avx512 = Avx512::detect();
         let mut rng = Rng::for_pixel(7, 3, 11);
-        let (mut tested, mut skipped) = (0, 0);
+        let (mut tested, mut skipped, mut exact_bounds) = (0, 0, 0);
         for k in 0..20_000 {
             let spread_o = [0.0, 1e-3, 0.3][k % 3];
             let spread_d = [0.0, 1e-3, 0.05][k / 3 % 3];
@@ -1647,14 +1722,20 @@ mod tests {
                         avx2_packet(avx2).node::<false>(&node, &got_p, active, &tmax),
                     )
                 };
+                let bounded = got_p.frustum.is_some();
                 assert!(
-                    same(&want, &got, near),
+                    same(&want, &got, near, bounded),
                     "AVX2 packet {k}: {rays:?} {node:?}"
                 );
+                if near && bounded && spread_o == 0.0 && spread_d == 0.0 {
+                    // Equal rays: the frustum's bound is their entry.
+                    assert!(same(&want, &got, near, false), "AVX2 packet {k}");
+                    exact_bounds += 1;
+                }
             }
             if let Some(f) = got_p.frustum {
                 // SAFETY: AVX2 (hence AVX) was detected above.
-                let kept = unsafe { f.children(&node) } & used;
+                let kept = unsafe { f.children(&node) }.0 & used;
                 tested += used.count_ones();
                 skipped += (used & !kept).count_ones();
             }
@@ -1666,10 +1747,14 @@ mod tests {
                 std::array::from_fn(|r| rays.get(r).map_or(0.0, |r| r.tmax));
             let want = reference.node::<true>(&node, &want_p, active, &tmax);
             let got = Avx512Packet(avx512).node::<true>(&node, &got_p, active, &tmax);
+            let bounded = got_p.frustum.is_some();
             assert!(
-                same(&want, &got, true),
+                same(&want, &got, true, bounded),
                 "AVX-512 packet {k}: {rays:?} {node:?}"
             );
+            if bounded && spread_o == 0.0 && spread_d == 0.0 {
+                assert!(same(&want, &got, true, false), "AVX-512 packet {k}");
+            }
         }
         if avx512.is_none() {
             eprintln!("no AVX-512 on this CPU: the AVX-512 node kernel is not tested");
@@ -1678,6 +1763,7 @@ mod tests {
             skipped > tested / 10 && skipped < tested,
             "the frustum skipped {skipped} of {tested} children"
         );
+        assert!(exact_bounds > 100, "{exact_bounds} packets of equal rays");
     }
 
     fn avx2_packet(avx2: Avx2) -> Avx2Packet {

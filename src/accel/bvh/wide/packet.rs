@@ -5,7 +5,8 @@
 //! against the child boxes with the single-ray node kernel (the SIMD kernels
 //! first skip the children the packet's frustum rules out), and the
 //! children are pushed once for the packet, nearest (the least entry distance
-//! of its rays) on top; at a leaf each active ray runs the single-ray block
+//! of its rays; for a coherent packet the least its frustum allows, as
+//! Embree's coherent packets order theirs) on top; at a leaf each active ray runs the single-ray block
 //! test. Any-hit rays retire one by one as they find an occluder. When only
 //! [`PACKET_MIN_RAYS`]` - 1` rays of an entry remain
 //! ([`PACKET_MIN_RAYS_INCOHERENT`]` - 1` in packets whose rays differ in
@@ -31,16 +32,6 @@ use super::super::traverse::NoCount;
 use super::node::{for_leaf_blocks, WideBvh, LEAF};
 use super::traverse::push_sorted;
 use crate::geometry::{Hit, Ray};
-
-/// The rays whose `cut` is at least `near` (a bit per ray).
-#[inline(always)]
-fn reach<const R: usize>(near: f32, cut: &[f32; R]) -> u32 {
-    let mut mask = 0;
-    for (r, &c) in cut.iter().enumerate() {
-        mask |= ((near <= c) as u32) << r;
-    }
-    mask
-}
 
 /// Below how many rays an entry of the packet `prepared` finishes ray by
 /// ray: [`PACKET_MIN_RAYS`], or [`PACKET_MIN_RAYS_INCOHERENT`] when its rays
@@ -90,7 +81,7 @@ impl WideBvh<8> {
             tmax[r] = ray.tmax;
             cut[r] = ray.tmax * (1.0 + CULL_SLACK);
         }
-        // (child, rays that entered it, their least entry distance)
+        // (child, rays that entered it, a lower bound on their entry distances)
         let mut stack: ArrayVec<(u32, u32, f32), S> = ArrayVec::new();
         let (mut current, mut mask) = (0u32, active);
         while mask != 0 {
@@ -155,7 +146,7 @@ impl WideBvh<8> {
             // find a closer hit there.
             mask = 0;
             while let Some((child, entered, near)) = stack.pop() {
-                mask = entered & reach(near, &cut);
+                mask = entered & packet.reach(near, &cut);
                 if mask != 0 {
                     current = child;
                     break;
