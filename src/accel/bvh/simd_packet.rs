@@ -190,6 +190,27 @@ impl Frustum {
     }
 }
 
+/// The lanes of `node` that hold a child (unused ones hold [`EMPTY`]), a
+/// bit per lane, in one compare.
+///
+/// # Safety
+/// The CPU must run AVX2 (inlined into the AVX2 and AVX-512 kernels).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn used_lanes(node: &WideNode<8>) -> u32 {
+    use std::arch::x86_64::*;
+    // SAFETY: the caller runs AVX2; the load reads the node's eight child
+    // indices, 32-byte aligned (`WideNode` is aligned to 32 and `child`
+    // follows six 32-byte rows).
+    unsafe {
+        let empty = _mm256_cmpeq_epi32(
+            _mm256_load_si256(node.child.as_ptr() as *const __m256i),
+            _mm256_set1_epi32(EMPTY as i32),
+        );
+        !(_mm256_movemask_ps(_mm256_castsi256_ps(empty)) as u32) & 0xFF
+    }
+}
+
 /// What a node test reports for a packet: per child lane, the rays whose
 /// box test hit it and a lower bound on their entry distances (their least
 /// entry distance, or a coherent packet's frustum bound); and the hit lanes.
@@ -308,6 +329,19 @@ pub trait PacketKernel<const R: usize>: Copy {
     /// The rays of `active` that hit a lane `in_leaf` of `block` within their
     /// segment.
     fn leaf_any(self, block: &Tri4, in_leaf: u32, rays: &Self::Rays, active: u32) -> u32;
+    /// For each ray of `changed` that has a hit in `hits`: `tmax[r]` becomes
+    /// the float after its `t` (triangles are then tested below it: a hit at
+    /// the same `t` with a lower index still wins) and `cut[r]` its `t`
+    /// widened by [`CULL_SLACK`] (boxes entered beyond it are culled).
+    #[inline(always)]
+    fn tighten(self, hits: &PacketHits<R>, changed: u32, tmax: &mut [f32; R], cut: &mut [f32; R]) {
+        for r in bits(changed) {
+            if let Some(hit) = hits.get(r) {
+                tmax[r] = hit.t.next_up();
+                cut[r] = hit.t * (1.0 + CULL_SLACK);
+            }
+        }
+    }
     /// The rays whose `cut` is at least `near`, a bit per ray: which rays of
     /// a popped stack entry may still find a closer hit in it.
     #[inline(always)]
@@ -915,13 +949,7 @@ impl PacketKernel<PACKET> for Avx2Packet {
                     }
                 }};
             }
-            // The used lanes (unused ones hold EMPTY).
-            let used = !(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
-                _mm256_load_si256(node.child.as_ptr() as *const __m256i),
-                _mm256_set1_epi32(EMPTY as i32),
-            ))) as u32)
-                & 0xFF;
-            let used = used & frustum_used;
+            let used = used_lanes(node) & frustum_used;
             match p.rows {
                 Some([rx, ry, rz]) => {
                     for c in bits(used) {
@@ -971,6 +999,38 @@ impl PacketKernel<PACKET> for Avx2Packet {
     #[inline(always)]
     fn leaf_any(self, block: &Tri4, in_leaf: u32, p: &RaysSoa, active: u32) -> u32 {
         leaf_any_by_lanes(self, block, in_leaf, p, &p.tmax, active)
+    }
+
+    #[inline(always)]
+    fn tighten(
+        self,
+        hits: &PacketHits<PACKET>,
+        changed: u32,
+        tmax: &mut [f32; PACKET],
+        cut: &mut [f32; PACKET],
+    ) {
+        use std::arch::x86_64::*;
+        // SAFETY: `self.0` proves AVX2; loads and stores read and write the
+        // eight lanes of `hits` (aligned), `tmax` and `cut` (unaligned).
+        unsafe {
+            let lane_bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+            let in_changed = _mm256_cmpgt_epi32(
+                _mm256_and_si256(_mm256_set1_epi32(changed as i32), lane_bits),
+                _mm256_setzero_si256(),
+            );
+            let tri = _mm256_load_si256(hits.tri.as_ptr() as *const __m256i);
+            let no_hit = _mm256_cmpeq_epi32(tri, _mm256_set1_epi32(EMPTY_ID as i32));
+            let with_hit = _mm256_andnot_si256(no_hit, in_changed);
+            let t = _mm256_load_ps(hits.t.as_ptr());
+            // As the AVX-512 kernel: a hit's next float up is its bits + 1.
+            let next_up = _mm256_castsi256_ps(_mm256_add_epi32(
+                _mm256_castps_si256(t),
+                _mm256_set1_epi32(1),
+            ));
+            let widened = _mm256_mul_ps(t, _mm256_set1_ps(1.0 + CULL_SLACK));
+            _mm256_maskstore_ps(tmax.as_mut_ptr(), with_hit, next_up);
+            _mm256_maskstore_ps(cut.as_mut_ptr(), with_hit, widened);
+        }
     }
 
     #[inline(always)]
@@ -1275,15 +1335,11 @@ impl PacketKernel<PACKET16> for Avx512Packet {
             near: [f32::INFINITY; 8],
             lanes: 0,
         };
-        let mut used = 0u32;
-        for (c, &child) in node.child.iter().enumerate() {
-            used |= ((child != EMPTY) as u32) << c;
-        }
         // SAFETY: `self.0` proves the CPU has AVX-512F; every load reads
         // sixteen f32 from a 64-byte aligned row of `p` (RaysSoa16 is aligned
         // to 64) or from `tmax` (an unaligned load); `Frustum::children`
-        // needs AVX, which every AVX-512 CPU has. No closures (see the AVX2
-        // kernel).
+        // and `used_lanes` need AVX and AVX2, which `self.0.avx2` proves. No
+        // closures (see the AVX2 kernel).
         unsafe {
             macro_rules! row {
                 ($row:expr) => {
@@ -1296,6 +1352,7 @@ impl PacketKernel<PACKET16> for Avx512Packet {
             let tmax = _mm512_loadu_ps(tmax.as_ptr());
             let grow = _mm512_set1_ps(SLAB_GROW);
             let live = active as __mmask16;
+            let mut used = used_lanes(node);
             // A coherent packet's children are ordered (and culled when
             // popped) by the frustum's least possible entry (as Embree's
             // coherent packets are): a bound on the rays' own entries, one
@@ -1428,6 +1485,38 @@ impl PacketKernel<PACKET16> for Avx512Packet {
     #[inline(always)]
     fn leaf_any(self, block: &Tri4, in_leaf: u32, p: &RaysSoa16, active: u32) -> u32 {
         leaf_any_by_lanes(self, block, in_leaf, p, &p.tmax, active)
+    }
+
+    #[inline(always)]
+    fn tighten(
+        self,
+        hits: &PacketHits<PACKET16>,
+        changed: u32,
+        tmax: &mut [f32; PACKET16],
+        cut: &mut [f32; PACKET16],
+    ) {
+        use std::arch::x86_64::*;
+        // SAFETY: `self.0` proves AVX-512F; loads and stores read and write
+        // the sixteen lanes of `hits` (64-byte aligned), `tmax` and `cut`
+        // (unaligned).
+        unsafe {
+            // The rays with a hit (`tri` is not EMPTY_ID), as the default.
+            let with_hit = _mm512_mask_cmpneq_epi32_mask(
+                changed as __mmask16,
+                _mm512_load_si512(hits.tri.as_ptr() as *const _),
+                _mm512_set1_epi32(EMPTY_ID as i32),
+            );
+            let t = _mm512_load_ps(hits.t.as_ptr());
+            // A hit's t is above tmin >= 0 (finite, positive): the next
+            // float up is its bits plus one, as `leaf_closest` has it.
+            let next_up = _mm512_castsi512_ps(_mm512_add_epi32(
+                _mm512_castps_si512(t),
+                _mm512_set1_epi32(1),
+            ));
+            let widened = _mm512_mul_ps(t, _mm512_set1_ps(1.0 + CULL_SLACK));
+            _mm512_mask_storeu_ps(tmax.as_mut_ptr(), with_hit, next_up);
+            _mm512_mask_storeu_ps(cut.as_mut_ptr(), with_hit, widened);
+        }
     }
 
     #[inline(always)]
@@ -1768,5 +1857,73 @@ mod tests {
 
     fn avx2_packet(avx2: Avx2) -> Avx2Packet {
         Avx2Packet(avx2)
+    }
+
+    /// Random hits (about one ray in four without one), changed masks and
+    /// limits, as `tighten` meets them.
+    fn random_tighten_case<const R: usize>(
+        rng: &mut Rng,
+    ) -> (PacketHits<R>, u32, [f32; R], [f32; R]) {
+        let mut hits = PacketHits::<R>::none();
+        for r in 0..R {
+            if rng.next_f32() < 0.75 {
+                let t = [rng.next_f32() * 10.0, 1e-30, f32::MAX][r % 3];
+                let hit = Hit {
+                    t,
+                    u: 0.1,
+                    v: 0.2,
+                    tri: r as u32 * 7,
+                };
+                hits.set(r, Some(hit));
+            }
+        }
+        let changed = (rng.next_f32() * (1u64 << R) as f32) as u32 & ((1u64 << R) - 1) as u32;
+        let tmax = std::array::from_fn(|_| rng.next_f32() * 20.0);
+        let cut = std::array::from_fn(|_| rng.next_f32() * 20.0);
+        (hits, changed, tmax, cut)
+    }
+
+    /// The SIMD kernels tighten each changed ray's limits as the default
+    /// (scalar) method does, bit for bit, and leave the others alone.
+    #[test]
+    fn simd_tightening_equals_the_scalar_one() {
+        let Some(avx2) = Avx2::detect() else {
+            eprintln!("no AVX2 on this CPU: the packet kernels' tightening is not tested");
+            return;
+        };
+        let reference = PerRay::<Portable, MollerTrumbore>::new(Portable);
+        let bits_of = |a: &[f32]| a.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let mut rng = Rng::for_pixel(5, 1, 9);
+        for k in 0..2_000 {
+            let (hits, changed, tmax, cut) = random_tighten_case::<PACKET>(&mut rng);
+            let (mut want_tmax, mut want_cut) = (tmax, cut);
+            PacketKernel::<PACKET>::tighten(
+                reference,
+                &hits,
+                changed,
+                &mut want_tmax,
+                &mut want_cut,
+            );
+            let (mut got_tmax, mut got_cut) = (tmax, cut);
+            avx2_packet(avx2).tighten(&hits, changed, &mut got_tmax, &mut got_cut);
+            assert_eq!(bits_of(&got_tmax), bits_of(&want_tmax), "AVX2 case {k}");
+            assert_eq!(bits_of(&got_cut), bits_of(&want_cut), "AVX2 case {k}");
+            let Some(avx512) = Avx512::detect() else {
+                continue;
+            };
+            let (hits, changed, tmax, cut) = random_tighten_case::<PACKET16>(&mut rng);
+            let (mut want_tmax, mut want_cut) = (tmax, cut);
+            PacketKernel::<PACKET16>::tighten(
+                reference,
+                &hits,
+                changed,
+                &mut want_tmax,
+                &mut want_cut,
+            );
+            let (mut got_tmax, mut got_cut) = (tmax, cut);
+            Avx512Packet(avx512).tighten(&hits, changed, &mut got_tmax, &mut got_cut);
+            assert_eq!(bits_of(&got_tmax), bits_of(&want_tmax), "AVX-512 case {k}");
+            assert_eq!(bits_of(&got_cut), bits_of(&want_cut), "AVX-512 case {k}");
+        }
     }
 }

@@ -85,7 +85,6 @@ impl WideBvh<8> {
         let mut stack: ArrayVec<(u32, u32, f32), S> = ArrayVec::new();
         let (mut current, mut mask) = (0u32, active);
         while mask != 0 {
-            let mut changed = 0;
             if mask.count_ones() < min_rays {
                 for r in bits(mask) {
                     let hit = self.closest_from::<K, T, NoCount, S>(
@@ -97,7 +96,7 @@ impl WideBvh<8> {
                     );
                     best.set(r, hit);
                 }
-                changed = mask;
+                packet.tighten(&best, mask, &mut tmax, &mut cut);
             } else if current & LEAF != 0 {
                 for_leaf_blocks(current, |b, in_leaf| {
                     let found = packet.leaf_closest(
@@ -108,10 +107,7 @@ impl WideBvh<8> {
                         &tmax,
                         &mut best,
                     );
-                    for r in bits(found) {
-                        tmax[r] = best.t[r].next_up();
-                    }
-                    changed |= found;
+                    packet.tighten(&best, found, &mut tmax, &mut cut);
                     false
                 });
             } else {
@@ -122,9 +118,9 @@ impl WideBvh<8> {
                     if any & (any - 1) == 0 {
                         // One child: no stack, no sorting.
                         let c = any.trailing_zeros() as usize;
+                        // (No prefetch: it is loaded next.)
                         current = node.child[c];
                         mask = found.rays[c];
-                        self.prefetch_child(current);
                         continue;
                     }
                     // Farthest first, so that the nearest is on top.
@@ -134,12 +130,6 @@ impl WideBvh<8> {
                         self.prefetch_child(entry.0);
                         push_sorted(&mut stack, base, entry, |e| e.2);
                     }
-                }
-            }
-            for r in bits(changed) {
-                if let Some(hit) = best.get(r) {
-                    tmax[r] = hit.t.next_up();
-                    cut[r] = hit.t * (1.0 + CULL_SLACK);
                 }
             }
             // Next: the nearest pending entry some of whose rays can still
