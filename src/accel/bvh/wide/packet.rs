@@ -115,21 +115,29 @@ impl WideBvh<8> {
                 let found = packet.node::<true>(node, &prepared, mask, &cut);
                 let any = found.lanes;
                 if any != 0 {
-                    if any & (any - 1) == 0 {
-                        // One child: no stack, no sorting.
-                        let c = any.trailing_zeros() as usize;
-                        // (No prefetch: it is loaded next.)
-                        current = node.child[c];
-                        mask = found.rays[c];
-                        continue;
+                    // The nearest child (the last of equals, as the sorted
+                    // push would pop first; on the engine's primary rays
+                    // the first of equals was 2% slower) is visited next
+                    // (its rays entered it: no cull to check; no prefetch,
+                    // it is loaded next), the others pushed farthest first,
+                    // so that the nearest of them is on top.
+                    let mut next = any.trailing_zeros() as usize;
+                    if any & (any - 1) != 0 {
+                        for c in bits(any & (any - 1)) {
+                            if found.near[c] <= found.near[next] {
+                                next = c;
+                            }
+                        }
+                        let base = stack.len();
+                        for c in bits(any & !(1 << next)) {
+                            let entry = (node.child[c], found.rays[c], found.near[c]);
+                            self.prefetch_child(entry.0);
+                            push_sorted(&mut stack, base, entry, |e| e.2);
+                        }
                     }
-                    // Farthest first, so that the nearest is on top.
-                    let base = stack.len();
-                    for c in bits(any) {
-                        let entry = (node.child[c], found.rays[c], found.near[c]);
-                        self.prefetch_child(entry.0);
-                        push_sorted(&mut stack, base, entry, |e| e.2);
-                    }
+                    current = node.child[next];
+                    mask = found.rays[next];
+                    continue;
                 }
             }
             // Next: the nearest pending entry some of whose rays can still

@@ -93,24 +93,33 @@ impl<const N: usize> WideBvh<N> {
                 let node = &self.nodes[current as usize];
                 let (mask, near) = kernel.intersect(node, &wray, tmin, cut);
                 if mask != 0 {
-                    let first = mask.trailing_zeros() as usize;
+                    // The nearest hit child (the last of equals, as the
+                    // sorted push would pop first) is visited next (no
+                    // prefetch: it is loaded next), the others pushed
+                    // farthest first, so that the nearest of them is on top.
+                    let mut next = mask.trailing_zeros() as usize;
                     let rest = mask & (mask - 1);
-                    if rest == 0 {
-                        // One child: no stack, no sorting.
-                        current = node.child[first];
-                        self.prefetch_child(current);
-                        continue;
+                    if rest != 0 {
+                        let mut m = rest;
+                        while m != 0 {
+                            let lane = m.trailing_zeros() as usize;
+                            m &= m - 1;
+                            if near[lane] <= near[next] {
+                                next = lane;
+                            }
+                        }
+                        let base = stack.len();
+                        let mut m = mask & !(1 << next);
+                        while m != 0 {
+                            let lane = m.trailing_zeros() as usize;
+                            m &= m - 1;
+                            let entry = (node.child[lane], near[lane]);
+                            self.prefetch_child(entry.0);
+                            push_sorted(&mut stack, base, entry, |e| e.1);
+                        }
                     }
-                    // Push the hit lanes farthest first, so the nearest is on top.
-                    let base = stack.len();
-                    let mut m = mask;
-                    while m != 0 {
-                        let lane = m.trailing_zeros() as usize;
-                        m &= m - 1;
-                        let entry = (node.child[lane], near[lane]);
-                        self.prefetch_child(entry.0);
-                        push_sorted(&mut stack, base, entry, |e| e.1);
-                    }
+                    current = node.child[next];
+                    continue;
                 }
             }
             // Next: the nearest pending entry that can still hold a closer hit.
