@@ -203,7 +203,7 @@ pub fn min_run_s(cfg: &BenchConfig) -> f64 {
 
 /// Traces `rays` `passes` times on `threads` threads, streams of [`CHUNK`]
 /// rays taken from a shared counter, and returns the wall time in seconds
-/// and the sum of the answers' digests. The clock starts once every thread
+/// and the sum of the first pass's answers' digests. The clock starts once every thread
 /// is running (they wait on a flag) and stops when the last one finishes,
 /// so thread start-up and joining are not timed.
 pub fn trace(
@@ -238,15 +238,24 @@ pub fn trace(
             let start = k % chunks_per_pass * CHUNK;
             let chunk = &rays[start..(start + CHUNK).min(rays.len())];
             let n = chunk.len();
+            // Only the first pass's answers are read: reading every pass's
+            // cost a fast backend about 10% of its two-thread throughput
+            // (a per-ray cost inside the clock), and one pass already shows
+            // answers that depend on the thread count.
+            let check = k < chunks_per_pass;
             if closest {
                 backend.intersect_stream(chunk, &mut hits[..n]);
-                for h in &hits[..n] {
-                    // The digest reads only the triangle.
-                    sum = sum.wrapping_add(digest(Answer::Closest(h.map(|h| (h.tri, 0)))));
+                if check {
+                    for h in &hits[..n] {
+                        // The digest reads only the triangle.
+                        sum = sum.wrapping_add(digest(Answer::Closest(h.map(|h| (h.tri, 0)))));
+                    }
                 }
             } else {
                 backend.occluded_stream(chunk, &mut occluded[..n]);
-                sum = sum.wrapping_add(occluded[..n].iter().filter(|&&o| o).count() as u64);
+                if check {
+                    sum = sum.wrapping_add(occluded[..n].iter().filter(|&&o| o).count() as u64);
+                }
             }
         }
     };
@@ -451,7 +460,7 @@ pub fn trace_backends(
                 for (bi, (b, _)) in backends.iter().enumerate() {
                     let n = passes[bi][ti];
                     let (seconds, sum) = trace(b.as_ref(), closest, rays, threads, n);
-                    if differing[bi] == 0 && sum != expected.wrapping_mul(n as u64) {
+                    if differing[bi] == 0 && sum != expected {
                         return Err(Error::Other(format!(
                             "trace: {} answered differently on {threads} threads",
                             b.name()
@@ -797,8 +806,8 @@ mod tests {
         );
     }
 
-    /// Several passes on several threads trace every ray once per pass (the
-    /// digest sums add up) and the clock moves with the work.
+    /// On any thread count the first pass traces every ray once (its digest
+    /// sum is one pass's), and the clock moves with the passes.
     #[test]
     fn passes_multiply_the_work_on_any_thread_count() {
         let (scene, settings) = setup();
@@ -809,8 +818,8 @@ mod tests {
         assert!(one > 0, "some primary rays hit");
         for threads in [1, 2, 3] {
             let (s, sum) = trace(backend, true, &rays, threads, 40);
-            assert_eq!(sum, one.wrapping_mul(40), "{threads} threads");
-            assert!(s > one_s, "40 passes took {s} s, one {one_s} s");
+            assert_eq!(sum, one, "{threads} threads");
+            assert!(s > 5.0 * one_s, "40 passes took {s} s, one {one_s} s");
         }
         assert_eq!(passes_for(0.004, MIN_RUN_S), 5);
         assert_eq!(passes_for(1.0, MIN_RUN_S), 1);
