@@ -211,6 +211,25 @@ unsafe fn used_lanes(node: &WideNode<8>) -> u32 {
     }
 }
 
+/// The lanes of bits `mask` (bit `r` for lane `r`) as an AVX2 lane mask:
+/// all ones where the bit is set.
+///
+/// # Safety
+/// The CPU must run AVX2 (inlined into the AVX2 kernel).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn lanes_of(mask: u32) -> std::arch::x86_64::__m256i {
+    use std::arch::x86_64::*;
+    // SAFETY: the caller runs AVX2; register operations only.
+    unsafe {
+        let lane_bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+        _mm256_cmpgt_epi32(
+            _mm256_and_si256(_mm256_set1_epi32(mask as i32), lane_bits),
+            _mm256_setzero_si256(),
+        )
+    }
+}
+
 /// What a node test reports for a packet: per child lane, the rays whose
 /// box test hit it and a lower bound on their entry distances (their least
 /// entry distance, or a coherent packet's frustum bound); and the hit lanes.
@@ -892,11 +911,7 @@ impl PacketKernel<PACKET> for Avx2Packet {
             let tmax = _mm256_loadu_ps(tmax.as_ptr());
             let grow = _mm256_set1_ps(SLAB_GROW);
             let inf = _mm256_set1_ps(f32::INFINITY);
-            let lane_bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
-            let live = _mm256_castsi256_ps(_mm256_cmpgt_epi32(
-                _mm256_and_si256(_mm256_set1_epi32(active as i32), lane_bits),
-                _mm256_setzero_si256(),
-            ));
+            let live = _mm256_castsi256_ps(lanes_of(active));
             // As the AVX-512 kernel: a coherent packet's children are
             // ordered by the frustum's least possible entry.
             let (frustum_used, frustum_entry) = match &p.frustum {
@@ -1013,11 +1028,7 @@ impl PacketKernel<PACKET> for Avx2Packet {
         // SAFETY: `self.0` proves AVX2; loads and stores read and write the
         // eight lanes of `hits` (aligned), `tmax` and `cut` (unaligned).
         unsafe {
-            let lane_bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
-            let in_changed = _mm256_cmpgt_epi32(
-                _mm256_and_si256(_mm256_set1_epi32(changed as i32), lane_bits),
-                _mm256_setzero_si256(),
-            );
+            let in_changed = lanes_of(changed);
             let tri = _mm256_load_si256(hits.tri.as_ptr() as *const __m256i);
             let no_hit = _mm256_cmpeq_epi32(tri, _mm256_set1_epi32(EMPTY_ID as i32));
             let with_hit = _mm256_andnot_si256(no_hit, in_changed);

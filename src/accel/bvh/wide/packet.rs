@@ -30,7 +30,7 @@ use super::super::simd::NodeKernel;
 use super::super::simd_packet::{bits, PacketHits, PacketKernel};
 use super::super::traverse::NoCount;
 use super::node::{for_leaf_blocks, WideBvh, LEAF};
-use super::traverse::push_sorted;
+use super::traverse::{nearest_lane, push_sorted};
 use crate::geometry::{Hit, Ray};
 
 /// Below how many rays an entry of the packet `prepared` finishes ray by
@@ -115,25 +115,16 @@ impl WideBvh<8> {
                 let found = packet.node::<true>(node, &prepared, mask, &cut);
                 let any = found.lanes;
                 if any != 0 {
-                    // The nearest child (the last of equals, as the sorted
-                    // push would pop first; on the engine's primary rays
-                    // the first of equals was 2% slower) is visited next
-                    // (its rays entered it: no cull to check; no prefetch,
-                    // it is loaded next), the others pushed farthest first,
-                    // so that the nearest of them is on top.
-                    let mut next = any.trailing_zeros() as usize;
-                    if any & (any - 1) != 0 {
-                        for c in bits(any & (any - 1)) {
-                            if found.near[c] <= found.near[next] {
-                                next = c;
-                            }
-                        }
-                        let base = stack.len();
-                        for c in bits(any & !(1 << next)) {
-                            let entry = (node.child[c], found.rays[c], found.near[c]);
-                            self.prefetch_child(entry.0);
-                            push_sorted(&mut stack, base, entry, |e| e.2);
-                        }
+                    // The nearest child is visited next (its rays entered
+                    // it: no cull to check; no prefetch, it is loaded next),
+                    // the others pushed farthest first, so that the nearest
+                    // of them is on top.
+                    let next = nearest_lane(any, &found.near);
+                    let base = stack.len();
+                    for c in bits(any & !(1 << next)) {
+                        let entry = (node.child[c], found.rays[c], found.near[c]);
+                        self.prefetch_child(entry.0);
+                        push_sorted(&mut stack, base, entry, |e| e.2);
                     }
                     current = node.child[next];
                     mask = found.rays[next];

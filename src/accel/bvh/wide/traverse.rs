@@ -10,7 +10,7 @@ use super::super::leaf::{BlockTest, Ray4, LANES};
 use super::super::params::{CULL_SLACK, DEEP_STACK, SLAB_SLACK, STACK};
 use super::super::simd::{prefetch, Avx2, Avx512, Kernel, NodeKernel, Portable, WideRay};
 #[cfg(target_arch = "x86_64")]
-use super::super::simd_packet::{Avx2Packet, Avx512Packet};
+use super::super::simd_packet::{bits, Avx2Packet, Avx512Packet};
 use super::super::simd_packet::{PerRay, PACKET, PACKET16};
 use super::super::traverse::{Counter, Traversal};
 use super::node::{for_leaf_blocks, leaf_slots, WideBvh, LEAF};
@@ -93,30 +93,15 @@ impl<const N: usize> WideBvh<N> {
                 let node = &self.nodes[current as usize];
                 let (mask, near) = kernel.intersect(node, &wray, tmin, cut);
                 if mask != 0 {
-                    // The nearest hit child (the last of equals, as the
-                    // sorted push would pop first) is visited next (no
-                    // prefetch: it is loaded next), the others pushed
-                    // farthest first, so that the nearest of them is on top.
-                    let mut next = mask.trailing_zeros() as usize;
-                    let rest = mask & (mask - 1);
-                    if rest != 0 {
-                        let mut m = rest;
-                        while m != 0 {
-                            let lane = m.trailing_zeros() as usize;
-                            m &= m - 1;
-                            if near[lane] <= near[next] {
-                                next = lane;
-                            }
-                        }
-                        let base = stack.len();
-                        let mut m = mask & !(1 << next);
-                        while m != 0 {
-                            let lane = m.trailing_zeros() as usize;
-                            m &= m - 1;
-                            let entry = (node.child[lane], near[lane]);
-                            self.prefetch_child(entry.0);
-                            push_sorted(&mut stack, base, entry, |e| e.1);
-                        }
+                    // The nearest hit child is visited next (no prefetch: it
+                    // is loaded next), the others pushed farthest first, so
+                    // that the nearest of them is on top.
+                    let next = nearest_lane(mask, &near);
+                    let base = stack.len();
+                    for lane in bits(mask & !(1 << next)) {
+                        let entry = (node.child[lane], near[lane]);
+                        self.prefetch_child(entry.0);
+                        push_sorted(&mut stack, base, entry, |e| e.1);
                     }
                     current = node.child[next];
                     continue;
@@ -204,6 +189,21 @@ impl<const N: usize> WideBvh<N> {
             }
         }
     }
+}
+
+/// The lane of `mask` (not empty) with the least `near`, the last of
+/// equals: the closest-hit traversals, single-ray and packet, visit it next
+/// and push the other hit lanes (the sorted push pops the last of equals
+/// first; on the engine's primary packets taking the first was 2% slower).
+#[inline(always)]
+pub(super) fn nearest_lane(mask: u32, near: &[f32]) -> usize {
+    let mut next = mask.trailing_zeros() as usize;
+    for lane in bits(mask & (mask - 1)) {
+        if near[lane] <= near[next] {
+            next = lane;
+        }
+    }
+    next
 }
 
 /// Pushes `entry` onto `stack`, keeping the entries from `base` on ordered
