@@ -826,6 +826,49 @@ mod tests {
         assert_eq!(passes_for(0.004, 0.0), 1);
     }
 
+    /// The SAH tree, noting which threads ask it streams (each a little
+    /// slowly, so that every thread of a run gets some).
+    struct Noted(BvhBackend, std::sync::Mutex<Vec<std::thread::ThreadId>>);
+
+    impl Backend for Noted {
+        fn intersect(&self, ray: &Ray) -> Option<Hit> {
+            self.0.intersect(ray)
+        }
+        fn occluded(&self, ray: &Ray) -> bool {
+            self.0.occluded(ray)
+        }
+        fn intersect_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
+            let mut seen = self.1.lock().unwrap();
+            let me = std::thread::current().id();
+            if !seen.contains(&me) {
+                seen.push(me);
+            }
+            drop(seen);
+            std::thread::sleep(std::time::Duration::from_millis(1));
+            self.0.intersect_stream(rays, hits);
+        }
+    }
+
+    /// A run on N threads traces on the calling thread and N - 1 others:
+    /// no more threads than CPUs when N is the CPU count (a main thread
+    /// waiting beside N workers made the two-thread figures random).
+    #[test]
+    fn the_calling_thread_is_one_of_the_tracing_threads() {
+        let (scene, settings) = setup();
+        let tree = BvhBackend::new(&scene.mesh(), &BuildParams::sah()).unwrap();
+        let noted = Noted(tree, std::sync::Mutex::new(Vec::new()));
+        let rays = recorded_rays(&scene, &noted, &settings).unwrap().primary;
+        assert!(rays.len() > 3 * CHUNK, "enough chunks for three threads");
+        let me = std::thread::current().id();
+        for threads in [1, 2, 3] {
+            noted.1.lock().unwrap().clear();
+            trace(&noted, true, &rays, threads, 4);
+            let seen = noted.1.lock().unwrap().clone();
+            assert_eq!(seen.len(), threads, "{threads} threads: {seen:?}");
+            assert!(seen.contains(&me), "{threads} threads: not the caller");
+        }
+    }
+
     #[test]
     fn a_wrong_own_backend_fails_the_trace() {
         let (scene, settings) = setup();
