@@ -826,8 +826,9 @@ mod tests {
         assert_eq!(passes_for(0.004, 0.0), 1);
     }
 
-    /// The SAH tree, noting which threads ask it streams (each a little
-    /// slowly, so that every thread of a run gets some).
+    /// The SAH tree, noting which threads ask it streams (each a
+    /// millisecond slowly, so that every thread of a run gets some: a thread
+    /// would have to wait for its CPU through most of the run to miss out).
     struct Noted(BvhBackend, std::sync::Mutex<Vec<std::thread::ThreadId>>);
 
     impl Backend for Noted {
@@ -862,7 +863,8 @@ mod tests {
         let me = std::thread::current().id();
         for threads in [1, 2, 3] {
             noted.1.lock().unwrap().clear();
-            trace(&noted, true, &rays, threads, 4);
+            // 16 passes: over 60 chunks.
+            trace(&noted, true, &rays, threads, 16);
             let seen = noted.1.lock().unwrap().clone();
             assert_eq!(seen.len(), threads, "{threads} threads: {seen:?}");
             assert!(seen.contains(&me), "{threads} threads: not the caller");
