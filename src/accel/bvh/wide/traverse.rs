@@ -9,9 +9,9 @@ use arrayvec::ArrayVec;
 use super::super::leaf::{BlockTest, Ray4, LANES};
 use super::super::params::{CULL_SLACK, DEEP_STACK, SLAB_SLACK, STACK};
 use super::super::simd::{prefetch, Avx2, Avx512, Kernel, NodeKernel, Portable, WideRay};
+use super::super::simd_packet::{bits, PerRay, PACKET, PACKET16};
 #[cfg(target_arch = "x86_64")]
-use super::super::simd_packet::{bits, Avx2Packet, Avx512Packet};
-use super::super::simd_packet::{PerRay, PACKET, PACKET16};
+use super::super::simd_packet::{Avx2Packet, Avx512Packet};
 use super::super::traverse::{Counter, Traversal};
 use super::node::{for_leaf_blocks, leaf_slots, WideBvh, LEAF};
 use crate::geometry::{safe_reciprocal, Hit, Ray};
