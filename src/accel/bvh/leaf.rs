@@ -49,7 +49,10 @@ impl Tri4 {
         }
     }
 
-    /// Puts triangle `tri` (scene index `id`) in lane `lane`.
+    /// Puts triangle `tri` (scene index `id`) in lane `lane`. Inlined: called
+    /// from another codegen unit, the triangle went through the stack and was
+    /// read back wider than it was written, which stalled every leaf fill.
+    #[inline]
     pub fn set_lane(&mut self, lane: usize, tri: &[Vec3; 3], id: u32) {
         for (k, vertex) in tri.iter().enumerate() {
             for axis in 0..3 {
