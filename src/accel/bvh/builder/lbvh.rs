@@ -3,7 +3,8 @@
 //!
 //! Each triangle's box centre is quantised to a 1024^3 grid over the scene's
 //! centres and interleaved into a 30-bit Morton code; the triangles are
-//! sorted by (code, scene index) with a stable radix sort. A node's range of
+//! sorted by (code, scene index) with a stable radix sort (on two or more
+//! threads, a run per thread, the runs then merged). A node's range of
 //! sorted triangles then splits where the highest bit in which its first
 //! and last codes differ changes (a binary search), so every split is a
 //! plane of the grid, found without looking at boxes; equal codes split at
@@ -113,9 +114,10 @@ fn keys(n: usize, centre: impl Fn(usize) -> Vec4 + Sync + Send, parallel: bool) 
         bounds.grow(centre(i));
     }
     let (lo, scale) = grid(&bounds);
-    radix_sort(collect(n, parallel, |i| {
+    let keys = collect(n, parallel, |i| {
         (morton(centre(i), lo, scale) as u64) << 32 | i as u64
-    }))
+    });
+    sort_keys(keys, parallel)
 }
 
 /// The 30-bit Morton code of a doubled centre `c2` on the grid of
@@ -165,17 +167,109 @@ fn sorted_by_code(prims: Vec<PrimRef>, parallel: bool) -> Vec<PrimRef> {
     }
 }
 
-/// `keys` (`code << 32 | position`, positions in increasing order) sorted
-/// by code, equal codes in position order: a stable
-/// least-significant-digit radix sort of the code's bits.
-fn radix_sort(mut keys: Vec<u64>) -> Vec<u64> {
+/// `keys` (`code << 32 | position`, every key distinct) sorted: by code,
+/// equal codes in position order. In parallel when `parallel`, the keys are
+/// cut into one run per thread (rounded up to a power of two, runs of at
+/// least [`SORT_RUN_MIN`] keys), each run is radix-sorted on its own thread
+/// and sorted runs are merged pairwise, each merge itself split in two. The
+/// keys are distinct, so every cut gives the serial sort's order.
+fn sort_keys(mut keys: Vec<u64>, parallel: bool) -> Vec<u64> {
     let mut spare = vec![0u64; keys.len()];
+    let mut depth = 0;
+    if parallel {
+        while 1 << depth < rayon::current_num_threads() && keys.len() >> (depth + 1) >= SORT_RUN_MIN
+        {
+            depth += 1;
+        }
+    }
+    if sort_between(&mut keys, &mut spare, depth) {
+        spare
+    } else {
+        keys
+    }
+}
+
+/// Shortest run of keys sorted on a thread of its own by [`sort_keys`].
+const SORT_RUN_MIN: usize = 16 * 1024;
+
+/// Sorts the keys in `a`, with `b` (as long) for scratch, as `2^depth`
+/// runs merged pairwise; returns whether the sorted keys ended in `b`.
+fn sort_between(a: &mut [u64], b: &mut [u64], depth: u32) -> bool {
+    if depth == 0 {
+        return radix_sort(a, b);
+    }
+    let mid = a.len() / 2;
+    let (a_lo, a_hi) = a.split_at_mut(mid);
+    let (b_lo, b_hi) = b.split_at_mut(mid);
+    let (in_b, _) = rayon::join(
+        || sort_between(a_lo, b_lo, depth - 1),
+        || sort_between(a_hi, b_hi, depth - 1),
+    );
+    // Both halves took the same number of passes, so they ended in the
+    // same buffer; merge them into the other.
+    if in_b {
+        let (lo, hi) = b.split_at(mid);
+        merge(lo, hi, a);
+        false
+    } else {
+        let (lo, hi) = a.split_at(mid);
+        merge(lo, hi, b);
+        true
+    }
+}
+
+/// Shortest merge split between two threads.
+const MERGE_SPLIT_MIN: usize = 8 * 1024;
+
+/// `lo` and `hi` (each sorted, no key in both) merged into `out`, in two
+/// halves on two threads down to [`MERGE_SPLIT_MIN`] keys.
+fn merge(lo: &[u64], hi: &[u64], out: &mut [u64]) {
+    if out.len() < MERGE_SPLIT_MIN {
+        let (mut i, mut j) = (0, 0);
+        for o in out {
+            // Take from `lo` while `hi` is spent or `lo`'s key is smaller.
+            if j == hi.len() || (i < lo.len() && lo[i] < hi[j]) {
+                *o = lo[i];
+                i += 1;
+            } else {
+                *o = hi[j];
+                j += 1;
+            }
+        }
+        return;
+    }
+    // The first `half` keys of the merge: the `i` smallest of `lo` and the
+    // `half - i` smallest of `hi`, `i` found by bisection.
+    let half = out.len() / 2;
+    let (mut first, mut last) = (half.saturating_sub(hi.len()), half.min(lo.len()));
+    while first < last {
+        let i = (first + last) / 2;
+        if lo[i] < hi[half - i - 1] {
+            first = i + 1;
+        } else {
+            last = i;
+        }
+    }
+    let (out_lo, out_hi) = out.split_at_mut(half);
+    rayon::join(
+        || merge(&lo[..first], &hi[..half - first], out_lo),
+        || merge(&lo[first..], &hi[half - first..], out_hi),
+    );
+}
+
+/// `keys` sorted by code, equal codes in their order in `keys`: a stable
+/// least-significant-digit radix sort of the code's bits, passing the keys
+/// back and forth between `keys` and `spare` (as long). Returns whether the
+/// sorted keys ended in `spare`.
+fn radix_sort(keys: &mut [u64], spare: &mut [u64]) -> bool {
     let buckets = 1usize << RADIX_BITS;
-    for pass in 0..(3 * BITS).div_ceil(RADIX_BITS) {
+    let passes = (3 * BITS).div_ceil(RADIX_BITS);
+    let (mut from, mut to) = (keys, spare);
+    for pass in 0..passes {
         let shift = 32 + pass * RADIX_BITS;
         let digit = |k: u64| (k >> shift) as usize & (buckets - 1);
         let mut starts = vec![0usize; buckets];
-        for &k in &keys {
+        for &k in from.iter() {
             starts[digit(k)] += 1;
         }
         let mut sum = 0;
@@ -184,14 +278,14 @@ fn radix_sort(mut keys: Vec<u64>) -> Vec<u64> {
             *s = sum;
             sum += c;
         }
-        for &k in &keys {
+        for &k in from.iter() {
             let d = digit(k);
-            spare[starts[d]] = k;
+            to[starts[d]] = k;
             starts[d] += 1;
         }
-        std::mem::swap(&mut keys, &mut spare);
+        std::mem::swap(&mut from, &mut to);
     }
-    keys
+    passes % 2 == 1
 }
 
 /// Where a range of references sorted by code ([`PrimRef::key`]) splits:
@@ -321,6 +415,55 @@ mod tests {
             let mut ids: Vec<u32> = sorted.iter().map(PrimRef::index).collect();
             ids.sort();
             assert_eq!(ids, (0..5000).collect::<Vec<u32>>());
+        }
+    }
+
+    #[test]
+    fn the_parallel_sort_gives_the_serial_order() {
+        // Codes from a few hundred values, so that many keys share a code
+        // and the order within a code (the index) is tested too; lengths
+        // around the run and merge cut-offs, odd ones included.
+        for n in [1, 2, 3, SORT_RUN_MIN * 2 - 1, SORT_RUN_MIN * 2 + 1, 100_003] {
+            let mut x = n as u64 + 1;
+            let keys: Vec<u64> = (0..n as u64)
+                .map(|i| {
+                    x ^= x << 13;
+                    x ^= x >> 7;
+                    x ^= x << 17;
+                    (x % 300) << 32 | i
+                })
+                .collect();
+            let mut expected = keys.clone();
+            expected.sort_unstable();
+            assert_eq!(sort_keys(keys.clone(), false), expected, "serial, n = {n}");
+            for threads in [2, 3, 4] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let sorted = pool.install(|| sort_keys(keys.clone(), true));
+                assert_eq!(sorted, expected, "{threads} threads, n = {n}");
+            }
+        }
+    }
+
+    #[test]
+    fn merges_split_where_the_first_half_of_the_output_ends() {
+        // Interleaved, one run after the other, and runs of unequal length.
+        let evens: Vec<u64> = (0..20_000).map(|i| 2 * i).collect();
+        let odds: Vec<u64> = (0..20_000).map(|i| 2 * i + 1).collect();
+        let low: Vec<u64> = (0..5_000).collect();
+        let high: Vec<u64> = (5_000..40_000).collect();
+        for (a, b) in [(&evens, &odds), (&low, &high), (&high, &low), (&odds, &low)] {
+            let mut out = vec![0; a.len() + b.len()];
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(2)
+                .build()
+                .unwrap();
+            pool.install(|| merge(a, b, &mut out));
+            let mut expected: Vec<u64> = a.iter().chain(b).copied().collect();
+            expected.sort_unstable();
+            assert_eq!(out, expected);
         }
     }
 
