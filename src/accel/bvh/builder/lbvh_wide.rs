@@ -33,7 +33,7 @@ use crate::accel::bvh::node::padded;
 use crate::accel::bvh::params::{FILL_AHEAD, MERGE_MAX, PARALLEL_CUTOFF};
 use crate::accel::bvh::prim::{Box4, Triangles};
 use crate::accel::bvh::simd::{prefetch, Kernel};
-use crate::accel::bvh::wide::node::leaf_ref;
+use crate::accel::bvh::wide::node::{leaf_ref, LeafLanes};
 use crate::accel::bvh::wide::{WideBvh, WideNode, EMPTY};
 use crate::error::Result;
 
@@ -155,10 +155,9 @@ impl<T: Triangles + ?Sized> Ctx<'_, T> {
     ) -> Result<(WideNode<N>, Box4)> {
         let mut node = WideNode::empty();
         let mut bounds = Box4::EMPTY;
-        let leaves: ArrayVec<usize, N> = (0..kids.len()).filter(|&l| kids[l].leaf).collect();
-        let counts: ArrayVec<usize, N> = leaves.iter().map(|&l| kids[l].len).collect();
-        let starts = slots.pack::<N>(&counts, self.fills())?;
-        for (&lane, &slot) in leaves.iter().zip(&starts) {
+        let leaves = LeafLanes::<N>::of(kids.iter().map(|k| k.leaf.then_some(k.len)));
+        let starts = slots.pack::<N>(leaves.counts(), self.fills())?;
+        for (&lane, &slot) in leaves.lanes().iter().zip(&starts) {
             let kid = &kids[lane];
             let b = self.leaf(kid, slot, slots);
             node.set_lane(lane, &padded(b.to_aabb()), leaf_ref(slot, kid.len));

@@ -30,7 +30,7 @@ use crate::accel::bvh::node::padded;
 use crate::accel::bvh::params::{FILL_AHEAD, MERGE_MAX, PARALLEL_CUTOFF};
 use crate::accel::bvh::prim::{NodeInfo, PrimRef, Triangles};
 use crate::accel::bvh::simd::Kernel;
-use crate::accel::bvh::wide::node::{leaf_ref, pack_leaves, LEAF};
+use crate::accel::bvh::wide::node::{leaf_ref, pack_leaves, LeafLanes, LEAF};
 use crate::accel::bvh::wide::{WideBvh, WideNode, EMPTY, MAX_SLOTS};
 use crate::error::{Error, Result};
 
@@ -169,10 +169,9 @@ impl<S: Splitter> Ctx<'_, S> {
         slots: &mut Slots,
     ) -> Result<WideNode<N>> {
         let mut node = WideNode::empty();
-        let leaves: ArrayVec<usize, N> = (0..kids.len()).filter(|&l| kids[l].is_leaf()).collect();
-        let counts: ArrayVec<usize, N> = leaves.iter().map(|&l| kids[l].len).collect();
-        let starts = slots.pack::<N>(&counts, false)?;
-        for (&lane, &slot) in leaves.iter().zip(&starts) {
+        let leaves = LeafLanes::<N>::of(kids.iter().map(|k| k.is_leaf().then_some(k.len)));
+        let starts = slots.pack::<N>(leaves.counts(), false)?;
+        for (&lane, &slot) in leaves.lanes().iter().zip(&starts) {
             let kid = &kids[lane];
             let leaf = &prims[kid.start..kid.start + kid.len];
             for (id, p) in slots.ids[slot..slot + kid.len].iter_mut().zip(leaf) {
@@ -293,11 +292,8 @@ impl Slots {
     /// by [`pack_leaves`]: as empty blocks to fill when `filled`, else as
     /// scene indices ([`EMPTY_ID`] until set). Returns each leaf's first
     /// slot.
-    pub fn pack<const N: usize>(
-        &mut self,
-        counts: &[usize],
-        filled: bool,
-    ) -> Result<ArrayVec<usize, N>> {
+    #[inline]
+    pub fn pack<const N: usize>(&mut self, counts: &[usize], filled: bool) -> Result<[usize; N]> {
         let first = if filled {
             self.blocks.len()
         } else {
