@@ -33,8 +33,8 @@ pub const MAX_SLOTS: usize = 1 << SLOT_BITS;
 ///
 /// Inlined and on plain arrays: called out of line and returning an
 /// `ArrayVec`, its result was written a lane at a time and read back whole,
-/// a store-forwarding stall in every node of the builds (the low rung's
-/// engine build: 0.95-0.97 of the time without this, in one process).
+/// a store-forwarding stall in every node of the builds (inlining it took
+/// the low rung's one-thread engine build to 0.95-0.97 of its time).
 #[inline]
 pub(crate) fn pack_leaves<const N: usize>(
     counts: &[usize],
@@ -82,8 +82,8 @@ pub(crate) fn pack_leaves<const N: usize>(
 }
 
 /// A node's leaf children: their lanes and triangle counts, in lane order.
-/// Plain arrays for the reason [`pack_leaves`] gives (collected into
-/// `ArrayVec`s, 0.97-0.98 of the time on top of it).
+/// Plain arrays for the reason [`pack_leaves`] gives (against `ArrayVec`s,
+/// a further 0.97-0.98 of the time).
 pub(crate) struct LeafLanes<const N: usize> {
     lanes: [usize; N],
     counts: [usize; N],
