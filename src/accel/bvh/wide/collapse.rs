@@ -15,7 +15,7 @@ use super::super::node::{Node, Skeleton};
 use super::super::params::MERGE_MAX;
 use super::super::prim::Triangles;
 use super::super::simd::Kernel;
-use super::node::{leaf_ref, pack_leaves, WideBvh, WideNode, EMPTY, MAX_SLOTS};
+use super::node::{leaf_ref, pack_leaves, LeafLanes, WideBvh, WideNode, EMPTY, MAX_SLOTS};
 use crate::error::{Error, Result};
 
 impl<const N: usize> WideBvh<N> {
@@ -147,24 +147,18 @@ impl<const N: usize> WideBvh<N> {
         let parts: ArrayVec<Option<ArrayVec<Node, 2>>, N> =
             children.iter().map(|&c| leaf_parts(c)).collect();
         // Leaves first, packed into shared blocks.
-        let leaves: ArrayVec<usize, N> = (0..children.len())
-            .filter(|&lane| parts[lane].is_some())
-            .collect();
-        let counts: ArrayVec<usize, N> = leaves
-            .iter()
-            .map(|&lane| {
-                let leaf = parts[lane].as_ref().expect("a leaf lane");
-                leaf.iter().map(|n| n.count as usize).sum()
-            })
-            .collect();
-        let (slots, blocks) = pack_leaves::<N>(&counts, sources.len() / LANES)?;
+        let leaves = LeafLanes::<N>::of(parts.iter().map(|leaf| {
+            leaf.as_ref()
+                .map(|leaf| leaf.iter().map(|n| n.count as usize).sum())
+        }));
+        let (slots, blocks) = pack_leaves::<N>(leaves.counts(), sources.len() / LANES)?;
         sources.resize(sources.len() + blocks * LANES, EMPTY);
         if sources.len() > MAX_SLOTS {
             return Err(Error::Other(format!(
                 "wide BVH: more than {MAX_SLOTS} triangle slots"
             )));
         }
-        for ((&lane, &count), &slot) in leaves.iter().zip(&counts).zip(&slots) {
+        for ((&lane, &count), &slot) in leaves.lanes().iter().zip(leaves.counts()).zip(&slots) {
             let leaf = parts[lane].as_ref().expect("a leaf lane");
             let from = leaf.iter().flat_map(|n| n.offset..n.offset + n.count);
             for (source, from) in sources[slot..slot + count].iter_mut().zip(from) {
