@@ -8,6 +8,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+use plotters::coord::combinators::{LogCoord, WithKeyPoints};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
@@ -184,29 +185,68 @@ pub(super) fn log_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f6
         return 0.1..10.0;
     }
     let hi = if hi <= lo { lo * 10.0 } else { hi };
-    let (mut lo, hi) = (lo / 1.5, hi * 1.5);
-    // plotters places a log axis's ticks at the powers of ten inside its
-    // range and at steps above each, so a range without one got no tick
-    // and no label at all (the ladder's trace times on Sponza, 33-53 ms):
-    // widen it down to the power of ten below.
-    let below = 10f64.powf(hi.log10().floor());
-    if below < lo {
-        lo = below;
-    }
-    lo..hi
+    lo / 1.5..hi * 1.5
 }
 
-/// Labels of a log axis: only 1, 2 and 5 times a power of ten, so they never crowd.
+/// A log axis over `range`, ticked and labelled where [`log_ticks`] says,
+/// with light grid lines at every whole multiple of each power of ten.
+/// plotters' own log ticks start at the first power of ten inside the range,
+/// so everything below it went unlabelled (the ladder's build axes, 1.5-10
+/// ms, had one label, at 10).
+pub(super) fn log_axis(range: std::ops::Range<f64>) -> WithKeyPoints<LogCoord<f64>> {
+    let ticks = log_ticks(&range);
+    let light = multiples_of_powers(&range, &[2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0]);
+    range
+        .log_scale()
+        .with_key_points(ticks)
+        .with_light_points(light)
+}
+
+/// The most ticks a log axis gets before it keeps only the powers of ten.
+const MOST_LOG_TICKS: usize = 10;
+
+/// A log axis's ticks: 1, 2 and 5 times each power of ten inside `range`;
+/// only the powers (every second, third, ... one) where those would be more
+/// than [`MOST_LOG_TICKS`]; every whole multiple where the range is so
+/// narrow that fewer than two of 1, 2 and 5 fall in it.
+pub(super) fn log_ticks(range: &std::ops::Range<f64>) -> Vec<f64> {
+    let nice = multiples_of_powers(range, &[1.0, 2.0, 5.0]);
+    if nice.len() < 2 {
+        return multiples_of_powers(range, &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0]);
+    }
+    if nice.len() <= MOST_LOG_TICKS {
+        return nice;
+    }
+    let powers = multiples_of_powers(range, &[1.0]);
+    let step = powers.len().div_ceil(MOST_LOG_TICKS);
+    powers.into_iter().step_by(step).collect()
+}
+
+/// Each of `multiples` times each power of ten, in ascending order, where
+/// inside `range`.
+fn multiples_of_powers(range: &std::ops::Range<f64>, multiples: &[f64]) -> Vec<f64> {
+    if !(range.start > 0.0 && range.end > range.start && range.end.is_finite()) {
+        return Vec::new();
+    }
+    let (first, last) = (
+        range.start.log10().floor() as i32,
+        range.end.log10().ceil() as i32,
+    );
+    (first..=last)
+        .flat_map(|exp| multiples.iter().map(move |m| m * 10f64.powi(exp)))
+        .filter(|v| range.contains(v))
+        .collect()
+}
+
+/// Labels of a log axis's ticks ([`log_ticks`]: whole multiples of a power
+/// of ten); anything else gets none.
 pub(super) fn log_label(v: &f64) -> String {
     if !(*v > 0.0) {
         return String::new();
     }
     let exp = v.log10().floor();
     let mantissa = v / 10f64.powf(exp);
-    let nice = [1.0, 2.0, 5.0, 10.0]
-        .iter()
-        .any(|m| (mantissa - m).abs() < 1e-6 * m);
-    if !nice {
+    if (mantissa - mantissa.round()).abs() > 1e-6 * mantissa {
         return String::new();
     }
     if (1e-2..1e5).contains(v) {
@@ -290,7 +330,7 @@ where
         .margin(12)
         .x_label_area_size(50)
         .y_label_area_size(60)
-        .build_cartesian_2d(0f64..b.groups.len().max(1) as f64, y.clone().log_scale())?;
+        .build_cartesian_2d(0f64..b.groups.len().max(1) as f64, log_axis(y.clone()))?;
     chart
         .configure_mesh()
         .disable_x_mesh()
@@ -383,18 +423,44 @@ pub(super) fn distinct<'a>(items: impl Iterator<Item = &'a str>) -> Vec<&'a str>
 #[cfg(test)]
 mod tests {
     #[test]
-    fn log_ranges_hold_a_power_of_ten() {
-        // 22-79 widens to 14.7-118.5, which holds 100.
+    fn log_ranges_leave_room_around_the_values() {
         let r = super::log_range([22.0, 79.0].into_iter());
         assert!((r.start - 22.0 / 1.5).abs() < 1e-9 && (r.end - 79.0 * 1.5).abs() < 1e-9);
-        // 30-40 (20-60 with room) has none: widened down to 10.
-        let r = super::log_range([30.0, 40.0].into_iter());
-        assert_eq!(r.start, 10.0);
-        assert!((r.end - 60.0).abs() < 1e-9);
-        // 250-500 (167-750): down to 100.
-        let r = super::log_range([250.0, 500.0].into_iter());
-        assert_eq!(r.start, 100.0);
-        assert!((r.end - 750.0).abs() < 1e-9);
+        // One value: a decade above it.
+        let r = super::log_range([3.0, f64::NAN, -1.0].into_iter());
+        assert!((r.start - 2.0).abs() < 1e-9 && (r.end - 45.0).abs() < 1e-9);
+    }
+
+    fn close(a: &[f64], b: &[f64]) -> bool {
+        a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-9 * y)
+    }
+
+    #[test]
+    fn log_ticks_label_below_the_first_power_of_ten() {
+        // The ladder's two-thread build axis: plotters ticked only 10.
+        let t = super::log_ticks(&(1.5..10.5));
+        assert!(close(&t, &[2.0, 5.0, 10.0]), "{t:?}");
+        // No power of ten inside: 20 and 50 still labelled.
+        let t = super::log_ticks(&(20.0..60.0));
+        assert!(close(&t, &[20.0, 50.0]), "{t:?}");
+        // Narrower than 1-2-5 can tick: every whole multiple.
+        let t = super::log_ticks(&(2.1..4.9));
+        assert!(close(&t, &[3.0, 4.0]), "{t:?}");
+        // Many decades (the libraries' wrong-hit axis): powers only.
+        let t = super::log_ticks(&(0.0667..1500.0));
+        assert!(close(&t, &[0.1, 1.0, 10.0, 100.0, 1000.0]), "{t:?}");
+        // More powers than fit (twelve, 1e9 being outside): every second one.
+        let t = super::log_ticks(&(1e-3..1e9));
+        assert!(close(&t, &[1e-3, 1e-1, 1e1, 1e3, 1e5, 1e7]), "{t:?}");
+        // Every tick gets a label.
+        for r in [1.5..10.5, 2.1..4.9, 0.0667..1500.0, 0.003..0.04] {
+            for v in super::log_ticks(&r) {
+                assert!(!super::log_label(&v).is_empty(), "{v} in {r:?}");
+            }
+        }
+        assert_eq!(super::log_label(&2.5), "");
+        assert_eq!(super::log_label(&0.02), "0.02");
+        assert_eq!(super::log_label(&3e5), "3e5");
     }
 
     #[test]

@@ -11,7 +11,9 @@ use plotters::prelude::*;
 
 use super::ChartSection;
 use crate::accel::build_backend;
-use crate::bench::charts::{color, legend, log_label, log_range, save_chart, DrawResult, FONT};
+use crate::bench::charts::{
+    color, legend, log_axis, log_label, log_range, save_chart, DrawResult, FONT,
+};
 use crate::bench::config::BenchConfig;
 use crate::bench::measure::{timed_renders, Stat, View};
 use crate::bench::metrics::{psnr, rmse};
@@ -222,7 +224,7 @@ where
             .margin(12)
             .x_label_area_size(45)
             .y_label_area_size(65)
-            .build_cartesian_2d(x.log_scale(), y.log_scale())?;
+            .build_cartesian_2d(log_axis(x), log_axis(y))?;
         chart
             .configure_mesh()
             .x_desc("render ms (log)")

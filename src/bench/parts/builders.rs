@@ -13,8 +13,8 @@ use super::ChartSection;
 use crate::accel::bvh::wide::TraversalCosts;
 use crate::accel::bvh::{BuildParams, BuilderKind, BvhBackend};
 use crate::bench::charts::{
-    color, lin_range, log_label, log_range, save_chart, side_legend, DrawResult, Swatch, FONT,
-    SIDE_LEGEND,
+    color, lin_range, log_axis, log_label, log_range, save_chart, side_legend, DrawResult, Swatch,
+    FONT, SIDE_LEGEND,
 };
 use crate::bench::config::BenchConfig;
 use crate::bench::measure::{timed_renders, Stat};
@@ -226,7 +226,7 @@ where
             .x_label_area_size(45)
             .y_label_area_size(55)
             .build_cartesian_2d(
-                log_range(pts.iter().map(fx)).log_scale(),
+                log_axis(log_range(pts.iter().map(fx))),
                 lin_range(pts.iter().map(fy), true),
             )?;
         chart

@@ -12,7 +12,7 @@ use plotters::prelude::*;
 use super::ChartSection;
 use crate::accel::BackendKind;
 use crate::bench::charts::{
-    color, legend, line_with_points, log_label, log_range, save_chart, DrawResult, FONT,
+    color, legend, line_with_points, log_axis, log_label, log_range, save_chart, DrawResult, FONT,
 };
 use crate::bench::config::BenchConfig;
 use crate::bench::measure::{Stat, View};
@@ -205,7 +205,7 @@ where
             .margin(12)
             .x_label_area_size(45)
             .y_label_area_size(65)
-            .build_cartesian_2d(x.clone().log_scale(), y.log_scale())?;
+            .build_cartesian_2d(log_axis(x.clone()), log_axis(y))?;
         chart
             .configure_mesh()
             .x_desc("triangles (log)")

@@ -23,8 +23,8 @@ use crate::accel::bvh::wide::TraversalCosts;
 use crate::accel::bvh::{build, BuildParams, Tree};
 use crate::accel::{build_backend, BackendSpec};
 use crate::bench::charts::{
-    color, distinct, log_label, log_range, save_chart, side_legend, DrawResult, Swatch, FONT,
-    SIDE_LEGEND,
+    color, distinct, log_axis, log_label, log_range, save_chart, side_legend, DrawResult, Swatch,
+    FONT, SIDE_LEGEND,
 };
 use crate::bench::config::BenchConfig;
 use crate::bench::measure::Stat;
@@ -375,17 +375,24 @@ pub fn markdown(points: &[LadderPoint]) -> String {
 
 /// The part's chart.
 pub fn charts(dir: &Path, points: &[LadderPoint]) -> Result<Vec<String>> {
-    let scenes = distinct(points.iter().map(|p| p.scene.as_str()))
-        .len()
-        .max(1) as u32;
-    let width = 460 * scenes.min(4) + SIDE_LEGEND;
+    let (rows, cols) = panel_grid(distinct(points.iter().map(|p| p.scene.as_str())).len());
     Ok(vec![save_chart!(
         dir,
         SECTION.stem,
-        (width, 520),
+        (460 * cols as u32 + SIDE_LEGEND, 520 * rows as u32),
         draw_ladder,
         points
     )?])
+}
+
+/// Panels in a row of the chart, at most: a sixth scene starts a new row.
+const PANELS_PER_ROW: usize = 3;
+
+/// Rows and columns of panels for `scenes` scenes: every scene gets one.
+fn panel_grid(scenes: usize) -> (usize, usize) {
+    let scenes = scenes.max(1);
+    let cols = scenes.min(PANELS_PER_ROW);
+    (scenes.div_ceil(cols), cols)
 }
 
 fn draw_ladder<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, pts: &[LadderPoint]) -> DrawResult
@@ -395,12 +402,8 @@ where
     root.fill(&WHITE)?;
     let (width, _) = root.dim_in_pixel();
     let (panels, side) = root.split_horizontally(width.saturating_sub(SIDE_LEGEND));
-    // The first four scenes (the chart stays readable).
-    let scenes: Vec<&str> = distinct(pts.iter().map(|p| p.scene.as_str()))
-        .into_iter()
-        .take(4)
-        .collect();
-    let areas = panels.split_evenly((1, scenes.len().max(1)));
+    let scenes = distinct(pts.iter().map(|p| p.scene.as_str()));
+    let areas = panels.split_evenly(panel_grid(scenes.len()));
     let series: Vec<(String, usize)> = ["raylab", "embree"]
         .iter()
         .enumerate()
@@ -417,8 +420,10 @@ where
             .x_label_area_size(45)
             .y_label_area_size(55)
             .build_cartesian_2d(
-                log_range(here.iter().map(|p| p.build_ms_nt.median.max(1e-3))).log_scale(),
-                log_range(here.iter().map(|p| p.trace_ms_nt.max(1e-3))).log_scale(),
+                log_axis(log_range(
+                    here.iter().map(|p| p.build_ms_nt.median.max(1e-3)),
+                )),
+                log_axis(log_range(here.iter().map(|p| p.trace_ms_nt.max(1e-3)))),
             )?;
         chart
             .configure_mesh()
@@ -523,6 +528,18 @@ mod tests {
         assert!((p.trace_ms_nt - 1.75).abs() < 1e-9, "{}", p.trace_ms_nt);
         // Differing answers are summed over the kinds once (one thread).
         assert_eq!(p.differing, 4);
+    }
+
+    #[test]
+    fn every_scene_gets_a_panel() {
+        for scenes in 0..=10 {
+            let (rows, cols) = panel_grid(scenes);
+            assert!(rows * cols >= scenes && cols <= PANELS_PER_ROW, "{scenes}");
+            // No empty row.
+            assert!((rows - 1) * cols < scenes.max(1), "{scenes}");
+        }
+        assert_eq!(panel_grid(5), (2, 3));
+        assert_eq!(panel_grid(2), (1, 2));
     }
 
     #[test]

@@ -8,7 +8,7 @@ use plotters::prelude::*;
 
 use super::ChartSection;
 use crate::bench::charts::{
-    color, legend, lin_range, log_label, log_range, save_chart, DrawResult, FONT,
+    color, legend, lin_range, log_axis, log_label, log_range, save_chart, DrawResult, FONT,
 };
 use crate::bench::config::BenchConfig;
 use crate::error::Result;
@@ -89,7 +89,7 @@ where
         .x_label_area_size(45)
         .y_label_area_size(60)
         .build_cartesian_2d(
-            log_range(rows.iter().map(|r| r.ns_per_ray)).log_scale(),
+            log_axis(log_range(rows.iter().map(|r| r.ns_per_ray))),
             lin_range(rows.iter().map(|r| r.leak_rate * 100.0), true),
         )?;
     chart

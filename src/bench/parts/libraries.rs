@@ -18,8 +18,8 @@ use crate::accel::bvh::BuildParams;
 use crate::accel::library::Library;
 use crate::accel::{build_backend, BackendSpec, Built, Query};
 use crate::bench::charts::{
-    color, distinct, log_label, log_range, save_chart, side_legend, DrawResult, Swatch, FONT,
-    SIDE_LEGEND,
+    color, distinct, log_axis, log_label, log_range, save_chart, side_legend, DrawResult, Swatch,
+    FONT, SIDE_LEGEND,
 };
 use crate::bench::config::BenchConfig;
 use crate::bench::measure::Stat;
@@ -538,8 +538,8 @@ where
                 .x_label_area_size(45)
                 .y_label_area_size(60)
                 .build_cartesian_2d(
-                    log_range(here.iter().map(|p| p.ns_per_ray.max(1e-3))).log_scale(),
-                    y_range.log_scale(),
+                    log_axis(log_range(here.iter().map(|p| p.ns_per_ray.max(1e-3)))),
+                    log_axis(y_range),
                 )?;
             chart
                 .configure_mesh()
