@@ -67,33 +67,14 @@ fn sorted_refs<T: Triangles + ?Sized>(triangles: &T, parallel: bool) -> Vec<Prim
 /// Every triangle of `triangles` as `code << 32 | index`, sorted: the same
 /// codes and order as [`build`]'s references, made from the triangles
 /// without references (what the wide build, [`super::lbvh_wide`], reads).
-/// Each triangle is read once, in parallel when `parallel`; with
-/// `with_boxes` its box is kept and returned (indexed as the scene), else
-/// only its centre is kept, for the codes, and no boxes are returned.
-pub(super) fn sorted_keys<T: Triangles + ?Sized>(
-    triangles: &T,
-    parallel: bool,
-    with_boxes: bool,
-) -> (Vec<u64>, Vec<Box4>) {
-    let n = triangles.count();
-    let box_of = |i: usize| {
+/// Each triangle is read once, for its box's centre, in parallel when
+/// `parallel`.
+pub(super) fn sorted_keys<T: Triangles + ?Sized>(triangles: &T, parallel: bool) -> Vec<u64> {
+    let centres = collect(triangles.count(), parallel, |i| {
         let b = Aabb::from_points(&triangles.get(i));
-        Box4 {
-            lo: b.min.extend(0.0),
-            hi: b.max.extend(0.0),
-        }
-    };
-    if with_boxes {
-        let boxes = collect(n, parallel, box_of);
-        let keys = keys(n, |i| boxes[i].lo + boxes[i].hi, parallel);
-        (keys, boxes)
-    } else {
-        let centres = collect(n, parallel, |i| {
-            let b = box_of(i);
-            b.lo + b.hi
-        });
-        (keys(n, |i| centres[i], parallel), Vec::new())
-    }
+        b.min.extend(0.0) + b.max.extend(0.0)
+    });
+    keys(centres.len(), |i| centres[i], parallel)
 }
 
 /// `f` of `0..n`, in parallel when `parallel`.

@@ -5,9 +5,10 @@
 //! ([`lbvh::sorted_keys`]); a wide node then splits the range of its child
 //! with the most triangles at [`lbvh::split_by_code`]'s point (the binary
 //! LBVH's split) until it has `N` children, so opening children needs no
-//! boxes. Boxes are made bottom-up: a leaf's from its triangles (in a
-//! parallel build, from their boxes kept by the key pass), a node's as the
-//! union of its children's. The binary LBVH
+//! boxes. Boxes are made bottom-up: a leaf's from its triangles, a node's
+//! as the union of its children's; a serial build makes them as it goes, a
+//! parallel one in its final pass ([`nary::finish_bounding`]), once every
+//! piece's place in the tree's arrays is known. The binary LBVH
 //! ([`lbvh::build`]) opens children by area as the collapse does, which
 //! needs every binary node's box first: made top-down from the references,
 //! that scanned each reference once per level of the tree (O(n log n), the
@@ -32,7 +33,7 @@ use crate::accel::bvh::leaf::LANES;
 use crate::accel::bvh::node::padded;
 use crate::accel::bvh::params::{FILL_AHEAD, MERGE_MAX, PARALLEL_CUTOFF};
 use crate::accel::bvh::prim::{Box4, Triangles};
-use crate::accel::bvh::simd::{prefetch, Kernel};
+use crate::accel::bvh::simd::Kernel;
 use crate::accel::bvh::wide::node::{leaf_ref, LeafLanes};
 use crate::accel::bvh::wide::{WideBvh, WideNode, EMPTY};
 use crate::error::Result;
@@ -51,24 +52,18 @@ struct Ctx<'a, T: ?Sized> {
     /// `code << 32 | index`, sorted.
     keys: &'a [u64],
     max_leaf: usize,
-    /// Empty in a serial build, whose leaves read their triangles and fill
-    /// their blocks as they are made (its one piece's blocks are the
-    /// tree's). In a parallel build, each triangle's box (scene order): its
-    /// pieces keep scene indices, take leaf boxes from here, and the final
-    /// pass reads the triangles to fill the blocks in parallel. Pieces that
-    /// filled blocks of their own, copied into place at the end, took as
-    /// long on two threads as on one (mesh:50000) while freed memory went
-    /// back to the kernel, and were no faster than this once it was kept
-    /// ([`crate::os::keep_freed_memory`]).
-    boxes: &'a [Box4],
+    /// Whether leaves read their triangles and fill their blocks as they
+    /// are made (a serial build: its one piece's blocks are the tree's).
+    /// In a parallel build the pieces keep scene indices and no boxes, and
+    /// the final pass fills each piece's blocks in place and bounds its
+    /// nodes from them ([`nary::finish_bounding`]): the triangles are read
+    /// once after the keys, as in a serial build. The boxes the tree's
+    /// functions set and return are then empty: placeholders the final pass
+    /// overwrites.
+    fills: bool,
 }
 
 impl<T: Triangles + ?Sized> Ctx<'_, T> {
-    /// Whether leaves fill their blocks as they are made (see `boxes`).
-    fn fills(&self) -> bool {
-        self.boxes.is_empty()
-    }
-
     fn kid(&self, start: usize, len: usize) -> Kid {
         Kid {
             start,
@@ -109,38 +104,37 @@ impl<T: Triangles + ?Sized> Ctx<'_, T> {
         kids
     }
 
-    /// Puts leaf `kid`'s triangles into `slots` from slot `slot` on (filled
-    /// blocks when filling, else scene indices); returns their box. Leaves
-    /// come roughly in key order, so what the leaves [`FILL_AHEAD`] on read
-    /// is asked for now (the triangles' index triples twice as far): scene
-    /// order is not key order, and the fill waited on the reads.
+    /// Puts leaf `kid`'s triangles into `slots` from slot `slot` on: filled
+    /// blocks when filling, returning their box; else their scene indices,
+    /// returning no box (the final pass bounds every leaf as it fills its
+    /// blocks, [`nary::finish_bounding`]). Leaves come in key order, so what
+    /// the leaves [`FILL_AHEAD`] on read is asked for now (the triangles'
+    /// index triples twice as far): scene order is not key order, and the
+    /// fill waited on the reads.
     fn leaf(&self, kid: &Kid, slot: usize, slots: &mut Slots) -> Box4 {
+        let keys = &self.keys[kid.start..kid.start + kid.len];
+        if !self.fills {
+            for (id, &key) in slots.ids[slot..slot + kid.len].iter_mut().zip(keys) {
+                *id = key as u32;
+            }
+            return Box4::EMPTY;
+        }
         let end = kid.start + kid.len;
         let ahead = |from: usize, stage: u8| {
             for &key in self.keys.get(from..from + kid.len).unwrap_or_default() {
-                match self.boxes.get(key as u32 as usize) {
-                    Some(b) => prefetch(b),
-                    None => self.triangles.prefetch(key as u32 as usize, stage),
-                }
+                self.triangles.prefetch(key as u32 as usize, stage);
             }
         };
-        if self.fills() {
-            ahead(end + 2 * FILL_AHEAD * kid.len, 0);
-        }
+        ahead(end + 2 * FILL_AHEAD * kid.len, 0);
         ahead(end + FILL_AHEAD * kid.len, 1);
         let mut b = Box4::EMPTY;
-        for (s, &key) in (slot..).zip(&self.keys[kid.start..end]) {
+        for (s, &key) in (slot..).zip(keys) {
             let id = key as u32;
-            if self.fills() {
-                let tri = self.triangles.get(id as usize);
-                for v in tri {
-                    b.grow(Vec4::from((v, 0.0)));
-                }
-                slots.blocks[s / LANES].set_lane(s % LANES, &tri, id);
-            } else {
-                b = b.union(self.boxes[id as usize]);
-                slots.ids[s] = id;
+            let tri = self.triangles.get(id as usize);
+            for v in tri {
+                b.grow(Vec4::from((v, 0.0)));
             }
+            slots.blocks[s / LANES].set_lane(s % LANES, &tri, id);
         }
         b
     }
@@ -156,7 +150,7 @@ impl<T: Triangles + ?Sized> Ctx<'_, T> {
         let mut node = WideNode::empty();
         let mut bounds = Box4::EMPTY;
         let leaves = LeafLanes::<N>::of(kids.iter().map(|k| k.leaf.then_some(k.len)));
-        let starts = slots.pack::<N>(leaves.counts(), self.fills())?;
+        let starts = slots.pack::<N>(leaves.counts(), self.fills)?;
         for (&lane, &slot) in leaves.lanes().iter().zip(&starts) {
             let kid = &kids[lane];
             let b = self.leaf(kid, slot, slots);
@@ -194,7 +188,7 @@ impl<T: Triangles + ?Sized> Ctx<'_, T> {
         kids: &ArrayVec<Kid, N>,
         len: usize,
     ) -> Result<(Built<N>, Box4)> {
-        let mut piece = Piece::with_capacity(len, self.fills());
+        let mut piece = Piece::with_capacity(len, self.fills);
         let (_, need, b) = self.serial(kids, &mut piece)?;
         piece.need = need;
         Ok((Built::Piece(piece), b))
@@ -250,7 +244,7 @@ pub(crate) fn build<const N: usize, T: Triangles + ?Sized>(
     kernel: Kernel,
 ) -> Result<WideBvh<N>> {
     let split = parallel && triangles.count() >= PARALLEL_CUTOFF;
-    let (keys, boxes) = lbvh::sorted_keys(triangles, parallel, split);
+    let keys = lbvh::sorted_keys(triangles, parallel);
     if keys.is_empty() {
         return Ok(WideBvh::empty(kernel));
     }
@@ -258,7 +252,7 @@ pub(crate) fn build<const N: usize, T: Triangles + ?Sized>(
         triangles,
         keys: &keys,
         max_leaf: max_leaf.max(1),
-        boxes: &boxes,
+        fills: !split,
     };
     let kids = ctx.children::<N>(0, keys.len());
     let (built, _) = if split {
@@ -266,8 +260,12 @@ pub(crate) fn build<const N: usize, T: Triangles + ?Sized>(
     } else {
         ctx.piece(&kids, keys.len())?
     };
-    drop((keys, boxes));
-    nary::finish(triangles, built, parallel, kernel)
+    drop(keys);
+    if split {
+        nary::finish_bounding(triangles, built, parallel, kernel)
+    } else {
+        nary::finish(triangles, built, parallel, kernel)
+    }
 }
 
 #[cfg(test)]
@@ -292,13 +290,15 @@ mod tests {
     }
 
     /// Sound, the same on one and two threads (12,000 triangles pass the
-    /// parallel cut-off: the serial build fills its blocks as it goes, the
-    /// parallel one at the end), every node full unless all its children
+    /// parallel cut-off, 60,000 pass it below the root too, so parallel
+    /// nodes have parallel children: the serial build fills and bounds its
+    /// leaves as it goes, the parallel one at the end, with the same boxes
+    /// to the bit), every node full unless all its children
     /// are leaves (children are opened by count, never stopped by a box),
     /// and leaves no larger than the limit, or [`MERGE_MAX`] where two
     /// leaves merged.
     fn check<const N: usize>(max_leaf: usize) {
-        for n in [1, 2, 5, 17, 300, 12_000] {
+        for n in [1, 2, 5, 17, 300, 12_000, 60_000] {
             let tris = random_tris(n, n as u64 + 7);
             let one = lbvh::<N>(&tris, max_leaf, 1);
             assert_sound(&one, &tris);

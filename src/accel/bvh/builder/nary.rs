@@ -28,7 +28,7 @@ use super::topdown::{prim_refs, try_split, Split, Splitter};
 use crate::accel::bvh::leaf::{Tri4, EMPTY_ID, LANES};
 use crate::accel::bvh::node::padded;
 use crate::accel::bvh::params::{FILL_AHEAD, MERGE_MAX, PARALLEL_CUTOFF};
-use crate::accel::bvh::prim::{NodeInfo, PrimRef, Triangles};
+use crate::accel::bvh::prim::{Box4, NodeInfo, PrimRef, Triangles};
 use crate::accel::bvh::simd::Kernel;
 use crate::accel::bvh::wide::node::{leaf_ref, pack_leaves, LeafLanes, LEAF};
 use crate::accel::bvh::wide::{WideBvh, WideNode, EMPTY, MAX_SLOTS};
@@ -273,9 +273,10 @@ impl<S: Splitter> Ctx<'_, S> {
 
 /// The triangle slots of a segment's leaves, four to a block: either the
 /// scene index of each (the final pass fills the blocks: the top-down
-/// builders' references carry boxes, not vertices) or the blocks already
-/// filled (the LBVH reads every leaf triangle for its box and fills its
-/// blocks then, [`super::lbvh_wide`]). A builder uses one of the two.
+/// builders' references carry boxes, not vertices; the parallel LBVH's
+/// pieces have no boxes yet, [`finish_bounding`]) or the blocks already
+/// filled (the serial LBVH reads every leaf triangle for its box and fills
+/// its blocks then, [`super::lbvh_wide`]). A build uses one of the two.
 #[derive(Default)]
 pub(super) struct Slots {
     /// [`EMPTY_ID`] where a slot is unused.
@@ -535,6 +536,79 @@ impl<const N: usize> Layout<N> {
         nodes
     }
 
+    /// Writes segment `s`'s blocks, filled from `triangles`, and its nodes
+    /// (references made global) with every used lane's box into `blocks`
+    /// and `nodes`, its parts of the tree's arrays; returns the unpadded box
+    /// of its root's subtree. Interior children outside the segment (a
+    /// parallel node's) have the box `outside` gives for their node index.
+    fn write_bounded<T: Triangles + ?Sized>(
+        &self,
+        s: usize,
+        nodes: &mut [WideNode<N>],
+        blocks: &mut [Tri4],
+        triangles: &T,
+        outside: impl Fn(usize) -> Box4,
+    ) -> Box4 {
+        let (first_node, first_slot) = (self.first_node[s], self.first_slot[s]);
+        let ids = match &self.segments[s] {
+            Segment::Piece(p) => &p.slots.ids,
+            Segment::Node { slots, .. } => &slots.ids,
+        };
+        // Leaf order jumps about the scene's triangle order: each block's
+        // reads are asked for FILL_AHEAD blocks early, as in `blocks`.
+        let ask = |b: usize, stage: u8| {
+            for &id in ids.get(b * LANES..(b + 1) * LANES).unwrap_or_default() {
+                if id != EMPTY_ID {
+                    triangles.prefetch(id as usize, stage);
+                }
+            }
+        };
+        for (b, block) in blocks.iter_mut().enumerate() {
+            ask(b + 2 * FILL_AHEAD, 0);
+            ask(b + FILL_AHEAD, 1);
+            for (lane, &id) in ids[b * LANES..(b + 1) * LANES].iter().enumerate() {
+                if id != EMPTY_ID {
+                    block.set_lane(lane, &triangles.get(id as usize), id);
+                }
+            }
+        }
+        let mut hint = s;
+        for (i, node) in nodes.iter_mut().enumerate() {
+            *node = self.node(first_node + i, &mut hint);
+        }
+        // Bottom-up: in depth-first order a node's children come after it.
+        let mut subtree = vec![Box4::EMPTY; nodes.len()];
+        for i in (0..nodes.len()).rev() {
+            let node = &mut nodes[i];
+            let mut all = Box4::EMPTY;
+            for lane in 0..N {
+                let child = node.child[lane];
+                if child == EMPTY {
+                    continue;
+                }
+                let b = if node.is_leaf(lane) {
+                    let mut b = Box4::EMPTY;
+                    for slot in node.leaf_slots(lane) {
+                        let local = slot - first_slot;
+                        for v in blocks[local / LANES].triangle(local % LANES) {
+                            b.grow(v.extend(0.0));
+                        }
+                    }
+                    b
+                } else {
+                    match (child as usize).checked_sub(first_node) {
+                        Some(local) if local < subtree.len() => subtree[local],
+                        _ => outside(child as usize),
+                    }
+                };
+                node.set_lane(lane, &padded(b.to_aabb()), child);
+                all = all.union(b);
+            }
+            subtree[i] = all;
+        }
+        subtree.first().copied().unwrap_or(Box4::EMPTY)
+    }
+
     /// The leaf blocks, each written once into a fresh array (copied where
     /// a builder filled them), in parallel when `parallel`; a lone piece's
     /// filled blocks are taken as they are. Leaf order jumps about the
@@ -617,6 +691,83 @@ pub fn build<const N: usize, T: Triangles + ?Sized, S: Splitter>(
     };
     drop(prims);
     finish(triangles, built, parallel, kernel)
+}
+
+/// [`finish`] for a tree whose pieces hold scene indices and no boxes (the
+/// LBVH's parallel build, whose splits need none): each segment's blocks are
+/// filled in place and its nodes written with their boxes, bottom-up, a
+/// leaf's from its triangles as just filled (the vertices a serial build
+/// bounds its leaves with, so the same boxes): the pieces in parallel, then
+/// the parallel nodes above them, children first.
+pub(super) fn finish_bounding<const N: usize, T: Triangles + ?Sized>(
+    triangles: &T,
+    built: Built<N>,
+    parallel: bool,
+    kernel: Kernel,
+) -> Result<WideBvh<N>> {
+    let mut out = WideBvh::empty(kernel);
+    out.stack_need = built.need() + 1;
+    let mut segments = Vec::new();
+    built.segments(&mut segments);
+    let layout = Layout::new(segments)?;
+    let (node_count, block_count) = (
+        *layout.first_node.last().unwrap(),
+        *layout.first_slot.last().unwrap() / LANES,
+    );
+    // Written whole here (a memset), so that each segment can be handed its
+    // own part of both arrays.
+    out.nodes = crate::os::huge_vec(node_count);
+    out.nodes.resize(node_count, WideNode::empty());
+    out.blocks = crate::os::huge_vec(block_count);
+    out.blocks.resize(block_count, Tri4::empty());
+    let mut parts = Vec::with_capacity(layout.segments.len());
+    let (mut nodes, mut blocks) = (&mut out.nodes[..], &mut out.blocks[..]);
+    for s in 0..layout.segments.len() {
+        let (n, b) = layout.segments[s].size();
+        let (mine, rest) = std::mem::take(&mut nodes).split_at_mut(n);
+        nodes = rest;
+        let (my_blocks, rest) = std::mem::take(&mut blocks).split_at_mut(b / LANES);
+        blocks = rest;
+        parts.push((s, mine, my_blocks));
+    }
+    let mut boxes = vec![Box4::EMPTY; layout.segments.len()];
+    let mut tops = Vec::new();
+    let mut pieces = Vec::new();
+    for part in parts {
+        match layout.segments[part.0] {
+            Segment::Piece(_) => pieces.push(part),
+            Segment::Node { .. } => tops.push(part),
+        }
+    }
+    let write = |(s, nodes, blocks): (usize, &mut [WideNode<N>], &mut [Tri4])| {
+        let b = layout.write_bounded(s, nodes, blocks, triangles, |_| {
+            unreachable!("a piece's interior children lie inside it")
+        });
+        (s, b)
+    };
+    let written: Vec<(usize, Box4)> = if parallel {
+        pieces.into_par_iter().map(write).collect()
+    } else {
+        pieces.into_iter().map(write).collect()
+    };
+    for (s, b) in written {
+        boxes[s] = b;
+    }
+    // A parallel node's segment comes before its children's.
+    for (s, nodes, blocks) in tops.into_iter().rev() {
+        let Segment::Node { children, .. } = &layout.segments[s] else {
+            unreachable!("tops are parallel nodes");
+        };
+        let child_box = |node: usize| {
+            let &(_, c) = children
+                .iter()
+                .find(|&&(_, c)| layout.first_node[c] == node)
+                .expect("a parallel node's interior children are segment roots");
+            boxes[c]
+        };
+        boxes[s] = layout.write_bounded(s, nodes, blocks, triangles, child_box);
+    }
+    Ok(out)
 }
 
 /// The tree of `built` (its root's subtree, from a wide builder): nodes and
