@@ -705,11 +705,7 @@ pub(super) fn finish_bounding<const N: usize, T: Triangles + ?Sized>(
     parallel: bool,
     kernel: Kernel,
 ) -> Result<WideBvh<N>> {
-    let mut out = WideBvh::empty(kernel);
-    out.stack_need = built.need() + 1;
-    let mut segments = Vec::new();
-    built.segments(&mut segments);
-    let layout = Layout::new(segments)?;
+    let (mut out, layout) = laid_out(built, kernel)?;
     let (node_count, block_count) = (
         *layout.first_node.last().unwrap(),
         *layout.first_slot.last().unwrap() / LANES,
@@ -730,15 +726,11 @@ pub(super) fn finish_bounding<const N: usize, T: Triangles + ?Sized>(
         blocks = rest;
         parts.push((s, mine, my_blocks));
     }
+    let (pieces, tops): (Vec<_>, Vec<_>) = parts
+        .into_iter()
+        .partition(|(s, ..)| matches!(layout.segments[*s], Segment::Piece(_)));
+    // The unpadded box of each segment's root's subtree.
     let mut boxes = vec![Box4::EMPTY; layout.segments.len()];
-    let mut tops = Vec::new();
-    let mut pieces = Vec::new();
-    for part in parts {
-        match layout.segments[part.0] {
-            Segment::Piece(_) => pieces.push(part),
-            Segment::Node { .. } => tops.push(part),
-        }
-    }
     let write = |(s, nodes, blocks): (usize, &mut [WideNode<N>], &mut [Tri4])| {
         let b = layout.write_bounded(s, nodes, blocks, triangles, |_| {
             unreachable!("a piece's interior children lie inside it")
@@ -778,14 +770,20 @@ pub(super) fn finish<const N: usize, T: Triangles + ?Sized>(
     parallel: bool,
     kernel: Kernel,
 ) -> Result<WideBvh<N>> {
+    let (mut out, mut layout) = laid_out(built, kernel)?;
+    out.blocks = layout.blocks(triangles, parallel);
+    out.nodes = layout.nodes(parallel);
+    Ok(out)
+}
+
+/// An empty tree with the stack `built` needs, and where `built`'s
+/// segments go in its arrays.
+fn laid_out<const N: usize>(built: Built<N>, kernel: Kernel) -> Result<(WideBvh<N>, Layout<N>)> {
     let mut out = WideBvh::empty(kernel);
     out.stack_need = built.need() + 1;
     let mut segments = Vec::new();
     built.segments(&mut segments);
-    let mut layout = Layout::new(segments)?;
-    out.blocks = layout.blocks(triangles, parallel);
-    out.nodes = layout.nodes(parallel);
-    Ok(out)
+    Ok((out, Layout::new(segments)?))
 }
 
 #[cfg(test)]
