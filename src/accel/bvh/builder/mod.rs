@@ -19,6 +19,7 @@ pub(crate) mod lbvh;
 pub(crate) mod lbvh_wide;
 pub(crate) mod median;
 pub(crate) mod nary;
+mod partition;
 pub(crate) mod pool;
 pub(crate) mod reinsert;
 pub(crate) mod sah;

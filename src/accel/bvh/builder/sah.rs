@@ -14,6 +14,7 @@
 
 use glam::{Vec3, Vec4};
 
+use super::partition::{partition, Plane};
 use super::topdown::{median_partition, side_infos, Split, Splitter};
 use crate::accel::bvh::params::{
     BIN_ROUND, C_INTERSECT, C_TRAVERSAL, MAX_SPLIT_DEPTH, PARALLEL_REDUCE_CUTOFF, SWEEP_MAX,
@@ -264,9 +265,13 @@ impl BinnedSah {
         // non-negative `(c - lo) * scale` and an integer plane of at most
         // `B - 1`, exactly when `(c - lo) * scale < plane`, a compare of
         // floats without the conversion.
-        let (lo, scale, plane) = (lo[axis], scale[axis], plane as f32);
-        let (mid, left_centroids, right_centroids) =
-            partition(prims, |c| (c[axis] - lo) * scale < plane);
+        let plane = Plane {
+            axis,
+            lo,
+            scale,
+            plane: plane as f32,
+        };
+        let (mid, left_centroids, right_centroids) = partition(prims, &plane, parallel);
         Some((
             mid,
             NodeInfo {
@@ -357,33 +362,6 @@ impl BinnedSah {
         let (left, right) = side_infos(prims, k, false);
         Some((k, left, right))
     }
-}
-
-/// In-place partition (Hoare: both ends scan, misplaced pairs swap) by a
-/// predicate on the doubled centroid; returns the number going left and the
-/// centroid bounds of each side. Deterministic for a given input order.
-fn partition(prims: &mut [PrimRef], left: impl Fn(Vec4) -> bool) -> (usize, Box4, Box4) {
-    let (mut lc, mut rc) = (Box4::EMPTY, Box4::EMPTY);
-    let (mut i, mut j) = (0, prims.len());
-    loop {
-        while i < j && left(prims[i].centroid2()) {
-            lc.grow(prims[i].centroid2());
-            i += 1;
-        }
-        while i < j && !left(prims[j - 1].centroid2()) {
-            rc.grow(prims[j - 1].centroid2());
-            j -= 1;
-        }
-        if i >= j {
-            break;
-        }
-        prims.swap(i, j - 1);
-        lc.grow(prims[i].centroid2());
-        rc.grow(prims[j - 1].centroid2());
-        i += 1;
-        j -= 1;
-    }
-    (i, lc, rc)
 }
 
 #[cfg(test)]
