@@ -218,6 +218,15 @@ fn quick_bench_runs_every_experiment() {
             assert!(rates.iter().all(|r| r.as_f64().unwrap() > 0.0), "{p}");
         }
         assert!(p["trace_ms_nt"].as_f64().unwrap() > 0.0, "{p}");
+        assert!(p["build_pairs"].as_u64().unwrap() >= 1, "{p}");
+        if p["structure"] == "raylab" && embree() {
+            // Paired with Embree's same rung: a ratio per thread count.
+            for ratio in ["build_over_embree_1t", "build_over_embree_nt"] {
+                assert!(p[ratio].as_f64().unwrap() > 0.0, "{p}");
+            }
+        } else {
+            assert!(p["build_over_embree_1t"].is_null(), "{p}");
+        }
         if p["structure"] == "raylab" {
             assert_eq!(p["differing"], 0, "{p}");
             assert!(p["sah_ns_per_ray"].as_f64().unwrap() > 0.0, "{p}");

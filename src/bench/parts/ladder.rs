@@ -1,6 +1,7 @@
 //! The `ladder` part: each rung of the build-quality ladder (`--quality low,
 //! medium, high`) for raylab's 8-wide tree and for Embree's own scene, on
-//! every bench scene: build time on one thread and on the bench's threads,
+//! every bench scene: build time on one thread and on the bench's threads
+//! (raylab's and Embree's builds of a rung paired, [`paired_builds`]),
 //! SAH cost (raylab's), the render time, and the trace throughput per ray
 //! kind of one render's recorded rays on each structure's fastest query path
 //! (raylab's trees traced by raylab, Embree's by Embree; the trace part's
@@ -48,6 +49,14 @@ pub const SECTION: ChartSection = ChartSection {
 
 const RUNGS: [Quality; 3] = [Quality::Low, Quality::Medium, Quality::High];
 
+/// The least time the timed pairs of a rung's builds take on one thread
+/// count (see [`paired_builds`]): the builds of a rung last 0.1-300 ms, and
+/// a median of three pairs moved by 10-20% between runs on two threads.
+const BUILD_PAIRS_S: f64 = 0.4;
+
+/// The most pairs of builds of a rung on one thread count.
+const MAX_BUILD_PAIRS: usize = 41;
+
 /// One rung of one structure on one scene.
 #[derive(Clone, Debug, Serialize)]
 pub struct LadderPoint {
@@ -59,9 +68,17 @@ pub struct LadderPoint {
     pub structure: String,
     /// The backend's name (builder and query path).
     pub backend: String,
+    /// Build times on one thread and on the bench's threads, of
+    /// `build_pairs` builds at least (see [`paired_builds`]).
     pub build_ms_1t: Stat,
     pub build_ms_nt: Stat,
     pub build_threads: usize,
+    pub build_pairs: usize,
+    /// raylab's rungs: the median over the pairs of builds of raylab's time
+    /// over Embree's same rung's, on one thread and on the bench's threads
+    /// (NaN for Embree, or without it).
+    pub build_over_embree_1t: f64,
+    pub build_over_embree_nt: f64,
     /// raylab's trees: the SAH cost of the 8-wide tree as traversed
     /// (`WideBvh::sah_cost`: expected ns per ray in node visits and block
     /// tests at [`TraversalCosts::of_default_path`]); Embree's: not
@@ -117,16 +134,82 @@ fn spec(structure: &str, rung: Quality, threads: usize) -> BackendSpec {
     spec.with_fastest_query()
 }
 
+/// The rung's builds on one thread count: each structure's build times,
+/// and raylab's over Embree's pair by pair.
+struct PairedBuilds {
+    /// Per structure, in [`structures`] order.
+    ms: Vec<Stat>,
+    pairs: usize,
+    over_embree: Option<Stat>,
+}
+
+/// Times `rung`'s builds of every structure on `threads`: after an untimed
+/// build of each (the first Embree build on a thread count makes its
+/// device), pairs of builds, one of each structure, the order swapped every
+/// pair, so that raylab's and Embree's builds share the machine's noisy
+/// spells and each pair's ratio is a fair one. At least
+/// `cfg.extra_reps()` pairs, then more until the pairs have taken
+/// [`BUILD_PAIRS_S`], at most [`MAX_BUILD_PAIRS`] (one for `--quick`).
+fn paired_builds(
+    cfg: &BenchConfig,
+    scene: &Scene,
+    rung: Quality,
+    threads: usize,
+) -> Result<PairedBuilds> {
+    let specs: Vec<BackendSpec> = structures()
+        .into_iter()
+        .map(|s| spec(s, rung, threads))
+        .collect();
+    let time = |spec: &BackendSpec| -> Result<f64> {
+        let built = build_backend(spec, scene)?;
+        built.check_build_threads()?;
+        Ok(built.build_time.as_secs_f64() * 1e3)
+    };
+    for spec in &specs {
+        time(spec)?;
+    }
+    let (least, most, budget) = if cfg.quick {
+        (1, 1, 0.0)
+    } else {
+        (cfg.extra_reps(), MAX_BUILD_PAIRS, BUILD_PAIRS_S)
+    };
+    let mut times = vec![Vec::new(); specs.len()];
+    let mut ratios = Vec::new();
+    let start = std::time::Instant::now();
+    let mut pairs = 0;
+    while pairs < least || (pairs < most && start.elapsed().as_secs_f64() < budget) {
+        let mut order: Vec<usize> = (0..specs.len()).collect();
+        if pairs % 2 == 1 {
+            order.reverse();
+        }
+        for i in order {
+            times[i].push(time(&specs[i])?);
+        }
+        if let [own, embree] = &times[..] {
+            ratios.push(own[pairs] / embree[pairs]);
+        }
+        pairs += 1;
+    }
+    Ok(PairedBuilds {
+        ms: times.iter().map(|t| Stat::of(t)).collect(),
+        pairs,
+        over_embree: (!ratios.is_empty()).then(|| Stat::of(&ratios)),
+    })
+}
+
+/// The rung of `name` (one of [`RUNGS`]).
+fn rung_named(name: &str) -> Quality {
+    RUNGS
+        .into_iter()
+        .find(|r| r.name() == name)
+        .expect("points are made with the rungs' names")
+}
+
 /// Every rung of every structure on every scene, from its first view at
 /// half size.
 pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<LadderPoint>> {
     let size = cfg.smaller(2);
     let reps = cfg.extra_reps();
-    // Every rung of every structure, in the order of the rows.
-    let series: Vec<(Quality, &str)> = RUNGS
-        .iter()
-        .flat_map(|&rung| structures().into_iter().map(move |s| (rung, s)))
-        .collect();
     let mut out = Vec::new();
     for scene in scenes {
         let settings = cfg
@@ -137,61 +220,58 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lad
         // two-thread scene would make its one-thread builds two-thread ones
         // (`Built::check_build_threads`).
         let mut points = Vec::new();
-        for &(rung, structure) in &series {
+        for &rung in &RUNGS {
             bar.set_message(format!(
-                "ladder: builds of {structure} {} on {}",
+                "ladder: builds of {} on {}",
                 rung.name(),
                 scene.name
             ));
-            // Each series starts with an untimed build: the first Embree
-            // build on a thread count makes its device (14 ms against 0.2
-            // for cornell-empty).
-            let builds = |threads: usize| -> Result<Stat> {
-                build_backend(&spec(structure, rung, threads), scene)?;
-                let mut times = Vec::new();
-                for _ in 0..reps.max(1) {
-                    let built = build_backend(&spec(structure, rung, threads), scene)?;
-                    built.check_build_threads()?;
-                    times.push(built.build_time.as_secs_f64() * 1e3);
-                }
-                Ok(Stat::of(&times))
-            };
-            let build_ms_1t = builds(1)?;
-            let build_ms_nt = builds(cfg.threads)?;
-            let (sah_ns_per_ray, references_per_triangle) = if structure == "raylab" {
-                let params = BuildParams::for_quality(rung).with_width(8);
-                let Tree::Wide8(tree) = build(&scene.mesh(), &params)? else {
-                    unreachable!("width 8 builds an 8-wide tree")
+            let one = paired_builds(cfg, scene, rung, 1)?;
+            let many = paired_builds(cfg, scene, rung, cfg.threads)?;
+            for (i, structure) in structures().into_iter().enumerate() {
+                let (sah_ns_per_ray, references_per_triangle) = if structure == "raylab" {
+                    let params = BuildParams::for_quality(rung).with_width(8);
+                    let Tree::Wide8(tree) = build(&scene.mesh(), &params)? else {
+                        unreachable!("width 8 builds an 8-wide tree")
+                    };
+                    (
+                        tree.sah_cost(&TraversalCosts::of_default_path()),
+                        tree.triangle_count() as f64 / scene.triangle_count().max(1) as f64,
+                    )
+                } else {
+                    (f64::NAN, f64::NAN)
                 };
-                (
-                    tree.sah_cost(&TraversalCosts::of_default_path()),
-                    tree.triangle_count() as f64 / scene.triangle_count().max(1) as f64,
-                )
-            } else {
-                (f64::NAN, f64::NAN)
-            };
-            points.push(LadderPoint {
-                scene: scene.name.clone(),
-                triangles: scene.triangle_count(),
-                rung: rung.name().to_string(),
-                structure: structure.to_string(),
-                backend: spec(structure, rung, cfg.threads).name(),
-                build_ms_1t,
-                build_ms_nt,
-                build_threads: cfg.threads,
-                sah_ns_per_ray,
-                references_per_triangle,
-                render_ms: Stat::default(),
-                trace_mrays_1t: [f64::NAN; 4],
-                trace_mrays_nt: [f64::NAN; 4],
-                trace_ms_1t: f64::NAN,
-                trace_ms_nt: f64::NAN,
-                differing: 0,
-            });
+                let over_embree = |b: &PairedBuilds| match (structure, &b.over_embree) {
+                    ("raylab", Some(r)) => r.median,
+                    _ => f64::NAN,
+                };
+                points.push(LadderPoint {
+                    scene: scene.name.clone(),
+                    triangles: scene.triangle_count(),
+                    rung: rung.name().to_string(),
+                    structure: structure.to_string(),
+                    backend: spec(structure, rung, cfg.threads).name(),
+                    build_ms_1t: one.ms[i],
+                    build_ms_nt: many.ms[i],
+                    build_threads: cfg.threads,
+                    build_pairs: one.pairs.min(many.pairs),
+                    build_over_embree_1t: over_embree(&one),
+                    build_over_embree_nt: over_embree(&many),
+                    sah_ns_per_ray,
+                    references_per_triangle,
+                    render_ms: Stat::default(),
+                    trace_mrays_1t: [f64::NAN; 4],
+                    trace_mrays_nt: [f64::NAN; 4],
+                    trace_ms_1t: f64::NAN,
+                    trace_ms_nt: f64::NAN,
+                    differing: 0,
+                });
+            }
         }
         // Then each structure on the bench's threads, kept for the traces.
         let mut backends = Vec::new();
-        for (p, &(rung, structure)) in points.iter_mut().zip(&series) {
+        for p in points.iter_mut() {
+            let (rung, structure) = (rung_named(&p.rung), p.structure.as_str());
             bar.set_message(format!(
                 "ladder: renders of {structure} {} on {}",
                 rung.name(),
@@ -289,6 +369,13 @@ fn by_kind(values: [f64; 4]) -> String {
 /// structure's low and high rung against its medium rung, per ray kind.
 pub fn markdown(points: &[LadderPoint]) -> String {
     let threads = points.first().map_or(1, |p| p.build_threads);
+    let fewest = points.iter().map(|p| p.build_pairs).min().unwrap_or(0);
+    let most = points.iter().map(|p| p.build_pairs).max().unwrap_or(0);
+    let pairs = if fewest == most {
+        fewest.to_string()
+    } else {
+        format!("{fewest} to {most}")
+    };
     let nt = |what: &str| format!("{what} {threads}T");
     let (build_nt, trace_nt, over_nt) = (
         nt("build ms"),
@@ -316,9 +403,9 @@ pub fn markdown(points: &[LadderPoint]) -> String {
         let (build_ratio, trace_ratio) = match embree {
             Some(e) if p.structure == "raylab" => (
                 format!(
-                    "{:.2}, {:.2}",
-                    p.build_ms_1t.median / e.build_ms_1t.median,
-                    p.build_ms_nt.median / e.build_ms_nt.median
+                    "{}, {}",
+                    fixed(p.build_over_embree_1t, 2),
+                    fixed(p.build_over_embree_nt, 2)
                 ),
                 format!(
                     "{}, {}",
@@ -366,7 +453,7 @@ pub fn markdown(points: &[LadderPoint]) -> String {
         ]);
     }
     format!(
-        "### Build-quality ladder\n\nEach rung (`--quality`) of raylab's 8-wide tree (low: LBVH, medium: binned SAH, high: SBVH with reinsertion) and of Embree's scene (its build quality of the same name), each on its fastest query path. SAH ns/ray: raylab's 8-wide tree as traversed, expected ns per ray in node visits and block tests at the measured {} (docs/design.md, \"The SAH cost of a wide tree\"). Trace: one render's recorded rays per kind (primary, shadow, AO, and one diffuse bounce per primary hit), median Mrays/s of wall time, every rung in turn in each run; trace time: the time of the render's primary, shadow and AO rays at those rates.\n\n{}\n\nTrace speed of each rung over its structure's medium rung, per ray kind (above 1: faster):\n\n{}\n",
+        "### Build-quality ladder\n\nEach rung (`--quality`) of raylab's 8-wide tree (low: LBVH, medium: binned SAH, high: SBVH with reinsertion) and of Embree's scene (its build quality of the same name), each on its fastest query path. Build: raylab's and Embree's builds of a rung alternate on each thread count, the order swapped every pair, {pairs} pairs per rung and thread count (as many as fit in {BUILD_PAIRS_S} s, at most {MAX_BUILD_PAIRS}; per row in bench.json); the median ms of each, and build / Embree's: the median of the pairs' ratios. SAH ns/ray: raylab's 8-wide tree as traversed, expected ns per ray in node visits and block tests at the measured {} (docs/design.md, \"The SAH cost of a wide tree\"). Trace: one render's recorded rays per kind (primary, shadow, AO, and one diffuse bounce per primary hit), median Mrays/s of wall time, every rung in turn in each run; trace time: the time of the render's primary, shadow and AO rays at those rates.\n\n{}\n\nTrace speed of each rung over its structure's medium rung, per ray kind (above 1: faster):\n\n{}\n",
         TraversalCosts::of_default_path().describe(),
         t.markdown(),
         gain.markdown()
@@ -495,6 +582,9 @@ mod tests {
             build_ms_1t: Stat::of(&[1.0]),
             build_ms_nt: Stat::of(&[1.0]),
             build_threads: 2,
+            build_pairs: 1,
+            build_over_embree_1t: f64::NAN,
+            build_over_embree_nt: f64::NAN,
             sah_ns_per_ray: 1.0,
             references_per_triangle: 1.0,
             render_ms: Stat::of(&[1.0]),
@@ -540,6 +630,28 @@ mod tests {
         }
         assert_eq!(panel_grid(5), (2, 3));
         assert_eq!(panel_grid(2), (1, 2));
+    }
+
+    #[test]
+    fn the_build_ratio_is_the_pairs_not_the_medians() {
+        // Medians of 1 ms each, but raylab's builds were 0.8 and 0.9 of
+        // Embree's pair by pair: the table quotes the pairs.
+        let mut own = point(Quality::Low, "bvh8-lbvh-packet16");
+        own.build_over_embree_1t = 0.8;
+        own.build_over_embree_nt = 0.9;
+        let mut embree = point(Quality::Low, "embree-low-packet16");
+        embree.structure = "embree".into();
+        let md = markdown(&[own, embree]);
+        let row = md
+            .lines()
+            .find(|l| l.contains("bvh8-lbvh-packet16"))
+            .expect("raylab's row");
+        assert!(row.contains("| 0.80, 0.90 |"), "{row}");
+        let row = md
+            .lines()
+            .find(|l| l.contains("embree-low-packet16"))
+            .expect("Embree's row");
+        assert!(!row.contains("0.80"), "{row}");
     }
 
     #[test]
