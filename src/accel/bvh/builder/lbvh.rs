@@ -16,12 +16,13 @@
 //! Determinism: the sort is by code then index, and the splits depend only
 //! on the sorted codes, so the tree is the same for any thread count.
 
-use glam::Vec4;
+use glam::{UVec4, Vec4};
 
 use super::topdown::prim_refs;
 use crate::accel::bvh::node::{padded, Skeleton, UNUSED};
 use crate::accel::bvh::params::PARALLEL_CUTOFF;
 use crate::accel::bvh::prim::{Box4, PrimRef, Triangles};
+use crate::accel::bvh::simd::bin_indices;
 use crate::accel::bvh::Node;
 use crate::geometry::Aabb;
 
@@ -102,22 +103,28 @@ fn keys(n: usize, centre: impl Fn(usize) -> Vec4 + Sync + Send, parallel: bool) 
 }
 
 /// The 30-bit Morton code of a doubled centre `c2` on the grid of
-/// `lo`-based cells `scale` (cells per unit, per axis).
+/// `lo`-based cells `scale` (cells per unit, per axis). The three cells are
+/// made and spread on all lanes at once, with no branch: with a scalar
+/// float-to-integer cast per axis (each a saturating conversion, branching
+/// on its range) the codes took 0.47 ms of a one-thread engine build (110k
+/// triangles), 0.35 ms this way.
 #[inline]
 fn morton(c2: Vec4, lo: Vec4, scale: Vec4) -> u32 {
+    // Below the grid (never, but for rounding) is cell 0, beyond it the
+    // last cell.
     let q = ((c2 - lo) * scale).max(Vec4::ZERO);
-    let cell = |v: f32| spread((v as u32).min((1 << BITS) - 1));
-    cell(q.x) << 2 | cell(q.y) << 1 | cell(q.z)
+    let v = spread(UVec4::from(bin_indices(q, (1 << BITS) - 1)));
+    v.x << 2 | v.y << 1 | v.z
 }
 
-/// The low 10 bits of `v` moved to every third bit.
+/// The low 10 bits of each lane of `v` moved to every third bit.
 #[inline]
-fn spread(v: u32) -> u32 {
-    let mut x = v & 0x3ff;
-    x = (x | x << 16) & 0x0300_00ff;
-    x = (x | x << 8) & 0x0300_f00f;
-    x = (x | x << 4) & 0x030c_30c3;
-    (x | x << 2) & 0x0924_9249
+fn spread(v: UVec4) -> UVec4 {
+    let mut x = v & UVec4::splat(0x3ff);
+    x = (x | x << 16) & UVec4::splat(0x0300_00ff);
+    x = (x | x << 8) & UVec4::splat(0x0300_f00f);
+    x = (x | x << 4) & UVec4::splat(0x030c_30c3);
+    (x | x << 2) & UVec4::splat(0x0924_9249)
 }
 
 /// The Morton grid over the doubled centres in `centres`: its corner, and
@@ -345,8 +352,10 @@ mod tests {
 
     #[test]
     fn morton_codes_interleave_x_y_z_from_the_top() {
-        assert_eq!(spread(0b11), 0b1001);
-        assert_eq!(spread(0x3ff), 0x0924_9249);
+        assert_eq!(
+            spread(UVec4::new(0b11, 0x3ff, 0, 1)),
+            UVec4::new(0b1001, 0x0924_9249, 0, 1)
+        );
         let lo = Vec4::ZERO;
         let scale = Vec4::splat(1.0);
         // x's top cell bit is the code's top bit.
@@ -358,6 +367,47 @@ mod tests {
             morton(Vec4::splat(5000.0), lo, scale),
             (1 << 30) - 1,
             "clamped"
+        );
+    }
+
+    /// The code as a scalar cast per axis and a bit loop would make it.
+    fn morton_by_bits(c2: Vec4, lo: Vec4, scale: Vec4) -> u32 {
+        let q = ((c2 - lo) * scale).max(Vec4::ZERO);
+        let cells = [q.x, q.y, q.z].map(|v| (v as u32).min((1 << BITS) - 1));
+        let mut code = 0;
+        for bit in (0..BITS).rev() {
+            for cell in cells {
+                code = code << 1 | (cell >> bit & 1);
+            }
+        }
+        code
+    }
+
+    #[test]
+    fn morton_codes_match_a_bit_by_bit_interleave() {
+        let mut rng = crate::render::rng::Rng::for_pixel(3, 1, 4);
+        let lo = Vec4::new(-1.5, 2.0, -1e3, 0.0);
+        let scale = Vec4::new(300.0, 1.0, 0.25, 0.0);
+        for k in 0..200_000 {
+            // Inside the grid, on cell boundaries, and beyond both ends.
+            let v = |rng: &mut crate::render::rng::Rng| match k % 4 {
+                0 => rng.next_f32() * 4000.0 - 1000.0,
+                1 => (rng.next_f32() * 1100.0).floor(),
+                2 => -rng.next_f32() * 1e9,
+                _ => rng.next_f32() * 1e12,
+            };
+            let cells = Vec4::new(v(&mut rng), v(&mut rng), v(&mut rng), 0.0);
+            // The centre whose cells those are, near enough: both codes
+            // are taken from it.
+            let c2 = cells / scale.max(Vec4::splat(1e-30)) + lo;
+            let c2 = c2 * Vec4::new(1.0, 1.0, 1.0, 0.0);
+            assert_eq!(morton(c2, lo, scale), morton_by_bits(c2, lo, scale), "{c2}");
+        }
+        // An axis of no extent (scale 0) is cell 0.
+        let flat = Vec4::new(1.0, 0.0, 1.0, 0.0);
+        assert_eq!(
+            morton(Vec4::splat(7.0), Vec4::ZERO, flat),
+            morton_by_bits(Vec4::splat(7.0), Vec4::ZERO, flat)
         );
     }
 
