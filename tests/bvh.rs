@@ -342,7 +342,14 @@ fn degenerate_inputs_build_and_trace() {
 
 #[test]
 fn tree_is_identical_for_any_thread_count() {
-    let tris = soup(30_000, 12);
+    // 2,500 triangles: built on two threads by the top-down builders (from
+    // 1,024), on one by the LBVH (below 4,096).
+    for tris in [soup(30_000, 12), soup(2_500, 13)] {
+        identical_for_any_thread_count(&tris);
+    }
+}
+
+fn identical_for_any_thread_count(tris: &[[Vec3; 3]]) {
     for params in [
         BuildParams::median(),
         BuildParams::for_builder(BuilderKind::Lbvh),
@@ -350,9 +357,9 @@ fn tree_is_identical_for_any_thread_count() {
         BuildParams::for_builder(BuilderKind::Sbvh),
         BuildParams::sah().with_optimize(true),
     ] {
-        let one = binary(&tris, &params);
+        let one = binary(tris, &params);
         for threads in [2, 4] {
-            let many = binary(&tris, &params.with_threads(threads));
+            let many = binary(tris, &params.with_threads(threads));
             assert!(
                 one.nodes == many.nodes && one.tri_ids == many.tri_ids,
                 "{params:?} on {threads} threads"
@@ -368,7 +375,7 @@ fn tree_is_identical_for_any_thread_count() {
         BuildParams::for_quality(raylab::accel::bvh::params::Quality::High),
     ] {
         let params = params.with_width(8);
-        let wide = |threads| match build(&tris, &params.with_threads(threads)).unwrap() {
+        let wide = |threads| match build(tris, &params.with_threads(threads)).unwrap() {
             Tree::Wide8(t) => t,
             _ => unreachable!("an 8-wide tree"),
         };

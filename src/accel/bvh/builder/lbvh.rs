@@ -20,7 +20,7 @@ use glam::{UVec4, Vec4};
 
 use super::topdown::prim_refs;
 use crate::accel::bvh::node::{padded, Skeleton, UNUSED};
-use crate::accel::bvh::params::PARALLEL_CUTOFF;
+use crate::accel::bvh::params::LBVH_PARALLEL_CUTOFF;
 use crate::accel::bvh::prim::{Box4, PrimRef, Triangles};
 use crate::accel::bvh::simd::bin_indices;
 use crate::accel::bvh::Node;
@@ -328,7 +328,7 @@ impl Ctx {
         let (ln, rn) = rest.split_at_mut(2 * mid - 1);
         let mut left = move || self.recurse(lp, start, base + 1, ln);
         let mut right = move || self.recurse(rp, start + mid, right_base, rn);
-        let (lb, rb) = if self.parallel && n >= PARALLEL_CUTOFF {
+        let (lb, rb) = if self.parallel && n >= LBVH_PARALLEL_CUTOFF {
             rayon::join(left, right)
         } else {
             (left(), right())

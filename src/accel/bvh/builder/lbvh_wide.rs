@@ -16,7 +16,7 @@
 //!
 //! Leaves and layout are the wide builder's ([`nary`]'s pieces and final
 //! pass): small interior children whose halves are both leaves become one
-//! leaf ([`MERGE_MAX`]), a subtree under [`PARALLEL_CUTOFF`] triangles is a
+//! leaf ([`MERGE_MAX`]), a subtree under [`LBVH_PARALLEL_CUTOFF`] triangles is a
 //! piece of its own, and the arrays are written once at the end.
 //!
 //! Determinism: the keys are sorted by code then index, and the splits and
@@ -31,7 +31,7 @@ use super::lbvh;
 use super::nary::{self, Built, Piece, Slots};
 use crate::accel::bvh::leaf::LANES;
 use crate::accel::bvh::node::padded;
-use crate::accel::bvh::params::{FILL_AHEAD, MERGE_MAX, PARALLEL_CUTOFF};
+use crate::accel::bvh::params::{FILL_AHEAD, LBVH_PARALLEL_CUTOFF, MERGE_MAX};
 use crate::accel::bvh::prim::{Box4, Triangles};
 use crate::accel::bvh::simd::Kernel;
 use crate::accel::bvh::wide::node::{leaf_ref, LeafLanes};
@@ -205,7 +205,7 @@ impl<T: Triangles + ?Sized> Ctx<'_, T> {
             .map(|&lane| {
                 let kid = &kids[lane];
                 let grand = self.children::<N>(kid.start, kid.len);
-                if kid.len >= PARALLEL_CUTOFF {
+                if kid.len >= LBVH_PARALLEL_CUTOFF {
                     self.parallel(&grand)
                 } else {
                     self.piece(&grand, kid.len)
@@ -243,7 +243,7 @@ pub(crate) fn build<const N: usize, T: Triangles + ?Sized>(
     parallel: bool,
     kernel: Kernel,
 ) -> Result<WideBvh<N>> {
-    let split = parallel && triangles.count() >= PARALLEL_CUTOFF;
+    let split = parallel && triangles.count() >= LBVH_PARALLEL_CUTOFF;
     let keys = lbvh::sorted_keys(triangles, parallel);
     if keys.is_empty() {
         return Ok(WideBvh::empty(kernel));

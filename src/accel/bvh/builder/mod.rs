@@ -27,7 +27,7 @@ pub(crate) mod sbvh;
 pub(crate) mod topdown;
 
 use super::node::Skeleton;
-use super::params::{BuildParams, BuilderKind, PARALLEL_CUTOFF};
+use super::params::{BuildParams, BuilderKind, LBVH_PARALLEL_CUTOFF, PARALLEL_CUTOFF};
 use super::prim::{gathered, NodeInfo, PrimRef, Triangles, MAX_TRIANGLES};
 use super::simd::Kernel;
 use super::tree::Tree;
@@ -37,16 +37,22 @@ use topdown::{Split, Splitter};
 /// Builds the tree `params` describe over `triangles` (indexed as in the
 /// scene): its builder, leaf limit and SAH block, collapsed or built to
 /// `params.width` (2, 4 or 8), on a pool of `params.threads` threads. raylab's
-/// builders split no work off below [`PARALLEL_CUTOFF`] triangles, so a
-/// smaller scene is built on the calling thread: handing it to a pool only
-/// cost the wake-up (cornell-sphere, 2 threads: 0.41 ms against 0.31 on
-/// one). The tree is the same for any thread count.
+/// builders split no work off below [`PARALLEL_CUTOFF`] triangles (the
+/// LBVH below [`LBVH_PARALLEL_CUTOFF`]), so a smaller scene is built on the
+/// calling thread: handing it to a pool only cost the wake-up
+/// (cornell-sphere's LBVH, 2 threads, paired with Embree LOW: 0.39 on the
+/// calling thread, 0.67 on the pool). The tree is the same for any thread
+/// count.
 ///
 /// Fails only for more than [`MAX_TRIANGLES`] triangles or in Embree's
 /// builders (no Embree in this build, or an Embree error).
 pub fn build<T: Triangles + ?Sized>(triangles: &T, params: &BuildParams) -> crate::Result<Tree> {
     let own = params.builder.embree_quality().is_none();
-    let params = if own && triangles.count() < PARALLEL_CUTOFF {
+    let serial_below = match params.builder {
+        BuilderKind::Lbvh => LBVH_PARALLEL_CUTOFF,
+        _ => PARALLEL_CUTOFF,
+    };
+    let params = if own && triangles.count() < serial_below {
         params.with_threads(1)
     } else {
         *params
