@@ -197,14 +197,6 @@ fn paired_builds(
     })
 }
 
-/// The rung of `name` (one of [`RUNGS`]).
-fn rung_named(name: &str) -> Quality {
-    RUNGS
-        .into_iter()
-        .find(|r| r.name() == name)
-        .expect("points are made with the rungs' names")
-}
-
 /// Every rung of every structure on every scene, from its first view at
 /// half size.
 pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<LadderPoint>> {
@@ -220,6 +212,8 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lad
         // two-thread scene would make its one-thread builds two-thread ones
         // (`Built::check_build_threads`).
         let mut points = Vec::new();
+        // Each point's rung and structure, in the order of the points.
+        let mut series = Vec::new();
         for &rung in &RUNGS {
             bar.set_message(format!(
                 "ladder: builds of {} on {}",
@@ -245,6 +239,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lad
                     ("raylab", Some(r)) => r.median,
                     _ => f64::NAN,
                 };
+                series.push((rung, structure));
                 points.push(LadderPoint {
                     scene: scene.name.clone(),
                     triangles: scene.triangle_count(),
@@ -270,8 +265,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lad
         }
         // Then each structure on the bench's threads, kept for the traces.
         let mut backends = Vec::new();
-        for p in points.iter_mut() {
-            let (rung, structure) = (rung_named(&p.rung), p.structure.as_str());
+        for (p, &(rung, structure)) in points.iter_mut().zip(&series) {
             bar.set_message(format!(
                 "ladder: renders of {structure} {} on {}",
                 rung.name(),

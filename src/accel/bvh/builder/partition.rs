@@ -60,6 +60,11 @@ impl Sides {
         right_centroids: Box4::EMPTY,
     };
 
+    /// What [`partition`] returns.
+    fn result(&self) -> (usize, Box4, Box4) {
+        (self.left, self.left_centroids, self.right_centroids)
+    }
+
     fn add(mut self, other: Sides) -> Sides {
         self.left += other.left;
         self.left_centroids = self.left_centroids.union(other.left_centroids);
@@ -226,18 +231,23 @@ pub(super) fn partition(
             sides = sides.add(s);
         }
         swap_all(prims, &words, sides.left, true);
-        (sides.left, sides.left_centroids, sides.right_centroids)
+        sides.result()
     } else if n <= STACK_WORDS * WORD {
-        let mut words = ArrayVec::<u64, STACK_WORDS>::new();
-        let sides = mark(prims, plane, &mut words);
-        swap_all(prims, &words, sides.left, false);
-        (sides.left, sides.left_centroids, sides.right_centroids)
+        serial(prims, plane, ArrayVec::<u64, STACK_WORDS>::new())
     } else {
-        let mut words = Vec::with_capacity(n.div_ceil(WORD));
-        let sides = mark(prims, plane, &mut words);
-        swap_all(prims, &words, sides.left, false);
-        (sides.left, sides.left_centroids, sides.right_centroids)
+        serial(prims, plane, Vec::with_capacity(n.div_ceil(WORD)))
     }
+}
+
+/// [`partition`] on the calling thread, the side bits kept in `words`.
+fn serial(
+    prims: &mut [PrimRef],
+    plane: &Plane,
+    mut words: impl Extend<u64> + AsRef<[u64]>,
+) -> (usize, Box4, Box4) {
+    let sides = mark(prims, plane, &mut words);
+    swap_all(prims, words.as_ref(), sides.left, false);
+    sides.result()
 }
 
 /// Swaps every misplaced pair of `prims` as marked in `words` (`mid` going
