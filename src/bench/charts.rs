@@ -195,12 +195,15 @@ pub(super) fn log_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f6
 /// ms, had one label, at 10).
 pub(super) fn log_axis(range: std::ops::Range<f64>) -> WithKeyPoints<LogCoord<f64>> {
     let ticks = log_ticks(&range);
-    let light = multiples_of_powers(&range, &[2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0]);
+    let light = multiples_of_powers(&range, &WHOLE_MULTIPLES[1..]);
     range
         .log_scale()
         .with_key_points(ticks)
         .with_light_points(light)
 }
+
+/// The whole multiples of a power of ten below the next one.
+const WHOLE_MULTIPLES: [f64; 9] = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0];
 
 /// The most ticks a log axis gets before it keeps only the powers of ten.
 const MOST_LOG_TICKS: usize = 10;
@@ -212,7 +215,7 @@ const MOST_LOG_TICKS: usize = 10;
 pub(super) fn log_ticks(range: &std::ops::Range<f64>) -> Vec<f64> {
     let nice = multiples_of_powers(range, &[1.0, 2.0, 5.0]);
     if nice.len() < 2 {
-        return multiples_of_powers(range, &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0]);
+        return multiples_of_powers(range, &WHOLE_MULTIPLES);
     }
     if nice.len() <= MOST_LOG_TICKS {
         return nice;
