@@ -27,7 +27,7 @@ use crate::accel::naive::Naive;
 use crate::accel::{build_backend, Backend, BackendSpec, Built};
 use crate::error::{Error, Result};
 use crate::exact::{judge_answers, ExactReference};
-use crate::geometry::{Aabb, Intersector, OffsetStrategy, Ray};
+use crate::geometry::{Aabb, Hit, Intersector, OffsetStrategy, Ray};
 use crate::render::rng::Rng;
 use crate::scene::MeshRef;
 use crate::table::{
@@ -579,6 +579,12 @@ pub fn leak_meshes(quick: bool) -> Vec<TestMesh> {
 #[derive(Clone, Debug, Serialize)]
 pub struct OffsetRow {
     pub translation: f32,
+    /// The floor and where the primary rays that found its points came
+    /// from: "near" (the floor at (T, T, T), the rays from about one scale
+    /// unit above, steep) or "field" (the floor in the plane y = 0 at
+    /// (T, 0, T), the rays from 200 scale units away at a grazing 3 degrees,
+    /// as a camera sees a field's far side).
+    pub view: &'static str,
     pub strategy: OffsetStrategy,
     pub intersector: Intersector,
     pub rays: usize,
@@ -604,72 +610,98 @@ fn square(c: Vec3, y: f32, half: f32) -> [[Vec3; 3]; 2] {
 pub fn offset_suite(translations: &[f32], points: usize) -> Result<Vec<OffsetRow>> {
     let mut rows = Vec::new();
     for &shift in translations {
-        let c = Vec3::splat(shift);
-        let scale = shift.abs().max(1.0);
-        let floor = square(c, c.y, 1.0);
-        // Wide enough that no upward ray (cosine >= 0.2, so at most 5 units
-        // sideways per unit up) can pass beside it.
-        let with_occluder = |h: f32| {
-            let mut t = floor.to_vec();
-            t.extend(square(c, c.y + h * scale, 2.0 + 6.0 * h * scale));
-            t
-        };
-        let (near, closer, nearest) = (
-            with_occluder(1e-3),
-            with_occluder(5e-5),
-            with_occluder(1e-5),
-        );
-        for intersector in [Intersector::Mt, Intersector::Watertight] {
-            let make = |t: &[[Vec3; 3]]| {
-                BvhBackend::new(t, &BuildParams::sah()).map(|b| b.with_intersector(intersector))
+        for view in ["near", "field"] {
+            // "field": the floor stays in the plane y = 0 (a ground's height is
+            // 0 in most exports however far out it lies).
+            let c = match view {
+                "near" => Vec3::splat(shift),
+                _ => Vec3::new(shift, 0.0, shift),
             };
-            let (floor_only, near_b) = (make(&floor)?, make(&near)?);
-            let (closer_b, nearest_b) = (make(&closer)?, make(&nearest)?);
-            let mut rng = Rng::for_pixel(shift.to_bits() as u64, 5, 0x0FF5);
-            // Surface points as a renderer finds them: o + t d of a primary ray.
-            let hits: Vec<Vec3> = (0..points)
-                .filter_map(|_| {
-                    let target =
-                        c + Vec3::new(rng.next_f32() * 1.8 - 0.9, 0.0, rng.next_f32() * 1.8 - 0.9);
-                    let o =
-                        target + Vec3::new(rng.next_f32() - 0.5, 1.0, rng.next_f32() - 0.5) * scale;
-                    let ray = Ray::new(o, (target - o).normalize());
-                    floor_only.intersect(&ray).map(|h| ray.at(h.t))
-                })
-                .collect();
-            for strategy in OffsetStrategy::ALL {
-                let (mut self_hits, mut missed3, mut missed45, mut missed5, mut n) =
-                    (0, 0, 0, 0, 0);
-                for p in &hits {
-                    // Cosine-ish upward directions, not grazing (cos >= 0.2), so a
-                    // finite occluder above covers every one.
-                    let (u, v) = (rng.next_f32(), rng.next_f32());
-                    let cos = 0.2 + 0.8 * u;
-                    let sin = (1.0 - cos * cos).sqrt();
-                    let phi = std::f32::consts::TAU * v;
-                    let d = Vec3::new(sin * phi.cos(), cos, sin * phi.sin());
-                    let (origin, tmin) = strategy.apply(*p, Vec3::Y);
-                    let ray = Ray::segment(origin, d, tmin, f32::INFINITY);
-                    n += 1;
-                    self_hits += floor_only.occluded(&ray) as usize;
-                    // The occluder is triangles 2 and 3; a floor hit or a miss both fail.
-                    let hits_occluder =
-                        |b: &BvhBackend| b.intersect(&ray).is_some_and(|h| h.tri >= 2);
-                    missed3 += !hits_occluder(&near_b) as usize;
-                    missed45 += !hits_occluder(&closer_b) as usize;
-                    missed5 += !hits_occluder(&nearest_b) as usize;
+            let scale = shift.abs().max(1.0);
+            let floor = square(c, c.y, 1.0);
+            // Wide enough that no upward ray (cosine >= 0.2, so at most 5 units
+            // sideways per unit up) can pass beside it.
+            let with_occluder = |h: f32| {
+                let mut t = floor.to_vec();
+                t.extend(square(c, c.y + h * scale, 2.0 + 6.0 * h * scale));
+                t
+            };
+            let (near, closer, nearest) = (
+                with_occluder(1e-3),
+                with_occluder(5e-5),
+                with_occluder(1e-5),
+            );
+            for intersector in [Intersector::Mt, Intersector::Watertight] {
+                let make = |t: &[[Vec3; 3]]| {
+                    BvhBackend::new(t, &BuildParams::sah()).map(|b| b.with_intersector(intersector))
+                };
+                let (floor_only, near_b) = (make(&floor)?, make(&near)?);
+                let (closer_b, nearest_b) = (make(&closer)?, make(&nearest)?);
+                let mut rng = Rng::for_pixel(shift.to_bits() as u64, 5, 0x0FF5);
+                // Surface points as a renderer finds them: the hits of primary rays
+                // (each strategy starts from o + t d or from the hit's barycentrics).
+                let hits: Vec<(Ray, Hit)> = (0..points)
+                    .filter_map(|_| {
+                        let target = c + Vec3::new(
+                            rng.next_f32() * 1.8 - 0.9,
+                            0.0,
+                            rng.next_f32() * 1.8 - 0.9,
+                        );
+                        let o = if view == "near" {
+                            target
+                                + Vec3::new(rng.next_f32() - 0.5, 1.0, rng.next_f32() - 0.5) * scale
+                        } else {
+                            // Far and grazing, as a camera sees a field's far side.
+                            let phi = std::f32::consts::TAU * rng.next_f32();
+                            let grazing = 3f32.to_radians();
+                            let back = Vec3::new(
+                                phi.cos() * grazing.cos(),
+                                grazing.sin(),
+                                phi.sin() * grazing.cos(),
+                            );
+                            target + back * (200.0 * scale)
+                        };
+                        let ray = Ray::new(o, (target - o).normalize());
+                        floor_only.intersect(&ray).map(|h| (ray, h))
+                    })
+                    .collect();
+                for strategy in OffsetStrategy::ALL {
+                    let (mut self_hits, mut missed3, mut missed45, mut missed5, mut n) =
+                        (0, 0, 0, 0, 0);
+                    for (primary, hit) in &hits {
+                        // Cosine-ish upward directions, not grazing (cos >= 0.2), so a
+                        // finite occluder above covers every one.
+                        let (u, v) = (rng.next_f32(), rng.next_f32());
+                        let cos = 0.2 + 0.8 * u;
+                        let sin = (1.0 - cos * cos).sqrt();
+                        let phi = std::f32::consts::TAU * v;
+                        let d = Vec3::new(sin * phi.cos(), cos, sin * phi.sin());
+                        let tri = &floor[hit.tri as usize];
+                        let (origin, tmin) =
+                            strategy.apply(primary, (hit.t, hit.u, hit.v), tri, Vec3::Y);
+                        let ray = Ray::segment(origin, d, tmin, f32::INFINITY);
+                        n += 1;
+                        self_hits += floor_only.occluded(&ray) as usize;
+                        // The occluder is triangles 2 and 3; a floor hit or a miss both fail.
+                        let hits_occluder =
+                            |b: &BvhBackend| b.intersect(&ray).is_some_and(|h| h.tri >= 2);
+                        missed3 += !hits_occluder(&near_b) as usize;
+                        missed45 += !hits_occluder(&closer_b) as usize;
+                        missed5 += !hits_occluder(&nearest_b) as usize;
+                    }
+                    let rate = |x: usize| x as f64 / n.max(1) as f64;
+                    rows.push(OffsetRow {
+                        translation: shift,
+                        view,
+                        strategy,
+                        intersector,
+                        rays: n,
+                        self_hit_rate: rate(self_hits),
+                        missed_at_1e3: rate(missed3),
+                        missed_at_5e5: rate(missed45),
+                        missed_at_1e5: rate(missed5),
+                    });
                 }
-                let rate = |x: usize| x as f64 / n.max(1) as f64;
-                rows.push(OffsetRow {
-                    translation: shift,
-                    strategy,
-                    intersector,
-                    rays: n,
-                    self_hit_rate: rate(self_hits),
-                    missed_at_1e3: rate(missed3),
-                    missed_at_5e5: rate(missed45),
-                    missed_at_1e5: rate(missed5),
-                });
             }
         }
     }
@@ -1077,6 +1109,7 @@ impl StressReport {
             out.push_str("## Offset: rays leaving a floor translated by T (rates)\n\n");
             let mut t = Table::new([
                 ("T", Right),
+                ("view", Left),
                 ("strategy", Left),
                 ("test", Left),
                 ("rays", Right),
@@ -1088,6 +1121,7 @@ impl StressReport {
             for r in &self.offset {
                 t.row([
                     format!("{:.0e}", r.translation),
+                    r.view.to_string(),
                     r.strategy.name().to_string(),
                     r.intersector.name().to_string(),
                     r.rays.to_string(),

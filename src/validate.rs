@@ -15,8 +15,9 @@ use glam::Vec3;
 use serde::Serialize;
 
 use crate::accel::Backend;
-use crate::geometry::{Aabb, Hit, Ray};
+use crate::geometry::{strictly_in_front, Aabb, Hit, Ray};
 use crate::progress::Progress;
+use crate::render::shade::Spawn;
 use crate::render::{render, RenderSettings, Schedule, Tracer};
 use crate::scene::Scene;
 
@@ -197,6 +198,7 @@ struct Recorder<'a> {
     primary: Mutex<(Vec<Ray>, Vec<Option<Hit>>)>,
     shadow: Mutex<Vec<Ray>>,
     ao: Mutex<Vec<Ray>>,
+    spawns: Mutex<Vec<Spawn>>,
 }
 
 fn record(into: &Mutex<Vec<Ray>>, rays: &[Ray]) {
@@ -234,6 +236,11 @@ impl Tracer for Recorder<'_> {
         record(&self.ao, rays);
         self.backend.occluded_stream(rays, occluded)
     }
+    fn spawned(&self, spawns: &mut dyn Iterator<Item = Spawn>) {
+        if let Ok(mut v) = self.spawns.lock() {
+            v.extend(spawns);
+        }
+    }
 }
 
 /// The rays a serial render casts, in the order its streams ask them.
@@ -243,6 +250,8 @@ pub struct Recorded {
     pub primary_hits: Vec<Option<Hit>>,
     pub shadow: Vec<Ray>,
     pub ao: Vec<Ray>,
+    /// Where the render's secondary rays started, one per primary hit.
+    pub spawns: Vec<Spawn>,
 }
 
 impl Recorded {
@@ -264,7 +273,7 @@ impl Recorded {
                 }
                 let mut rng = crate::render::rng::Rng::for_pixel(i as u64, seed, STREAM_DIFFUSE);
                 let (u1, u2) = (rng.next_f32(), rng.next_f32());
-                let origin = crate::render::shade::ray_offset(ray.at(hit.t), n);
+                let origin = crate::render::shade::secondary_origin(scene, &hit, n);
                 Some(Ray::new(
                     origin,
                     crate::render::shade::cosine_direction(n, u1, u2),
@@ -296,6 +305,7 @@ pub fn recorded_rays(
         primary: Mutex::new((Vec::new(), Vec::new())),
         shadow: Mutex::new(Vec::new()),
         ao: Mutex::new(Vec::new()),
+        spawns: Mutex::new(Vec::new()),
     };
     render(
         scene,
@@ -312,7 +322,41 @@ pub fn recorded_rays(
         primary_hits,
         shadow: take(recorder.shadow),
         ao: take(recorder.ao),
+        spawns: recorder.spawns.into_inner().unwrap_or_default(),
     })
+}
+
+/// How many of a render's secondary-ray origins lie behind (or on) the
+/// surface they leave, judged exactly ([`strictly_in_front`]): each one
+/// would start its shadow and AO rays inside the surface, a self-hit that no
+/// check of the rays' answers can see (the exact reference judges a ray as
+/// given).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct SpawnReport {
+    /// Primary hits whose secondary-ray origin was judged.
+    pub surfaces: usize,
+    /// Origins behind or on their own surface's plane.
+    pub behind: usize,
+    /// The first few, to reproduce them: (triangle, origin).
+    pub examples: Vec<(u32, [f32; 3])>,
+}
+
+/// Judges every recorded secondary-ray origin against its own triangle.
+pub fn judge_spawns(scene: &Scene, spawns: &[Spawn]) -> SpawnReport {
+    use rayon::prelude::*;
+    let bad: Vec<&Spawn> = spawns
+        .par_iter()
+        .filter(|s| !strictly_in_front(&scene.triangle(s.tri as usize), s.origin, s.normal))
+        .collect();
+    SpawnReport {
+        surfaces: spawns.len(),
+        behind: bad.len(),
+        examples: bad
+            .iter()
+            .take(EXAMPLES)
+            .map(|s| (s.tri, s.origin.to_array()))
+            .collect(),
+    }
 }
 
 impl RaySet {
@@ -340,6 +384,19 @@ pub fn ray_sets(
     count: usize,
     whole_primary: bool,
 ) -> crate::Result<Vec<(RaySet, Vec<Ray>)>> {
+    Ok(ray_sets_judged(scene, recorder, settings, sets, count, whole_primary)?.0)
+}
+
+/// [`ray_sets`], and when a render was recorded for them, its secondary-ray
+/// origins judged ([`judge_spawns`]).
+pub fn ray_sets_judged(
+    scene: &Scene,
+    recorder: &dyn Backend,
+    settings: &RenderSettings,
+    sets: &[RaySet],
+    count: usize,
+    whole_primary: bool,
+) -> crate::Result<(Vec<(RaySet, Vec<Ray>)>, Option<SpawnReport>)> {
     let needs_recording = sets.iter().any(|s| s.is_recorded());
     let recorded = if needs_recording {
         Some(recorded_rays(scene, recorder, settings)?)
@@ -354,7 +411,8 @@ pub fn ray_sets(
         ),
         None => (Vec::new(), Vec::new(), Vec::new()),
     };
-    Ok(sets
+    let spawns = recorded.as_ref().map(|r| judge_spawns(scene, &r.spawns));
+    let sets = sets
         .iter()
         .map(|&set| {
             let rays = match set {
@@ -368,7 +426,8 @@ pub fn ray_sets(
             };
             (set, rays)
         })
-        .collect())
+        .collect();
+    Ok((sets, spawns))
 }
 
 /// `n` rays with origins uniform in `bounds` grown by half its size on every

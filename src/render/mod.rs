@@ -55,6 +55,11 @@ pub trait Tracer: Sync {
     fn flushes_denormals(&self) -> bool {
         false
     }
+    /// Told, once per rectangle, where the secondary rays of each primary
+    /// hit start: `validate` records them to judge, exactly, that none starts
+    /// behind its own surface. A tracer that does not listen leaves the
+    /// iterator untouched (nothing is computed).
+    fn spawned(&self, _spawns: &mut dyn Iterator<Item = shade::Spawn>) {}
 }
 
 impl<B: Backend + ?Sized> Tracer for B {

@@ -11,10 +11,13 @@
 //! winding's normal points to (pbrt-v4's and Mitsuba's area lights are too), and
 //! from both sides with `two_sided_lights`.
 //!
-//! Self-intersection: secondary rays start at the hit point moved along the
-//! geometric normal (on the side they leave from) by [`ray_offset`], an
-//! integer-ULP offset; shadow rays stop short of the light by a relative
-//! `SHADOW_END` so the emitter itself never occludes.
+//! Self-intersection: secondary rays start at the hit point interpolated from
+//! the triangle's vertices, moved along the geometric normal (on the side they
+//! leave from) by a bound on that point's error ([`spawn_origin`], pbrt-v4's
+//! and Wachter and Binder's way), so they start strictly on the right side of
+//! the surface at any distance from the camera and the origin; shadow rays
+//! stop short of the light by a relative `SHADOW_END` so the emitter itself
+//! never occludes.
 //!
 //! Why this offset (measured against the others by `raylab stress --suite
 //! offset`): `docs/design.md`, "Self-intersection offset".
@@ -26,7 +29,7 @@ use glam::Vec3;
 
 use super::rng::{Rng, STREAM_AO, STREAM_LIGHT};
 use super::{AoMode, Rect, RenderSettings, RenderStats, Tracer};
-use crate::geometry::{triangle_unit_normal, OffsetStrategy, Ray};
+use crate::geometry::{spawn_origin, triangle_unit_normal, Hit, Ray};
 use crate::scene::light::Emitter;
 use crate::scene::Scene;
 
@@ -35,14 +38,23 @@ pub const AMBIENT: f32 = 0.15;
 /// Shadow rays end at `(1 - SHADOW_END)` of the distance to the light sample.
 const SHADOW_END: f32 = 1e-3;
 
-/// Where secondary rays start: the hit point moved along the geometric normal
-/// by Wachter and Binder's integer-ULP offset ([`OffsetStrategy::Ulp`]). Chosen
-/// by `raylab stress --suite offset`: no false self-hits at any translation from
-/// 0 to 1e6, and occluders as close as 5e-5 of the coordinates' magnitude are
-/// still found (a scaled 1e-4 epsilon misses them all).
+/// Where the secondary rays of `hit` start, leaving its triangle on the side
+/// of unit normal `n` (the geometric normal on the viewer's side): see
+/// [`spawn_origin`]. Every secondary ray of the renderer, and `validate`'s
+/// diffuse bounces, start here.
 #[inline]
-pub fn ray_offset(p: Vec3, n: Vec3) -> Vec3 {
-    OffsetStrategy::Ulp.apply(p, n).0
+pub fn secondary_origin(scene: &Scene, hit: &Hit, n: Vec3) -> Vec3 {
+    spawn_origin(&scene.triangle(hit.tri as usize), hit.u, hit.v, n)
+}
+
+/// Where the secondary rays of one primary hit start, as [`Tracer::spawned`]
+/// is told: the triangle left, its geometric normal on the side left
+/// (unit), and the origin.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Spawn {
+    pub tri: u32,
+    pub normal: Vec3,
+    pub origin: Vec3,
 }
 
 /// The study's 14 AO directions: 6 axes and 8 normalised diagonals.
@@ -91,7 +103,8 @@ struct Surface {
     slot: usize,
     /// Global pixel index (seeds the random streams).
     pixel: u64,
-    p: Vec3,
+    /// Where its secondary rays start ([`secondary_origin`]).
+    origin: Vec3,
     /// Geometric normal, unit, on the viewer's side.
     ng: Vec3,
     /// Shading normal, unit, on the viewer's side.
@@ -184,13 +197,18 @@ pub fn render_rect<T: Tracer + ?Sized>(
         surfaces.push(Surface {
             slot,
             pixel: y as u64 * settings.width as u64 + x as u64,
-            p: ray.at(hit.t),
+            origin: secondary_origin(scene, &hit, ng),
             ng,
             ns,
             wo,
             tri: hit.tri,
         });
     }
+    tracer.spawned(&mut surfaces.iter().map(|s| Spawn {
+        tri: s.tri,
+        normal: s.ng,
+        origin: s.origin,
+    }));
     stats.primary_rays = out.len() as u64;
     stats.primary_hits = surfaces.len() as u64;
     stats.primary_time = start.elapsed();
@@ -297,7 +315,7 @@ fn light_samples(
     // The extra quad's normal, once per pixel rather than per sample.
     let extra_normal = lights.extra.and_then(|e| e.normal());
     let mut rng = Rng::for_pixel(s.pixel, settings.seed, STREAM_LIGHT);
-    let origin = ray_offset(s.p, s.ng);
+    let origin = s.origin;
     let before = rays.len();
     for _ in 0..settings.light_samples {
         let mut u = rng.next_f32();
@@ -393,7 +411,7 @@ fn ambient<T: Tracer + ?Sized>(
         AoMode::Paper => {
             let dirs = paper_ao_directions();
             for group in groups(surfaces, dirs.len()) {
-                let origins: Vec<Vec3> = group.iter().map(|s| ray_offset(s.p, s.ng)).collect();
+                let origins: Vec<Vec3> = group.iter().map(|s| s.origin).collect();
                 // Direction by direction: a packet holds one direction from
                 // neighbouring pixels.
                 rays.clear();
@@ -434,7 +452,7 @@ fn ambient<T: Tracer + ?Sized>(
                         // Stratified: the radial coordinate in n jittered strata, the
                         // angle on a randomly rotated golden-ratio sequence.
                         let rotation = rng.next_f32();
-                        (rng, t, b, rotation, ray_offset(s.p, s.ng))
+                        (rng, t, b, rotation, s.origin)
                     })
                     .collect();
                 // Sample index by sample index over the surfaces.
@@ -501,20 +519,21 @@ mod tests {
     }
 
     #[test]
-    fn offset_moves_off_the_surface_at_any_magnitude() {
+    fn secondary_origins_leave_the_surface_at_any_magnitude() {
+        // A floor triangle at y = c, seen from above and from below.
         for m in [0.0f32, 0.01, 1.0, 3.7, 1e3, 1e6, -1e6] {
-            let p = Vec3::splat(m);
-            let q = ray_offset(p, Vec3::Y);
-            assert!(q.y > p.y, "{m}: {} -> {}", p.y, q.y);
-            assert_eq!((q.x, q.z), (p.x, p.z));
-            // Small: well under a thousandth of the magnitude (or 1e-4 near 0).
-            assert!(
-                q.y - p.y <= 1e-4 * m.abs().max(1.0),
-                "{m}: moved {}",
-                q.y - p.y
-            );
+            let c = Vec3::splat(m);
+            let tri = [
+                c + Vec3::new(-1.0, 0.0, -1.0),
+                c + Vec3::new(1.0, 0.0, -1.0),
+                c + Vec3::new(0.0, 0.0, 1.0),
+            ];
+            for n in [Vec3::Y, -Vec3::Y] {
+                let q = spawn_origin(&tri, 0.3, 0.3, n);
+                assert!((q.y - m) * n.y > 0.0, "{m}: {} leaves {n}", q.y);
+                // Small: well under a thousandth of the magnitude (or 1e-4 near 0).
+                assert!((q.y - m).abs() <= 1e-4 * m.abs().max(1.0), "{m}: {}", q.y);
+            }
         }
-        let down = ray_offset(Vec3::new(0.0, 5.0, 0.0), -Vec3::Y);
-        assert!(down.y < 5.0);
     }
 }

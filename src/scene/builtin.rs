@@ -50,6 +50,10 @@ pub const PROCEDURAL_SCENES: &[(&str, &str)] = &[
         "city45:N",
         "city:N turned 45 degrees about the vertical axis: every wall diagonal to the axes",
     ),
+    (
+        "plane:N",
+        "a field of about N triangles (2..=1e7), a jittered grid 100 units across, every one in the plane y = 0, under a square light: a flat export (floor plan, terrain tile, sports ground), framed from its bounds",
+    ),
 ];
 
 /// Triangle budget of `mesh:N` scenes.
@@ -58,6 +62,21 @@ pub const MESH_TRIANGLES: std::ops::RangeInclusive<u64> = 100..=100_000_000;
 /// The built-in scene called `name`.
 pub fn builtin(name: &str) -> Result<Scene> {
     let mut b = Builder::default();
+    if let Some(n) = name
+        .strip_prefix("plane:")
+        .map(|_| parse_count(name, "plane", 2..=10_000_000))
+    {
+        b.field(n? as usize);
+        // No box: framed from its bounds as a file would be.
+        return Scene::new(
+            name,
+            b.positions,
+            Some(b.normals),
+            b.triangles,
+            b.material_ids,
+            b.materials,
+        );
+    }
     b.cornell_box();
     match name {
         "cornell-empty" => {}
@@ -329,6 +348,59 @@ impl Builder {
             self.triangles.push(i);
             self.material_ids.push(green);
         }
+    }
+
+    /// A field of about `n` triangles in the plane y = 0: a k x k grid of
+    /// quads 100 units across (k = ceil(sqrt(n / 2))), each inner vertex
+    /// moved up to 0.3 of a cell in x and z, so no two triangles have the
+    /// same shape; each quad split along an alternating diagonal. Lit by a
+    /// 20 x 20 square facing down at y = 20 over the centre. Every box of
+    /// any tree over it is flat in y.
+    fn field(&mut self, n: usize) {
+        let turf = self.material(Material::diffuse("turf", Vec3::new(0.3, 0.55, 0.25)));
+        let light = self.material(Material {
+            ke: Vec3::splat(4.0),
+            ..Material::diffuse("sun", Vec3::splat(0.78))
+        });
+        let k = ((n as f64 / 2.0).sqrt().ceil() as usize).max(1);
+        let cell = 100.0 / k as f32;
+        let mut rng = crate::render::rng::Rng::for_pixel(0, 0x6669_656c_64, 3);
+        let first = self.positions.len() as u32;
+        for j in 0..=k {
+            for i in 0..=k {
+                let inner = i > 0 && j > 0 && i < k && j < k;
+                let (mut jx, mut jz) = (rng.next_f32() - 0.5, rng.next_f32() - 0.5);
+                if !inner {
+                    (jx, jz) = (0.0, 0.0);
+                }
+                let x = -50.0 + (i as f32 + 0.6 * jx) * cell;
+                let z = -50.0 + (j as f32 + 0.6 * jz) * cell;
+                self.vertex(Vec3::new(x, 0.0, z), Vec3::ZERO);
+            }
+        }
+        let at = |i: usize, j: usize| first + (j * (k + 1) + i) as u32;
+        for j in 0..k {
+            for i in 0..k {
+                let (a, b, c, d) = (at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1));
+                // Wound to face +y (towards the light).
+                if (i + j) % 2 == 0 {
+                    self.triangles.extend([[a, c, b], [a, d, c]]);
+                } else {
+                    self.triangles.extend([[a, d, b], [b, d, c]]);
+                }
+                self.material_ids.extend([turf, turf]);
+            }
+        }
+        let y = 20.0;
+        self.quad(
+            [
+                Vec3::new(-10.0, y, -10.0),
+                Vec3::new(10.0, y, -10.0),
+                Vec3::new(10.0, y, 10.0),
+                Vec3::new(-10.0, y, 10.0),
+            ],
+            light,
+        );
     }
 
     /// `n` boxes standing on the floor, footprints 2 mm to 0.5 wide
