@@ -750,3 +750,25 @@ fn quality_rungs_name_their_builders_and_render_the_same_image() {
     }
     std::fs::remove_dir_all(&d).ok();
 }
+
+#[test]
+fn validate_judges_the_secondary_ray_origins_of_a_flat_field() {
+    for against in ["naive", "exact"] {
+        let out = raylab(&[
+            "validate",
+            "plane:2000",
+            "--against",
+            against,
+            "--size",
+            "48x36",
+            "--count",
+            "300",
+            "--json",
+        ]);
+        assert_success(&out);
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        let spawns = &v[0]["spawns"];
+        assert!(spawns["surfaces"].as_u64().unwrap() > 300, "{spawns}");
+        assert_eq!(spawns["behind"].as_u64(), Some(0), "{spawns}");
+    }
+}

@@ -282,3 +282,53 @@ fn emitters_shine_from_their_front_face_only_unless_two_sided() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A flat export in centimetres: the field of `plane:N` scaled by 100 (a
+/// 100 m ground in the plane y = 0, light included), seen from about 130 m.
+fn field_in_centimetres() -> raylab::scene::Scene {
+    let field = builtin("plane:20000").unwrap();
+    let positions: Vec<Vec3> = field.positions.iter().map(|p| *p * 100.0).collect();
+    raylab::scene::Scene::new(
+        "field in cm",
+        positions,
+        None,
+        field.triangles.clone(),
+        field.material_ids.clone(),
+        field.materials.clone(),
+    )
+    .unwrap()
+}
+
+#[test]
+fn secondary_rays_leave_a_far_flat_field_without_hitting_it() {
+    use raylab::accel::bvh::{BuildParams, BvhBackend};
+    use raylab::camera::Camera;
+    use raylab::validate::{judge_spawns, recorded_rays};
+    let scene = field_in_centimetres();
+    let backend = BvhBackend::new(&scene.triangle_vertices(), &BuildParams::sah()).unwrap();
+    let mut s = settings(128, 96, AoMode::Cosine(4));
+    s.ao_dist = 800.0;
+    s.camera = Camera::new(
+        Vec3::new(0.0, 6000.0, 9000.0),
+        Vec3::ZERO,
+        Vec3::Y,
+        60.0,
+        128,
+        96,
+    )
+    .unwrap();
+    let recorded = recorded_rays(&scene, &backend, &s).unwrap();
+    let spawns = judge_spawns(&scene, &recorded.spawns);
+    assert!(spawns.surfaces > 4000, "{spawns:?}");
+    assert_eq!(spawns.behind, 0, "{spawns:?}");
+    // Nothing stands on the field: every AO ray and every shadow ray to the
+    // light above it is open (rays from o + t d found the field again).
+    let blocked = |rays: &[raylab::geometry::Ray]| {
+        rays.iter()
+            .filter(|r| raylab::accel::Backend::occluded(&backend, r))
+            .count()
+    };
+    assert!(recorded.ao.len() > 16_000 && recorded.shadow.len() > 4000);
+    assert_eq!(blocked(&recorded.ao), 0);
+    assert_eq!(blocked(&recorded.shadow), 0);
+}
