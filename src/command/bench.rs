@@ -75,6 +75,14 @@ pub struct BenchArgs {
     /// scene; runs the `libraries` part only).
     #[arg(long, value_name = "FILE")]
     rays: Option<PathBuf>,
+    /// The cliff finder: run the `libraries` part over generated scenes of
+    /// every class a user might bring (planar, architecture interior,
+    /// closed scan, CAD slivers, foliage, huge and tiny, far from the
+    /// origin, heavy overlap, the study's box; smaller with --quick) and
+    /// the SCENEs given, and lead with where raylab's best path is behind
+    /// the best peer.
+    #[arg(long)]
+    cliffs: bool,
     /// Folder for bench.md, bench.csv, bench.json, charts/, images/ and index.html.
     #[arg(long, value_name = "DIR", default_value = "bench-report")]
     out: PathBuf,
@@ -216,6 +224,25 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         }
         cfg.parts = vec![crate::bench::config::Part::Libraries];
         cfg.rays = Some(crate::rayfile::read(path)?);
+    }
+    if args.cliffs {
+        if args.parts != "all" && cfg.parts != [crate::bench::config::Part::Libraries] {
+            return Err(Error::usage(
+                "--cliffs",
+                "the cliff finder runs the libraries part only (--parts libraries)",
+            ));
+        }
+        if args.rays.is_some() {
+            return Err(Error::usage(
+                "--cliffs",
+                "sweeps scene classes with their own rays; --rays traces one scene's file",
+            ));
+        }
+        cfg.parts = vec![crate::bench::config::Part::Libraries];
+        let classes = crate::bench::parts::cliffs::CLASSES
+            .iter()
+            .map(|(_, full, quick)| if args.quick { *quick } else { *full }.to_string());
+        cfg.scenes = classes.chain(args.scenes.iter().cloned()).collect();
     }
     let names: Vec<String> = if cfg.scenes.is_empty() {
         BUILTIN_SCENES.iter().map(|(n, _)| n.to_string()).collect()

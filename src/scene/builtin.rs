@@ -51,6 +51,22 @@ pub const PROCEDURAL_SCENES: &[(&str, &str)] = &[
         "city:N turned 45 degrees about the vertical axis: every wall diagonal to the axes",
     ),
     (
+        "rooms:N",
+        "an interior of about N triangles (200..=1e7): a grid of 4 x 4 m rooms, walls 10 cm thick with doorways, each room lit by a small ceiling panel; the camera stands in a room",
+    ),
+    (
+        "pipes:N",
+        "about N triangles (100..=1e7) of CAD-like pipes: long thin cylinders of 12 sides in one segment (every side two long slivers) at random angles, framed from their bounds",
+    ),
+    (
+        "overlap:N",
+        "N large triangles (10..=1e7) crossing one another at random in a 4-unit cube: every box overlaps every other, framed from their bounds",
+    ),
+    (
+        "far:N",
+        "mesh:N (its box included) moved 10^5 units from the origin along x and z, framed from its bounds: f32 coordinates 1/128 apart",
+    ),
+    (
         "plane:N",
         "a field of about N triangles (2..=1e7), a jittered grid 100 units across, every one in the plane y = 0, under a square light: a flat export (floor plan, terrain tile, sports ground), framed from its bounds",
     ),
@@ -62,12 +78,30 @@ pub const MESH_TRIANGLES: std::ops::RangeInclusive<u64> = 100..=100_000_000;
 /// The built-in scene called `name`.
 pub fn builtin(name: &str) -> Result<Scene> {
     let mut b = Builder::default();
-    if let Some(n) = name
-        .strip_prefix("plane:")
-        .map(|_| parse_count(name, "plane", 2..=10_000_000))
+    // Scenes with no box, framed from their bounds as a file would be.
+    let unframed = [
+        ("plane", 2..=10_000_000),
+        ("pipes", 100..=10_000_000),
+        ("overlap", 10..=10_000_000),
+        ("far", *MESH_TRIANGLES.start()..=10_000_000),
+    ];
+    if let Some((prefix, range)) = unframed
+        .into_iter()
+        .find(|(p, _)| name.strip_prefix(p).is_some_and(|r| r.starts_with(':')))
     {
-        b.field(n? as usize);
-        // No box: framed from its bounds as a file would be.
+        let n = parse_count(name, prefix, range)? as usize;
+        match prefix {
+            "plane" => b.field(n),
+            "pipes" => b.pipes(n),
+            "overlap" => b.overlap(n),
+            _ => {
+                b.cornell_box();
+                b.displaced_sphere(n as u64);
+                for p in &mut b.positions {
+                    *p += Vec3::new(1e5, 0.0, 1e5);
+                }
+            }
+        }
         return Scene::new(
             name,
             b.positions,
@@ -110,6 +144,12 @@ pub fn builtin(name: &str) -> Result<Scene> {
         _ if name.starts_with("city:") => {
             let n = parse_count(name, "city", 10..=1_000_000)?;
             b.city(n as usize, 0.0);
+        }
+        _ if name.starts_with("rooms:") => {
+            let n = parse_count(name, "rooms", 200..=10_000_000)?;
+            // The interior replaces the box (its walls would enclose one room).
+            b = Builder::default();
+            b.rooms(n as usize);
         }
         _ if name.starts_with("city45:") => {
             let n = parse_count(name, "city45", 10..=1_000_000)?;
@@ -401,6 +441,150 @@ impl Builder {
             ],
             light,
         );
+    }
+
+    /// An axis-aligned box from `lo` to `hi` (12 triangles, facing out).
+    fn cuboid(&mut self, lo: Vec3, hi: Vec3, material: u32) {
+        let footprint = [[lo.x, lo.z], [lo.x, hi.z], [hi.x, hi.z], [hi.x, lo.z]];
+        let first = self.positions.len();
+        self.block(footprint, hi.y - lo.y, material);
+        for p in &mut self.positions[first..] {
+            p.y += lo.y;
+        }
+    }
+
+    /// A grid of k x k rooms 4 x 4 x 3 m (k from `n` at about 80 triangles a
+    /// room), centred on the origin: each room has a floor, a ceiling with a
+    /// 0.5 m light panel facing down, and walls 0.1 m thick on its -x and -z
+    /// sides with a 1 m doorway (the grid closed on its +x and +z sides). The
+    /// study's eye (0, 1, 3) stands in the room south of the centre one,
+    /// looking through the doorway: long thin walls, many occluders.
+    fn rooms(&mut self, n: usize) {
+        let plaster = self.material(Material::diffuse("plaster", WHITE));
+        let floor = self.material(Material::diffuse("floor", Vec3::new(0.55, 0.45, 0.35)));
+        let panel = self.material(Material {
+            ke: Vec3::splat(12.0),
+            ..Material::diffuse("panel", Vec3::splat(0.78))
+        });
+        let k = ((n as f64 / 80.0).sqrt().ceil() as i32).max(1);
+        let (size, height, wall, door) = (4.0f32, 3.0f32, 0.1f32, 0.5f32);
+        let start = -(k / 2) as f32 * size - size / 2.0;
+        for j in 0..k {
+            for i in 0..k {
+                let (x0, z0) = (start + i as f32 * size, start + j as f32 * size);
+                let (x1, z1) = (x0 + size, z0 + size);
+                let (cx, cz) = ((x0 + x1) / 2.0, (z0 + z1) / 2.0);
+                // Floor faces up, ceiling and panel down.
+                let at = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
+                self.quad(
+                    [
+                        at(x0, 0.0, z0),
+                        at(x0, 0.0, z1),
+                        at(x1, 0.0, z1),
+                        at(x1, 0.0, z0),
+                    ],
+                    floor,
+                );
+                self.quad(
+                    [
+                        at(x0, height, z0),
+                        at(x1, height, z0),
+                        at(x1, height, z1),
+                        at(x0, height, z1),
+                    ],
+                    plaster,
+                );
+                let (h, r) = (height - 0.01, 0.25);
+                self.quad(
+                    [
+                        at(cx - r, h, cz - r),
+                        at(cx + r, h, cz - r),
+                        at(cx + r, h, cz + r),
+                        at(cx - r, h, cz + r),
+                    ],
+                    panel,
+                );
+                // The -z and -x walls, each with a doorway 2.2 m high at its middle.
+                let lintel = 2.2;
+                self.cuboid(at(x0, 0.0, z0), at(cx - door, height, z0 + wall), plaster);
+                self.cuboid(at(cx + door, 0.0, z0), at(x1, height, z0 + wall), plaster);
+                self.cuboid(
+                    at(cx - door, lintel, z0),
+                    at(cx + door, height, z0 + wall),
+                    plaster,
+                );
+                self.cuboid(at(x0, 0.0, z0), at(x0 + wall, height, cz - door), plaster);
+                self.cuboid(at(x0, 0.0, cz + door), at(x0 + wall, height, z1), plaster);
+                self.cuboid(
+                    at(x0, lintel, cz - door),
+                    at(x0 + wall, height, cz + door),
+                    plaster,
+                );
+                if i == k - 1 {
+                    self.cuboid(at(x1 - wall, 0.0, z0), at(x1, height, z1), plaster);
+                }
+                if j == k - 1 {
+                    self.cuboid(at(x0, 0.0, z1 - wall), at(x1, height, z1), plaster);
+                }
+            }
+        }
+    }
+
+    /// About `n` triangles of pipes: cylinders of radius 0.01-0.1 and length
+    /// 2-10 at random orientations in a 10-unit cube, each of 12 sides in
+    /// one segment (two long slivers a side) with fan caps: 48 triangles.
+    fn pipes(&mut self, n: usize) {
+        let steel = self.material(Material::diffuse("steel", Vec3::new(0.6, 0.62, 0.66)));
+        let mut rng = crate::render::rng::Rng::for_pixel(0, 0x7069_7065, 4);
+        const SIDES: usize = 12;
+        for _ in 0..n.div_ceil(4 * SIDES) {
+            let mut u = || rng.next_f32();
+            let start = Vec3::new(u(), u(), u()) * 10.0 - 5.0;
+            let axis = Vec3::new(u() - 0.5, u() - 0.5, u() - 0.5).normalize_or(Vec3::X);
+            let (length, radius) = (2.0 + 8.0 * u(), 0.01 + 0.09 * u());
+            let side = axis.any_orthonormal_vector();
+            let other = axis.cross(side);
+            let ring = |at: Vec3| -> Vec<Vec3> {
+                (0..SIDES)
+                    .map(|i| {
+                        let a = 2.0 * PI * i as f32 / SIDES as f32;
+                        at + (side * a.cos() + other * a.sin()) * radius
+                    })
+                    .collect()
+            };
+            let end = start + axis * length;
+            let (a, b) = (ring(start), ring(end));
+            for i in 0..SIDES {
+                let j = (i + 1) % SIDES;
+                self.quad([a[i], a[j], b[j], b[i]], steel);
+            }
+            for (ring, centre) in [(&a, start), (&b, end)] {
+                let c = self.vertex(centre, Vec3::ZERO);
+                for i in 0..SIDES {
+                    let p = self.vertex(ring[i], Vec3::ZERO);
+                    let q = self.vertex(ring[(i + 1) % SIDES], Vec3::ZERO);
+                    self.triangles.push([c, p, q]);
+                    self.material_ids.push(steel);
+                }
+            }
+        }
+    }
+
+    /// `n` triangles of 1 to 4 units across with random vertices around
+    /// random centres in a 4-unit cube: they cross one another everywhere.
+    fn overlap(&mut self, n: usize) {
+        let paint = self.material(Material::diffuse("paint", Vec3::new(0.7, 0.4, 0.3)));
+        let mut rng = crate::render::rng::Rng::for_pixel(0, 0x6f76_6572, 5);
+        for _ in 0..n {
+            let mut u = || rng.next_f32();
+            let centre = Vec3::new(u(), u(), u()) * 4.0 - 2.0;
+            let size = 1.0 + 3.0 * u();
+            let mut corner = || centre + Vec3::new(u() - 0.5, u() - 0.5, u() - 0.5) * size;
+            let tri = [corner(), corner(), corner()];
+            let i = tri.map(|p| self.vertex(p, Vec3::ZERO));
+            self.triangles.push(i);
+            self.material_ids.push(paint);
+        }
     }
 
     /// `n` boxes standing on the floor, footprints 2 mm to 0.5 wide

@@ -45,7 +45,7 @@ pub const SECTION: ChartSection = ChartSection {
 /// ray file, `bench --rays`), and rays aimed at the scene's vertices and
 /// edges (the leak suite's, judged apart: they are adversarial, not work a
 /// renderer does, so they stay out of the mean time per ray).
-const KINDS: [RaySet; 6] = [
+pub const KINDS: [RaySet; 6] = [
     RaySet::Primary,
     RaySet::Shadow,
     RaySet::Ao,
@@ -472,7 +472,8 @@ pub fn markdown(points: &[LibraryPoint]) -> String {
         .map(|(b, l)| format!("- `{b}`: {}\n", l.join("; ")))
         .collect();
     format!(
-        "### Every CPU BVH side by side\n\nOne thread, each backend on its fastest query path per ray kind (raylab's 8-wide trees and Embree are timed on single rays and on packets of 8 and 16, interleaved, and the fastest counts; the path is listed), the same recorded rays (one render's primary, shadow and AO rays and a diffuse bounce per primary hit: at most 50000 consecutive rays of each from the middle of the render's stream, so that packets hold neighbouring rays). Wrong: answers (closest hit for primary and diffuse, any hit for shadow and AO) that the exact reference says are false misses, false hits, the wrong triangle or a t beyond its bound; undecidable: double precision could not say. Edge rays: as many rays aimed exactly at the scene's vertices and at points on its edges, from 1e-4 to 0.5 of the scene's size away (`validate --rays edges`), each asked for its closest hit and for any hit; they are timed but kept out of the time per ray in the chart.\n\n{}\nWhat the other libraries lack, and what raylab does instead:\n\n{limits}",
+        "{}### Every CPU BVH side by side\n\nOne thread, each backend on its fastest query path per ray kind (raylab's 8-wide trees and Embree are timed on single rays and on packets of 8 and 16, interleaved, and the fastest counts; the path is listed), the same recorded rays (one render's primary, shadow and AO rays and a diffuse bounce per primary hit: at most 50000 consecutive rays of each from the middle of the render's stream, so that packets hold neighbouring rays). Wrong: answers (closest hit for primary and diffuse, any hit for shadow and AO) that the exact reference says are false misses, false hits, the wrong triangle or a t beyond its bound; undecidable: double precision could not say. Edge rays: as many rays aimed exactly at the scene's vertices and at points on its edges, from 1e-4 to 0.5 of the scene's size away (`validate --rays edges`), each asked for its closest hit and for any hit; they are timed but kept out of the time per ray in the chart.\n\n{}\nWhat the other libraries lack, and what raylab does instead:\n\n{limits}",
+        super::cliffs::markdown(points),
         t.markdown()
     )
 }

@@ -8,6 +8,7 @@
 
 pub mod ao_error;
 pub mod builders;
+pub mod cliffs;
 pub mod growth;
 pub mod ladder;
 pub mod leaks;
