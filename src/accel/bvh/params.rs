@@ -367,7 +367,7 @@ pub const PARALLEL_REDUCE_CUTOFF: usize = 1 << 13;
 /// the box must still admit those rays or the BVH would miss hits the naive scan
 /// finds. A parent's margin is never smaller than its children's, so children
 /// stay inside their parents.
-pub const BOX_MARGIN: f32 = 1.0 / (1 << 20) as f32;
+pub const BOX_MARGIN: f32 = 1.0 / (1 << 22) as f32;
 
 /// A wide node's interior child of at most this many triangles whose two
 /// halves are both leaves is made one leaf of all of them (two blocks at
