@@ -107,7 +107,12 @@ pub fn main() -> i32 {
         Ok(()) => 0,
         Err(e) => {
             eprintln!("raylab: {e}");
-            1
+            // Flag and usage errors exit 2, as clap's own; bad input 1.
+            if matches!(e, crate::Error::Usage { .. }) {
+                2
+            } else {
+                1
+            }
         }
     }
 }

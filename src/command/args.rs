@@ -14,6 +14,8 @@ use crate::geometry::Intersector;
 use crate::render::default_ao_dist;
 use crate::render::{AoMode, RenderSettings};
 use crate::scene::light::LightArg;
+use crate::scene::load::{is_scene_file, load_scene_with};
+use crate::scene::refs::RefPolicy;
 use crate::scene::Scene;
 
 /// Camera, lighting and shading flags shared by commands that render.
@@ -91,6 +93,43 @@ impl ViewArgs {
         };
         settings.validate()?;
         Ok(settings)
+    }
+}
+
+/// How scene files are read, for the commands that load them.
+#[derive(Args, Debug, Clone, Default)]
+pub struct SceneFileArgs {
+    /// Let a scene file's references (glTF buffer URIs, OBJ mtllib names)
+    /// lead outside its folder: absolute paths, `..`, symbolic links out.
+    /// Off by default, because a downloaded scene could otherwise make
+    /// raylab read (and show parts of) any file you can read.
+    #[arg(long)]
+    pub allow_outside_refs: bool,
+}
+
+impl SceneFileArgs {
+    pub fn policy(&self) -> RefPolicy {
+        RefPolicy {
+            allow_outside: self.allow_outside_refs,
+        }
+    }
+
+    /// Refuses `--allow-outside-refs` when none of `scenes` is a file: the
+    /// built-in scenes refer to nothing, and a flag that changes nothing is
+    /// not accepted silently.
+    pub fn check(&self, scenes: &[String]) -> Result<()> {
+        if self.allow_outside_refs && !scenes.iter().any(|s| is_scene_file(s)) {
+            return Err(Error::usage(
+                "--allow-outside-refs",
+                "applies to scene files' references; built-in scenes have none",
+            ));
+        }
+        Ok(())
+    }
+
+    /// Loads `spec` under these flags.
+    pub fn load(&self, spec: &str) -> Result<Scene> {
+        load_scene_with(spec, self.policy())
     }
 }
 

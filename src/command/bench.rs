@@ -6,13 +6,12 @@ use std::path::PathBuf;
 use clap::Args;
 use glam::Vec3;
 
-use super::args::{parse_fov, parse_size, parse_threads, parse_vec3};
+use super::args::{parse_fov, parse_size, parse_threads, parse_vec3, SceneFileArgs};
 use crate::bench::Part;
 use crate::error::{Error, Result};
 use crate::render::schedule::default_threads;
 use crate::render::AoMode;
 use crate::scene::builtin::BUILTIN_SCENES;
-use crate::scene::load::load_scene;
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {
@@ -78,6 +77,8 @@ pub struct BenchArgs {
     /// Folder for bench.md, bench.csv, bench.json, charts/, images/ and index.html.
     #[arg(long, value_name = "DIR", default_value = "bench-report")]
     out: PathBuf,
+    #[command(flatten)]
+    files: SceneFileArgs,
     /// Print the report as one JSON object on stdout instead of the tables.
     #[arg(long)]
     json: bool,
@@ -222,9 +223,10 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     } else {
         cfg.scenes.clone()
     };
+    args.files.check(&names)?;
     let mut scenes = names
         .iter()
-        .map(|n| load_scene(n))
+        .map(|n| args.files.load(n))
         .collect::<Result<Vec<_>>>()?;
     for scene in &mut scenes {
         // A view whose eye is the point it looks at: refused before any work.

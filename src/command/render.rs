@@ -7,14 +7,13 @@ use std::time::{Duration, Instant};
 use clap::Args;
 use serde::Serialize;
 
-use super::args::{parse_threads, BackendArgs, ViewArgs};
+use super::args::{parse_threads, BackendArgs, SceneFileArgs, ViewArgs};
 use crate::accel::build_backend;
 use crate::accel::embree::version_or_none as embree_version;
 use crate::error::Result;
 use crate::progress::Progress;
 use crate::render::schedule::default_threads;
 use crate::render::{self, output, Schedule};
-use crate::scene::load::load_scene;
 use crate::table::ms;
 
 #[derive(Args, Debug)]
@@ -32,6 +31,8 @@ pub struct RenderArgs {
     threads: Option<usize>,
     #[command(flatten)]
     view: ViewArgs,
+    #[command(flatten)]
+    files: SceneFileArgs,
     /// Output PNG.
     #[arg(
         short = 'o',
@@ -113,6 +114,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     let threads = args.threads.unwrap_or_else(default_threads);
     // The flags are checked before any work.
     let spec = args.accel.spec(threads)?;
+    args.files.check(std::slice::from_ref(&args.scene))?;
     let say = |line: String| {
         if !args.quiet {
             eprintln!("{line}");
@@ -120,7 +122,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     };
 
     let start = Instant::now();
-    let mut scene = load_scene(&args.scene)?;
+    let mut scene = args.files.load(&args.scene)?;
     let load_time = start.elapsed();
     let settings = args.view.prepare(&mut scene)?;
     for w in &scene.warnings {

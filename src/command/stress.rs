@@ -26,6 +26,8 @@ pub struct StressArgs {
     /// naive scan tests every triangle per ray: minutes on a mesh of 10^4.
     #[arg(long, value_name = "LIST", default_value = "all")]
     backends: String,
+    #[command(flatten)]
+    files: super::args::SceneFileArgs,
     /// Write stress.md, stress.json and leaks.csv into this folder.
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
@@ -42,11 +44,17 @@ pub fn run(args: &StressArgs) -> Result<()> {
         output::check_writable(&dir.join("probe.png"))?;
     }
     let kinds = parse_stress_backends(&args.backends)?;
+    if args.files.allow_outside_refs && args.mesh.is_empty() {
+        return Err(Error::usage(
+            "--allow-outside-refs",
+            "applies to the scene files of --mesh; none is given",
+        ));
+    }
     // The user's meshes are read (and refused when open) before any suite runs.
     let user_meshes = args
         .mesh
         .iter()
-        .map(|p| file_mesh(p))
+        .map(|p| file_mesh(p, args.files.policy()))
         .collect::<Result<Vec<_>>>()?;
     let mut report = StressReport::default();
     let q = args.quick;

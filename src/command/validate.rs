@@ -5,14 +5,13 @@ use std::path::{Path, PathBuf};
 use clap::Args;
 use serde::Serialize;
 
-use super::args::{parse_threads, BackendArgs, ViewArgs};
+use super::args::{parse_threads, BackendArgs, SceneFileArgs, ViewArgs};
 use crate::accel::{build_backend, BackendKind, BackendSpec};
 use crate::error::{Error, Result};
 use crate::rayfile::RaySets;
 use crate::render::output;
 use crate::render::schedule::default_threads;
 use crate::scene::builtin::BUILTIN_SCENES;
-use crate::scene::load::load_scene;
 use crate::table::{
     Align::{Left, Right},
     Table,
@@ -52,6 +51,8 @@ pub struct ValidateArgs {
     threads: Option<usize>,
     #[command(flatten)]
     view: ViewArgs,
+    #[command(flatten)]
+    files: SceneFileArgs,
     /// Print one JSON array with a report per scene on stdout.
     #[arg(long)]
     json: bool,
@@ -187,6 +188,7 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
     } else {
         args.scenes.clone()
     };
+    args.files.check(&names)?;
     if let Some(path) = &args.diff_image {
         output::check_writable(&diff_image_path(path, &names[0], names.len() > 1))?;
     }
@@ -209,7 +211,7 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
     let reference_spec = BackendSpec::default_for(against, threads);
     let mut reports = Vec::new();
     for name in &names {
-        let mut scene = load_scene(name)?;
+        let mut scene = args.files.load(name)?;
         let settings = args.view.prepare(&mut scene)?;
         let tested = build_backend(&spec, &scene)?;
         let reference = build_backend(&reference_spec, &scene)?;
@@ -347,7 +349,7 @@ fn run_exact(
     let count = args.count as usize;
     let mut reports = Vec::new();
     for name in names {
-        let mut scene = load_scene(name)?;
+        let mut scene = args.files.load(name)?;
         let settings = args.view.prepare(&mut scene)?;
         let tested = build_backend(&spec, &scene)?;
         let reference = ExactReference::new(scene.triangle_vertices());

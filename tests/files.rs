@@ -1,0 +1,294 @@
+//! Issue 41 as a user and an attacker meet it: a scene's references stay in
+//! its folder.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use common::{assert_success, raylab, temp_dir};
+
+/// Asserts a run that fails with exit status `code` and one line on stderr
+/// holding every one of `needles`; returns that line.
+fn assert_fails(args: &[&str], code: i32, needles: &[&str]) -> String {
+    let out = raylab(args);
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(code), "{args:?}: {err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+    assert!(
+        !err.contains("panicked") && !err.contains("internal error"),
+        "{err}"
+    );
+    for needle in needles {
+        assert!(
+            err.contains(needle),
+            "{args:?}: expected '{needle}' in: {err}"
+        );
+    }
+    err
+}
+
+/// One triangle's three positions (36 bytes), then 3 u16 indices of which the
+/// last is 0x4142 (out of range), and 2 bytes of padding.
+fn triangle_bin() -> Vec<u8> {
+    let mut bin = Vec::new();
+    for x in [0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0] {
+        bin.extend(x.to_le_bytes());
+    }
+    for i in [0u16, 1, 0x4142, 0] {
+        bin.extend(i.to_le_bytes());
+    }
+    bin
+}
+
+/// A glTF of one triangle whose buffer is `uri` (`"byteLength"` 44); with
+/// `indexed`, the primitive reads the out-of-range index buffer.
+fn gltf_json(uri: &str, indexed: bool) -> String {
+    let indices = if indexed { r#","indices":1"# } else { "" };
+    format!(
+        r#"{{"asset":{{"version":"2.0"}},"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
+        "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}}{indices}}}]}}],
+        "buffers":[{{"uri":"{uri}","byteLength":44}}],
+        "bufferViews":[{{"buffer":0,"byteLength":36}},{{"buffer":0,"byteOffset":36,"byteLength":6}}],
+        "accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}},
+                     {{"bufferView":1,"componentType":5123,"count":3,"type":"SCALAR"}}]}}"#
+    )
+}
+
+/// `root/scene/` (where scenes are written) beside `root/private/secret.bin`
+/// (a valid buffer, so that only the folder rule can refuse it).
+fn folders(tag: &str) -> (PathBuf, PathBuf) {
+    let root = temp_dir(tag);
+    std::fs::create_dir_all(root.join("scene/sub")).unwrap();
+    std::fs::create_dir_all(root.join("private")).unwrap();
+    std::fs::write(root.join("private/secret.bin"), triangle_bin()).unwrap();
+    (root.join("scene"), root)
+}
+
+fn write_gltf(dir: &Path, name: &str, uri: &str) -> String {
+    let path = dir.join(name);
+    std::fs::write(&path, gltf_json(uri, false)).unwrap();
+    path.to_str().unwrap().to_string()
+}
+
+#[test]
+fn gltf_buffers_outside_the_scene_folder_are_refused() {
+    let (scene, root) = folders("refs-gltf");
+    let o = root.join("x.png");
+    let o = o.to_str().unwrap();
+    let secret = root.join("private/secret.bin");
+    std::os::unix::fs::symlink(&secret, scene.join("link.bin")).unwrap();
+    std::os::unix::fs::symlink(root.join("private"), scene.join("sub/up")).unwrap();
+    let absolute = secret.to_str().unwrap().to_string();
+    for (uri, why) in [
+        ("../private/secret.bin", "climbs out of the scene's folder"),
+        (
+            "sub/../../private/secret.bin",
+            "climbs out of the scene's folder",
+        ),
+        (
+            "%2e%2e%2fprivate%2fsecret.bin",
+            "climbs out of the scene's folder",
+        ),
+        (
+            "..%2F..%2F..%2F..%2F..%2Fetc%2Fpasswd",
+            "climbs out of the scene's folder",
+        ),
+        (&absolute, "an absolute path"),
+        ("/dev/zero", "an absolute path"),
+        ("link.bin", "a symbolic link out of the scene's folder"),
+        (
+            "sub/up/secret.bin",
+            "a symbolic link out of the scene's folder",
+        ),
+        (
+            "sub/up/not-there.bin",
+            "a symbolic link out of the scene's folder",
+        ),
+    ] {
+        let path = write_gltf(&scene, "hostile.gltf", uri);
+        let err = assert_fails(
+            &["render", &path, "-o", o],
+            1,
+            &["hostile.gltf", "buffer 0", uri, why, "--allow-outside-refs"],
+        );
+        assert!(!err.contains("ABCD") && !err.contains("16706"), "{err}");
+    }
+    // Asked for, the same references are read.
+    for uri in ["../private/secret.bin", &absolute, "link.bin"] {
+        let path = write_gltf(&scene, "allowed.gltf", uri);
+        let out = raylab(&[
+            "render",
+            &path,
+            "--allow-outside-refs",
+            "--size",
+            "16x12",
+            "-q",
+            "-o",
+            o,
+        ]);
+        assert_success(&out);
+    }
+    std::fs::remove_dir_all(&root).ok();
+}
+
+#[test]
+fn only_regular_files_are_read_as_buffers_even_when_allowed() {
+    let (scene, root) = folders("refs-special");
+    let o = root.join("x.png");
+    let o = o.to_str().unwrap();
+    let fifo = scene.join("pipe.bin");
+    assert!(Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap()
+        .success());
+    for (uri, allow, kind) in [
+        ("pipe.bin", false, "a FIFO, not a regular file"),
+        ("sub", false, "a folder, not a regular file"),
+        ("/dev/zero", true, "a device, not a regular file"),
+        ("/dev/null", true, "a device, not a regular file"),
+    ] {
+        let path = write_gltf(&scene, "special.gltf", uri);
+        let mut args = vec!["render", &path, "-o", o];
+        if allow {
+            args.push("--allow-outside-refs");
+        }
+        // A FIFO opened for reading would hang here: the run must end.
+        assert_fails(&args, 1, &["special.gltf", "buffer 0", kind]);
+    }
+    // A file shorter than its byteLength: said without the file's own length.
+    std::fs::write(scene.join("short.bin"), [0u8; 10]).unwrap();
+    let path = write_gltf(&scene, "short.gltf", "short.bin");
+    let err = assert_fails(
+        &["render", &path, "-o", o],
+        1,
+        &["shorter than the 44 bytes"],
+    );
+    assert!(!err.contains("10"), "{err}");
+    std::fs::remove_dir_all(&root).ok();
+}
+
+#[test]
+fn index_values_from_an_outside_buffer_are_not_shown() {
+    let (scene, root) = folders("refs-index");
+    let o = root.join("x.png");
+    let o = o.to_str().unwrap();
+    let path = scene.join("index.gltf");
+    std::fs::write(&path, gltf_json("../private/secret.bin", true)).unwrap();
+    let path = path.to_str().unwrap();
+    let err = assert_fails(
+        &["render", path, "--allow-outside-refs", "-o", o],
+        1,
+        &["accessor 1: mesh primitive index out of range (3 vertices)"],
+    );
+    assert!(!err.contains("16706"), "the index value leaked: {err}");
+    // The scene's own buffer (a data URI): its value helps and is shown.
+    let b64 = base64(&triangle_bin());
+    let own = gltf_json(&format!("data:application/octet-stream;base64,{b64}"), true);
+    std::fs::write(scene.join("own.gltf"), own).unwrap();
+    let own = scene.join("own.gltf");
+    assert_fails(
+        &["render", own.to_str().unwrap(), "-o", o],
+        1,
+        &["accessor 1: mesh primitive index 16706 out of range"],
+    );
+    std::fs::remove_dir_all(&root).ok();
+}
+
+fn base64(bytes: &[u8]) -> String {
+    const A: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut out = String::new();
+    for c in bytes.chunks(3) {
+        let n = (c[0] as u32) << 16
+            | (*c.get(1).unwrap_or(&0) as u32) << 8
+            | *c.get(2).unwrap_or(&0) as u32;
+        for k in 0..4 {
+            out.push(if k <= c.len() {
+                A[(n >> (18 - 6 * k) & 63) as usize] as char
+            } else {
+                '='
+            });
+        }
+    }
+    out
+}
+
+const BOX_OBJ: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nusemtl red\nf 1 2 3 4\n";
+const RED_MTL: &str = "newmtl red\nKd 0.8 0.1 0.1\n";
+
+#[test]
+fn mtllib_stays_in_the_scene_folder() {
+    let (scene, root) = folders("refs-obj");
+    let o = root.join("x.png");
+    let o = o.to_str().unwrap();
+    std::fs::write(root.join("private/red.mtl"), RED_MTL).unwrap();
+    std::fs::write(scene.join("sub/red.mtl"), RED_MTL).unwrap();
+    std::fs::write(scene.join("red.mtl"), RED_MTL).unwrap();
+    std::os::unix::fs::symlink(root.join("private/red.mtl"), scene.join("link.mtl")).unwrap();
+    let obj = |name: &str, lib: &str| {
+        let path = scene.join(name);
+        std::fs::write(&path, format!("mtllib {lib}\n{BOX_OBJ}")).unwrap();
+        path.to_str().unwrap().to_string()
+    };
+    for (lib, why) in [
+        ("../private/red.mtl", "climbs out"),
+        ("/etc/passwd", "an absolute path"),
+        ("link.mtl", "a symbolic link out"),
+        ("sub", "a folder, not a regular file"),
+    ] {
+        let path = obj("hostile.obj", lib);
+        assert_fails(
+            &["render", &path, "-o", o],
+            1,
+            &["hostile.obj:1:", "material library", lib, why],
+        );
+    }
+    // The same folder, a subfolder, and outside when asked: the material is read.
+    for (lib, extra) in [
+        ("red.mtl", None),
+        ("sub/red.mtl", None),
+        ("../private/red.mtl", Some("--allow-outside-refs")),
+    ] {
+        let path = obj("fine.obj", lib);
+        let mut args = vec!["render", &path, "--size", "8x6", "-q", "-o", o];
+        args.extend(extra);
+        let out = raylab(&args);
+        assert_success(&out);
+        assert!(
+            out.stderr.is_empty(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    // A missing library stays a warning (the faces are grey).
+    let path = obj("missing.obj", "gone.mtl");
+    let out = raylab(&["render", &path, "--size", "8x6", "-o", o]);
+    assert_success(&out);
+    assert!(String::from_utf8_lossy(&out.stderr).contains("material library \"gone.mtl\""));
+    std::fs::remove_dir_all(&root).ok();
+}
+
+#[test]
+fn allow_outside_refs_needs_a_scene_file() {
+    let d = temp_dir("refs-builtin");
+    let o = d.join("x.png");
+    let o = o.to_str().unwrap();
+    assert_fails(
+        &["render", "cornell-empty", "--allow-outside-refs", "-o", o],
+        2,
+        &["--allow-outside-refs", "built-in"],
+    );
+    assert_fails(
+        &[
+            "stress",
+            "--quick",
+            "--suite",
+            "offset",
+            "--allow-outside-refs",
+        ],
+        2,
+        &["--allow-outside-refs", "--mesh"],
+    );
+    std::fs::remove_dir_all(&d).ok();
+}
