@@ -2,8 +2,8 @@
 //! outside the Embree FFI and the SIMD kernels: asking Linux to back large
 //! arrays with transparent huge pages (FFI to the C library that `std` already
 //! links), pinning the build pools' workers to CPUs
-//! ([`pin_to_allowed_cpu`]), letting a closed output pipe end the process
-//! quietly ([`quiet_on_closed_pipe`]), keeping freed memory for reuse
+//! ([`pin_to_allowed_cpu`]), SIGPIPE's disposition ([`ignore_closed_pipe`],
+//! [`end_on_closed_pipe`]), keeping freed memory for reuse
 //! ([`keep_freed_memory`]), and flushing denormals on render threads
 //! ([`FlushDenormals`]).
 //!
@@ -104,27 +104,43 @@ pub fn pin_to_allowed_cpu(_index: usize) -> bool {
     false
 }
 
-/// Restores the default action of SIGPIPE (Rust's runtime ignores it), so that
-/// `raylab validate ... | head -1` ends quietly when `head` closes the pipe, as
-/// git, ripgrep and every C tool do, instead of panicking in `println!` on the
-/// EPIPE error ("failed printing to stdout: Broken pipe").
+/// Ignores SIGPIPE (as Rust's runtime does before `main`; said here, since
+/// the binary once restored its default action), so that a write to a closed
+/// pipe fails with EPIPE instead of ending the process: a closed stderr must
+/// not stop a render before its image is written. A closed stdout still ends
+/// raylab quietly, through [`end_on_closed_pipe`] (see [`crate::console`]).
 #[cfg(unix)]
-pub fn quiet_on_closed_pipe() {
-    extern "C" {
-        fn signal(signum: std::ffi::c_int, handler: usize) -> usize;
-    }
-    const SIGPIPE: std::ffi::c_int = 13;
-    const SIG_DFL: usize = 0;
-    // SAFETY: signal(2) with SIG_DFL installs no handler of ours (no code runs
-    // at signal time), and SIGPIPE is 13 on every Unix Rust targets (Linux, the
-    // BSDs, macOS). It is called once, at start-up, before any thread exists.
+pub fn ignore_closed_pipe() {
+    // SAFETY: signal(2) with SIG_IGN installs no handler of ours (no code runs
+    // at signal time). It is called once, at start-up, before any thread exists.
     unsafe {
-        signal(SIGPIPE, SIG_DFL);
+        libc::signal(libc::SIGPIPE, libc::SIG_IGN);
     }
 }
 
 #[cfg(not(unix))]
-pub fn quiet_on_closed_pipe() {}
+pub fn ignore_closed_pipe() {}
+
+/// Ends the process as SIGPIPE's default action would: quietly, status
+/// 128 + 13 in a shell. Used when stdout's reader has gone (`raylab validate
+/// ... | head -1`), as git, ripgrep and every C tool end there.
+#[cfg(unix)]
+pub fn end_on_closed_pipe() -> ! {
+    // SAFETY: signal(2) with SIG_DFL installs no handler, and raise(3) sends
+    // the signal to this thread, whose default action ends the process; no
+    // memory is touched.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+        libc::raise(libc::SIGPIPE);
+    }
+    // Not reached where SIGPIPE ends the process; the same status otherwise.
+    std::process::exit(128 + libc::SIGPIPE)
+}
+
+#[cfg(not(unix))]
+pub fn end_on_closed_pipe() -> ! {
+    std::process::exit(0)
+}
 
 /// Most bytes glibc's allocator hands out from its heaps, reusing freed
 /// memory, rather than mapping fresh pages per allocation (glibc's upper

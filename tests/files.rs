@@ -1,10 +1,11 @@
 //! Issue 41 as a user and an attacker meet it: a scene's references stay in
-//! its folder.
+//! its folder, output writes fail in one line and never follow a planted
+//! link, and a closed stderr does not stop a render.
 
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Stdio};
 
 use common::{assert_success, raylab, temp_dir};
 
@@ -290,5 +291,155 @@ fn allow_outside_refs_needs_a_scene_file() {
         2,
         &["--allow-outside-refs", "--mesh"],
     );
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn a_full_stdout_is_one_line_and_a_full_stderr_changes_nothing() {
+    let d = temp_dir("full");
+    let o = d.join("x.png");
+    let full = || {
+        std::fs::OpenOptions::new()
+            .write(true)
+            .open("/dev/full")
+            .unwrap()
+    };
+    let out = Command::new(env!("CARGO_BIN_EXE_raylab"))
+        .args([
+            "render",
+            "--size",
+            "16x12",
+            "--json",
+            "-o",
+            o.to_str().unwrap(),
+        ])
+        .stdout(full())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    let last = err.trim_end().lines().last().unwrap_or("");
+    assert!(
+        last.contains("stdout") && last.contains("No space"),
+        "{err}"
+    );
+    assert!(
+        !err.contains("panicked") && !err.contains("internal error"),
+        "{err}"
+    );
+    // The image was written before the report.
+    assert!(o.exists());
+    std::fs::remove_file(&o).unwrap();
+
+    let status = Command::new(env!("CARGO_BIN_EXE_raylab"))
+        .args(["render", "--size", "16x12", "-o", o.to_str().unwrap()])
+        .stderr(full())
+        .status()
+        .unwrap();
+    assert!(status.success(), "{status:?}");
+    assert!(o.exists());
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn a_closed_stderr_does_not_stop_the_render() {
+    // As `raylab render 2>&1 | head -1`: the reader is gone before raylab
+    // writes its summary, and the image must still be written.
+    let d = temp_dir("epipe");
+    let o = d.join("x.png");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_raylab"))
+        .args(["render", "--size", "32x24", "-o", o.to_str().unwrap()])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stderr.take());
+    let status = child.wait().unwrap();
+    assert!(status.success(), "{status:?}");
+    assert!(image::open(&o).is_ok());
+    // A closed stdout still ends raylab quietly, as `| head` expects.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_raylab"))
+        .args(["scenes"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    assert!(
+        out.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn reports_and_ray_files_are_written_whole_and_never_through_a_planted_link() {
+    let d = temp_dir("atomic");
+    let victim = d.join("victim.txt");
+    std::fs::write(&victim, "keep").unwrap();
+    let rays = d.join("r.rays");
+    // The names the old writer would have used next.
+    for pid in 0..4 {
+        let link = d.join(format!("r.rays.tmp-{}", std::process::id() + pid));
+        std::os::unix::fs::symlink(&victim, link).unwrap();
+    }
+    let out = raylab(&[
+        "rays",
+        "cornell-empty",
+        "--size",
+        "8x6",
+        "--count",
+        "50",
+        "--out",
+        rays.to_str().unwrap(),
+    ]);
+    assert_success(&out);
+    assert_eq!(std::fs::read_to_string(&victim).unwrap(), "keep");
+    assert!(std::fs::metadata(&rays).unwrap().len() > 0);
+    // No temporary file left: only the links planted before.
+    let left: Vec<PathBuf> = std::fs::read_dir(&d)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.to_string_lossy().contains(".tmp-") && !p.is_symlink())
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn bench_refuses_a_folder_it_did_not_write_unless_forced() {
+    let d = temp_dir("bench-out");
+    let out = d.join("mine");
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("index.html"), "my own page").unwrap();
+    let o = out.to_str().unwrap();
+    let cheap = [
+        "bench",
+        "cornell-empty",
+        "--quick",
+        "-q",
+        "--parts",
+        "tables",
+        "--variants",
+        "bvh-sah-serial",
+        "--ao",
+        "off",
+        "--size",
+        "16x12",
+        "--out",
+        o,
+    ];
+    assert_fails(&cheap, 2, &["--out", "index.html", "--force"]);
+    assert_eq!(
+        std::fs::read_to_string(out.join("index.html")).unwrap(),
+        "my own page"
+    );
+    let mut forced = cheap.to_vec();
+    forced.push("--force");
+    assert_success(&raylab(&forced));
+    // Its own folder now: a second run needs no --force.
+    assert_success(&raylab(&cheap));
     std::fs::remove_dir_all(&d).ok();
 }

@@ -74,9 +74,14 @@ pub struct BenchArgs {
     /// scene; runs the `libraries` part only).
     #[arg(long, value_name = "FILE")]
     rays: Option<PathBuf>,
-    /// Folder for bench.md, bench.csv, bench.json, charts/, images/ and index.html.
+    /// Folder for bench.md, bench.csv, bench.json, charts/, images/ and
+    /// index.html. A folder holding files bench did not write is refused
+    /// (they could be overwritten) unless --force is given.
     #[arg(long, value_name = "DIR", default_value = "bench-report")]
     out: PathBuf,
+    /// Write into --out even when it holds files bench did not write.
+    #[arg(long)]
+    force: bool,
     #[command(flatten)]
     files: SceneFileArgs,
     /// Print the report as one JSON object on stdout instead of the tables.
@@ -198,10 +203,13 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         max_variant_s: args.max_variant_s,
         parts: parse_parts(&args.parts)?,
         out: args.out.clone(),
+        force: args.force,
         quiet: args.quiet,
         rays: None,
     };
     let mut cfg = cfg;
+    // Before the scenes load and the measuring starts.
+    crate::bench::check_out_dir(&cfg.out, cfg.force)?;
     if let Some(path) = &args.rays {
         if args.scenes.len() != 1 {
             return Err(Error::usage(
@@ -246,20 +254,20 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         scene.set_extra_light(None, args.up);
         if !args.quiet {
             for w in &scene.warnings {
-                eprintln!("warning: {}: {w}", scene.name);
+                crate::console::say(&format!("warning: {}: {w}", scene.name));
             }
         }
     }
     let report = bench::run(&cfg, &scenes)?;
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        crate::console::outln(&serde_json::to_string_pretty(&report)?)?;
     } else {
-        print!("{}", bench::markdown(&report));
-        println!(
+        crate::console::out(&bench::markdown(&report))?;
+        crate::console::outln(&format!(
             "Report: {} (also bench.md, bench.csv, bench.json, charts/); {:.0} s.",
             cfg.out.join("index.html").display(),
             report.elapsed_s
-        );
+        ))?;
     }
     if let Some(m) = report.measurements.iter().find(|m| !m.deterministic) {
         return Err(Error::Other(format!(

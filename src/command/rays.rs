@@ -61,12 +61,12 @@ pub fn run(args: &RaysArgs) -> Result<()> {
         .iter()
         .map(|(s, r)| format!("{} {}", r.len(), s.name()))
         .collect();
-    println!(
+    crate::console::outln(&format!(
         "{}: {} rays of {} ({})",
         args.out.display(),
         sets.iter().map(|(_, r)| r.len()).sum::<usize>(),
         scene.name,
         counts.join(", ")
-    );
+    ))?;
     Ok(())
 }

@@ -117,7 +117,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     args.files.check(std::slice::from_ref(&args.scene))?;
     let say = |line: String| {
         if !args.quiet {
-            eprintln!("{line}");
+            crate::console::say(&line);
         }
     };
 
@@ -245,7 +245,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
             embree_version: backend.spec.is_embree().then(embree_version),
         };
         let text = serde_json::to_string(&report)?;
-        println!("{text}");
+        crate::console::outln(&text)?;
     }
     Ok(())
 }

@@ -78,7 +78,11 @@ pub fn run(args: &StatsArgs) -> Result<()> {
             if let Some(n) = args.leaf_size {
                 params = params.with_max_leaf_size(n);
             }
-            eprintln!("stats: {} with {} ...", scene.name, builder.name());
+            crate::console::say(&format!(
+                "stats: {} with {} ...",
+                scene.name,
+                builder.name()
+            ));
             reports.push(crate::stats::builder_report(
                 &scene,
                 &params,
@@ -89,13 +93,13 @@ pub fn run(args: &StatsArgs) -> Result<()> {
         }
     }
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&reports)?);
+        crate::console::outln(&serde_json::to_string_pretty(&reports)?)?;
     } else {
-        print!("{}", crate::stats::markdown_table(&reports));
-        println!(
+        crate::console::out(&crate::stats::markdown_table(&reports))?;
+        crate::console::outln(&format!(
             "Render for work per ray: {}x{}, ao {}, {} light sample(s); builds on 1 and {} threads, median of {}.",
             args.view.size.0, args.view.size.1, args.view.ao, args.view.light_samples, threads, args.reps
-        );
+        ))?;
     }
     Ok(())
 }

@@ -271,23 +271,23 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
         let genuine: usize = set_reports.iter().map(|r| r.genuine).sum();
         let ties: usize = set_reports.iter().map(|r| r.ties).sum();
         if !args.json {
-            println!(
+            crate::console::outln(&format!(
                 "{} ({} triangles): {} against {}",
                 scene.name,
                 scene.triangle_count(),
                 tested.name(),
                 reference.name()
-            );
-            print!("{}", set_table(&set_reports).markdown());
+            ))?;
+            crate::console::out(&set_table(&set_reports).markdown())?;
             let verdict = if genuine <= args.max_genuine {
                 "ok"
             } else {
                 "FAIL"
             };
-            println!(
+            crate::console::outln(&format!(
                 "{verdict}: {genuine} genuine disagreements (max {}), {ties} ties\n",
                 args.max_genuine
-            );
+            ))?;
         }
         reports.push(ValidateReport {
             scene: scene.name.clone(),
@@ -314,7 +314,7 @@ fn finish<'a>(
     what: &str,
 ) -> Result<()> {
     if args.json {
-        println!("{}", serde_json::to_string_pretty(reports)?);
+        crate::console::outln(&serde_json::to_string_pretty(reports)?)?;
     }
     let failed: Vec<&str> = failed.collect();
     if failed.is_empty() {
@@ -382,19 +382,19 @@ fn run_exact(
             sets: set_reports,
         };
         if !args.json {
-            println!(
+            crate::console::outln(&format!(
                 "{} ({} triangles): {} against the exact reference",
                 scene.name,
                 scene.triangle_count(),
                 report.backend
-            );
-            print!("{}", exact_table(&report.sets).markdown());
-            println!(
+            ))?;
+            crate::console::out(&exact_table(&report.sets).markdown())?;
+            crate::console::outln(&format!(
                 "{}: {wrong} wrong answers ({:.1} per million queries, max {}), {undecidable} undecidable in double precision\n",
                 if report.pass { "ok" } else { "FAIL" },
                 report.wrong_per_million,
                 args.max_genuine
-            );
+            ))?;
         }
         reports.push(report);
     }
