@@ -96,6 +96,7 @@ pub fn main() -> i32 {
         Command::Validate(args) => sub
             .map_or(Ok(()), |m| {
                 crate::command::args::check_backend_flags(m, args.accel.backend)
+                    .and_then(|()| validate::check_ray_file_flags(m, args))
             })
             .and_then(|()| validate::run(args)),
         Command::Stress(args) => stress::run(args),

@@ -1,6 +1,7 @@
 //! Issue 41 as a user and an attacker meet it: a scene's references stay in
 //! its folder, output writes fail in one line and never follow a planted
-//! link, and a closed stderr does not stop a render.
+//! link, a closed stderr does not stop a render, and flags that another flag
+//! makes meaningless are refused (exit 2).
 
 mod common;
 
@@ -441,5 +442,133 @@ fn bench_refuses_a_folder_it_did_not_write_unless_forced() {
     assert_success(&raylab(&forced));
     // Its own folder now: a second run needs no --force.
     assert_success(&raylab(&cheap));
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn flags_that_another_flag_makes_meaningless_are_refused() {
+    let d = temp_dir("meaningless");
+    let o = d.join("x.png");
+    let o = o.to_str().unwrap();
+    let dark = d.join("dark.obj");
+    std::fs::write(&dark, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    let dark = dark.to_str().unwrap();
+    let rays = d.join("r.rays");
+    assert_success(&raylab(&[
+        "rays",
+        "cornell-empty",
+        "--size",
+        "8x6",
+        "--count",
+        "20",
+        "--out",
+        rays.to_str().unwrap(),
+    ]));
+    let rays = rays.to_str().unwrap();
+    let cases: &[(&[&str], &[&str])] = &[
+        (
+            &["render", "--schedule", "serial", "--threads", "2", "-o", o],
+            &["--threads", "serial"],
+        ),
+        (
+            &["render", "--schedule", "rows", "--threads", "1", "-o", o],
+            &["--threads", "rows"],
+        ),
+        (
+            &["render", "--ao", "off", "--ao-dist", "0.5", "-o", o],
+            &["--ao-dist", "--ao off"],
+        ),
+        (
+            &["rays", "--ao", "off", "--ao-dist", "0.5", "--out", rays],
+            &["--ao-dist"],
+        ),
+        (
+            &["validate", "cornell-empty", "--rays", rays, "--size", "8x6"],
+            &["--size", "--rays FILE"],
+        ),
+        (
+            &[
+                "validate",
+                "cornell-empty",
+                "--rays",
+                rays,
+                "--eye",
+                "0,1,2",
+            ],
+            &["--eye", "--rays FILE"],
+        ),
+        (
+            &["validate", "cornell-empty", "--rays", rays, "--ao", "off"],
+            &["--ao", "--rays FILE"],
+        ),
+        (
+            &[
+                "bench",
+                "cornell-empty",
+                "--rays",
+                rays,
+                "--variants",
+                "paper",
+                "--out",
+                o,
+            ],
+            &["--rays", "--variants"],
+        ),
+        (
+            &[
+                "render",
+                dark,
+                "--light",
+                "point:0,1,1",
+                "--light-samples",
+                "4",
+                "-o",
+                o,
+            ],
+            &["--light-samples", "point light", "--light-samples 1"],
+        ),
+        (
+            &["render", dark, "--two-sided-lights", "-o", o],
+            &["--two-sided-lights", "no emissive"],
+        ),
+        (
+            &[
+                "render",
+                dark,
+                "--light",
+                "point:0,1,1",
+                "--two-sided-lights",
+                "-o",
+                o,
+            ],
+            &["--two-sided-lights"],
+        ),
+    ];
+    for (args, needles) in cases {
+        assert_fails(args, 2, needles);
+    }
+    // What stays meaningful: threads with the parallel schedules, several
+    // samples of a point light beside emissive triangles, two-sided
+    // emitters in a scene that has them or with a --light quad.
+    for args in [
+        &["render", "--schedule", "tiles", "--threads", "2"][..],
+        &["render", "--light", "point:0,1,1", "--light-samples", "4"],
+        &["render", "--two-sided-lights"],
+        &[
+            "render",
+            dark,
+            "--light",
+            "quad:0,2,0:1",
+            "--two-sided-lights",
+        ],
+        &["render", "--ao", "off"],
+        &["validate", "cornell-empty", "--rays", rays, "--count", "10"],
+    ] {
+        let mut args = args.to_vec();
+        if args[0] == "render" {
+            args.extend(["--size", "8x6", "-q", "-o", o]);
+        }
+        assert_success(&raylab(&args));
+    }
     std::fs::remove_dir_all(&d).ok();
 }

@@ -72,7 +72,8 @@ pub struct BenchArgs {
     /// A ray file (`raylab rays`) for the `libraries` part to trace instead
     /// of a render's rays: every backend side by side on these rays (one
     /// scene; runs the `libraries` part only).
-    #[arg(long, value_name = "FILE")]
+    /// (Not with --variants: the libraries part traces every backend.)
+    #[arg(long, value_name = "FILE", conflicts_with = "variants")]
     rays: Option<PathBuf>,
     /// Folder for bench.md, bench.csv, bench.json, charts/, images/ and
     /// index.html. A folder holding files bench did not write is refused

@@ -26,7 +26,8 @@ pub struct RenderArgs {
     /// How the image is divided between threads.
     #[arg(long, value_enum, default_value_t = Schedule::Tiles)]
     schedule: Schedule,
-    /// Worker threads for the tiles and rayon schedules [default: all hardware threads].
+    /// Worker threads for the tiles and rayon schedules [default: all hardware
+    /// threads]; refused with serial (one thread) and rows (a thread per row).
     #[arg(long, value_name = "N", value_parser = parse_threads)]
     threads: Option<usize>,
     #[command(flatten)]
@@ -114,6 +115,21 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     let threads = args.threads.unwrap_or_else(default_threads);
     // The flags are checked before any work.
     let spec = args.accel.spec(threads)?;
+    if let (Some(_), Schedule::Serial | Schedule::Rows) = (args.threads, args.schedule) {
+        return Err(crate::Error::usage(
+            "--threads",
+            format!(
+                "applies to --schedule tiles and rayon; {} runs {} (give --build-threads for the build's threads)",
+                args.schedule.name(),
+                if args.schedule == Schedule::Serial {
+                    "on one thread"
+                } else {
+                    "one thread per image row"
+                }
+            ),
+        ));
+    }
+    args.view.check()?;
     args.files.check(std::slice::from_ref(&args.scene))?;
     let say = |line: String| {
         if !args.quiet {

@@ -114,12 +114,29 @@ struct ValidateReport {
     diff_image: Option<String>,
 }
 
+/// The names `--rays` takes for sets of a render's rays (else it is a file).
+const SETS: [&str; 7] = [
+    "primary", "shadow", "ao", "diffuse", "random", "edges", "all",
+];
+
+/// Refuses the view, size and AO flags with a ray file: its rays are traced
+/// as they are, so those flags would be ignored.
+pub fn check_ray_file_flags(m: &clap::ArgMatches, args: &ValidateArgs) -> Result<()> {
+    if SETS.contains(&args.rays.as_str()) {
+        return Ok(());
+    }
+    match super::args::first_given(m, super::args::VIEW_FLAGS) {
+        Some(flag) => Err(Error::usage(
+            flag,
+            "does not apply to --rays FILE: a ray file's rays are traced as they are (view, size, AO and light flags make the rays of a render)",
+        )),
+        None => Ok(()),
+    }
+}
+
 /// The rays of `--rays FILE`, or `None` when `--rays` names a set. A file
 /// applies to one scene, and has no raster for `--diff-image`.
 fn file_rays(args: &ValidateArgs, names: &[String]) -> Result<Option<RaySets>> {
-    const SETS: [&str; 7] = [
-        "primary", "shadow", "ao", "diffuse", "random", "edges", "all",
-    ];
     if SETS.contains(&args.rays.as_str()) {
         return Ok(None);
     }
