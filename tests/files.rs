@@ -410,6 +410,58 @@ fn reports_and_ray_files_are_written_whole_and_never_through_a_planted_link() {
 }
 
 #[test]
+fn a_terminated_write_leaves_no_temporary_file() {
+    // A noisy image (one cosine AO ray), so that its PNG takes a while to
+    // encode: the test ends raylab while the temporary file grows.
+    let d = temp_dir("signal");
+    let o = d.join("big.png");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_raylab"))
+        .args([
+            "render",
+            "--size",
+            "2048x2048",
+            "--ao",
+            "cosine:1",
+            "-q",
+            "-o",
+        ])
+        .arg(&o)
+        .spawn()
+        .unwrap();
+    let growing = || {
+        std::fs::read_dir(&d).unwrap().any(|e| {
+            let e = e.unwrap();
+            e.file_name().to_string_lossy().contains(".tmp-")
+                && e.metadata().is_ok_and(|m| m.len() > 0)
+        })
+    };
+    let mut killed = false;
+    while child.try_wait().unwrap().is_none() {
+        if growing() {
+            let pid = child.id().to_string();
+            killed = Command::new("kill")
+                .args(["-TERM", &pid])
+                .status()
+                .unwrap()
+                .success();
+            break;
+        }
+    }
+    let status = child.wait().unwrap();
+    if killed && !status.success() {
+        let left: Vec<_> = std::fs::read_dir(&d)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .collect();
+        assert!(left.is_empty(), "{left:?}");
+    } else {
+        // The write ended before the signal came: nothing to judge here.
+        eprintln!("the PNG was written before the signal; status {status:?}");
+    }
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
 fn bench_refuses_a_folder_it_did_not_write_unless_forced() {
     let d = temp_dir("bench-out");
     let out = d.join("mine");

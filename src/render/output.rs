@@ -81,7 +81,7 @@ pub fn check_creatable(path: &Path, flag: &str) -> Result<()> {
         ));
     }
     // The same exclusive temporary file a write makes, removed at once.
-    let (file, probe) = create_temp(path).map_err(|e| Error::io(path, e))?;
+    let (file, probe, _signal) = create_temp(path).map_err(|e| Error::io(path, e))?;
     drop(file);
     std::fs::remove_file(&probe).ok();
     Ok(())
@@ -92,7 +92,11 @@ pub fn check_creatable(path: &Path, flag: &str) -> Result<()> {
 /// truncated) under a name no other process can predict, `NAME.tmp-` and 16
 /// hex digits. The old name was `NAME.tmp-PID`, which a local user could
 /// plant as a link to a file of the user's, truncated by the next render.
-fn create_temp(path: &Path) -> std::io::Result<(std::fs::File, PathBuf)> {
+///
+/// The guard returned removes the file if a signal ends raylab while it lives.
+fn create_temp(
+    path: &Path,
+) -> std::io::Result<(std::fs::File, PathBuf, crate::os::RemoveOnSignal)> {
     let mut last = None;
     // A clash needs the same 64 random bits: the retries are for form's sake.
     for _ in 0..8 {
@@ -104,7 +108,12 @@ fn create_temp(path: &Path) -> std::io::Result<(std::fs::File, PathBuf)> {
             .create_new(true)
             .open(&tmp)
         {
-            Ok(file) => return Ok((file, tmp)),
+            Ok(file) => {
+                // Registered just after the create: a signal between the two
+                // is the one moment the file can still be left.
+                let guard = crate::os::RemoveOnSignal::new(&tmp);
+                return Ok((file, tmp, guard));
+            }
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => last = Some(e),
             Err(e) => return Err(e),
         }
@@ -132,15 +141,15 @@ fn unpredictable() -> u64 {
 /// Writes `path` through a temporary file beside it ([`create_temp`]) that
 /// `fill` writes, flushed to disk and then renamed over `path`: a reader or a
 /// failure never sees a partial file under the final name, and an existing
-/// file survives any failure. On an error the temporary file is removed. A
-/// signal that ends raylab (Ctrl-C) mid-write can leave the temporary file
-/// behind (`NAME.tmp-` and 16 hex digits, never the final name): the
-/// process has no chance to remove it.
+/// file survives any failure. On an error the temporary file is removed, and
+/// on SIGINT, SIGTERM or SIGHUP too ([`crate::os::RemoveOnSignal`]); only
+/// SIGKILL or a crash mid-write can leave it (`NAME.tmp-` and 16 hex digits,
+/// never the final name).
 pub fn write_atomic(
     path: &Path,
     fill: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> std::io::Result<()>,
 ) -> Result<()> {
-    let (file, tmp) = create_temp(path).map_err(|e| Error::io(path, e))?;
+    let (file, tmp, _signal) = create_temp(path).map_err(|e| Error::io(path, e))?;
     let result = (|| {
         let mut w = std::io::BufWriter::new(file);
         fill(&mut w)?;
