@@ -54,9 +54,11 @@ pub fn main() -> i32 {
             .location()
             .map(|l| format!(" at {}:{}", l.file(), l.line()))
             .unwrap_or_default();
-        eprintln!("raylab: internal error{place}: {msg} (please report this)");
+        crate::console::say(&format!(
+            "raylab: internal error{place}: {msg} (please report this)"
+        ));
     }));
-    crate::os::quiet_on_closed_pipe();
+    crate::os::ignore_closed_pipe();
     crate::os::keep_freed_memory();
     use clap::{CommandFactory, FromArgMatches};
     let parsed = Cli::command()
@@ -76,7 +78,10 @@ pub fn main() -> i32 {
                     0
                 };
             }
-            eprintln!("raylab: {}", one_line_clap_error(&e.render().to_string()));
+            crate::console::say(&format!(
+                "raylab: {}",
+                one_line_clap_error(&e.render().to_string())
+            ));
             return 2;
         }
     };
@@ -91,23 +96,27 @@ pub fn main() -> i32 {
         Command::Validate(args) => sub
             .map_or(Ok(()), |m| {
                 crate::command::args::check_backend_flags(m, args.accel.backend)
+                    .and_then(|()| validate::check_ray_file_flags(m, args))
             })
             .and_then(|()| validate::run(args)),
         Command::Stress(args) => stress::run(args),
         Command::Bench(args) => bench::run(args),
         Command::Rays(args) => rays::run(args),
-        Command::Scenes => {
-            for (name, about) in BUILTIN_SCENES.iter().chain(PROCEDURAL_SCENES) {
-                println!("{name:18} {about}");
-            }
-            Ok(())
-        }
+        Command::Scenes => BUILTIN_SCENES
+            .iter()
+            .chain(PROCEDURAL_SCENES)
+            .try_for_each(|(name, about)| crate::console::outln(&format!("{name:18} {about}"))),
     };
     match result {
         Ok(()) => 0,
         Err(e) => {
-            eprintln!("raylab: {e}");
-            1
+            crate::console::say(&format!("raylab: {e}"));
+            // Flag and usage errors exit 2, as clap's own; bad input 1.
+            if matches!(e, crate::Error::Usage { .. }) {
+                2
+            } else {
+                1
+            }
         }
     }
 }

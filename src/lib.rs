@@ -14,6 +14,7 @@ pub mod bench;
 pub mod camera;
 pub mod cli;
 pub mod command;
+pub mod console;
 pub mod error;
 pub mod exact;
 pub mod geometry;

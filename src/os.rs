@@ -2,8 +2,9 @@
 //! outside the Embree FFI and the SIMD kernels: asking Linux to back large
 //! arrays with transparent huge pages (FFI to the C library that `std` already
 //! links), pinning the build pools' workers to CPUs
-//! ([`pin_to_allowed_cpu`]), letting a closed output pipe end the process
-//! quietly ([`quiet_on_closed_pipe`]), keeping freed memory for reuse
+//! ([`pin_to_allowed_cpu`]), SIGPIPE's disposition ([`ignore_closed_pipe`],
+//! [`end_on_closed_pipe`]), removing a half-written file when a signal ends
+//! the process ([`RemoveOnSignal`]), keeping freed memory for reuse
 //! ([`keep_freed_memory`]), and flushing denormals on render threads
 //! ([`FlushDenormals`]).
 //!
@@ -104,27 +105,128 @@ pub fn pin_to_allowed_cpu(_index: usize) -> bool {
     false
 }
 
-/// Restores the default action of SIGPIPE (Rust's runtime ignores it), so that
-/// `raylab validate ... | head -1` ends quietly when `head` closes the pipe, as
-/// git, ripgrep and every C tool do, instead of panicking in `println!` on the
-/// EPIPE error ("failed printing to stdout: Broken pipe").
+/// Ignores SIGPIPE (as Rust's runtime does before `main`; said here, since
+/// the binary once restored its default action), so that a write to a closed
+/// pipe fails with EPIPE instead of ending the process: a closed stderr must
+/// not stop a render before its image is written. A closed stdout still ends
+/// raylab quietly, through [`end_on_closed_pipe`] (see [`crate::console`]).
 #[cfg(unix)]
-pub fn quiet_on_closed_pipe() {
-    extern "C" {
-        fn signal(signum: std::ffi::c_int, handler: usize) -> usize;
-    }
-    const SIGPIPE: std::ffi::c_int = 13;
-    const SIG_DFL: usize = 0;
-    // SAFETY: signal(2) with SIG_DFL installs no handler of ours (no code runs
-    // at signal time), and SIGPIPE is 13 on every Unix Rust targets (Linux, the
-    // BSDs, macOS). It is called once, at start-up, before any thread exists.
+pub fn ignore_closed_pipe() {
+    // SAFETY: signal(2) with SIG_IGN installs no handler of ours (no code runs
+    // at signal time). It is called once, at start-up, before any thread exists.
     unsafe {
-        signal(SIGPIPE, SIG_DFL);
+        libc::signal(libc::SIGPIPE, libc::SIG_IGN);
     }
 }
 
 #[cfg(not(unix))]
-pub fn quiet_on_closed_pipe() {}
+pub fn ignore_closed_pipe() {}
+
+/// Ends the process as SIGPIPE's default action would: quietly, status
+/// 128 + 13 in a shell. Used when stdout's reader has gone (`raylab validate
+/// ... | head -1`), as git, ripgrep and every C tool end there.
+#[cfg(unix)]
+pub fn end_on_closed_pipe() -> ! {
+    // SAFETY: signal(2) with SIG_DFL installs no handler, and raise(3) sends
+    // the signal to this thread, whose default action ends the process; no
+    // memory is touched.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+        libc::raise(libc::SIGPIPE);
+    }
+    // Not reached where SIGPIPE ends the process; the same status otherwise.
+    std::process::exit(128 + libc::SIGPIPE)
+}
+
+#[cfg(not(unix))]
+pub fn end_on_closed_pipe() -> ! {
+    std::process::exit(0)
+}
+
+/// The temporary file being written ([`RemoveOnSignal`]), as a C string for
+/// the signal handler; null when none.
+#[cfg(unix)]
+static PENDING_TEMP: std::sync::atomic::AtomicPtr<std::ffi::c_char> =
+    std::sync::atomic::AtomicPtr::new(std::ptr::null_mut());
+
+/// While alive, a SIGINT, SIGTERM or SIGHUP that ends raylab first removes
+/// the temporary file it names, so that an interrupted write (Ctrl-C during
+/// a large PNG) leaves no `NAME.tmp-...` behind. The signal then ends the
+/// process as it would have (its default action, raised again). Signals the
+/// process was started ignoring (`nohup`, a background job's SIGINT) stay
+/// ignored. One file at a time: raylab writes its files one after another.
+/// SIGKILL, or a crash, can still leave the file.
+pub struct RemoveOnSignal {
+    _private: (),
+}
+
+impl RemoveOnSignal {
+    #[cfg(unix)]
+    pub fn new(path: &std::path::Path) -> Self {
+        use std::os::unix::ffi::OsStrExt;
+        use std::sync::atomic::Ordering;
+        static INSTALL: std::sync::Once = std::sync::Once::new();
+        INSTALL.call_once(install_temp_removal);
+        if let Ok(c) = std::ffi::CString::new(path.as_os_str().as_bytes()) {
+            // Leaked, never freed: a handler may still read a pointer that
+            // was just replaced (a few bytes per file written).
+            PENDING_TEMP.store(c.into_raw(), Ordering::SeqCst);
+        }
+        RemoveOnSignal { _private: () }
+    }
+
+    #[cfg(not(unix))]
+    pub fn new(_path: &std::path::Path) -> Self {
+        RemoveOnSignal { _private: () }
+    }
+}
+
+impl Drop for RemoveOnSignal {
+    fn drop(&mut self) {
+        #[cfg(unix)]
+        PENDING_TEMP.store(std::ptr::null_mut(), std::sync::atomic::Ordering::SeqCst);
+    }
+}
+
+#[cfg(unix)]
+extern "C" fn remove_temp_and_end(sig: std::ffi::c_int) {
+    let path = PENDING_TEMP.swap(std::ptr::null_mut(), std::sync::atomic::Ordering::SeqCst);
+    // SAFETY: unlink(2) and raise(3) are async-signal-safe; `path` is null or
+    // a NUL-terminated string that is never freed. SA_RESETHAND restored the
+    // default action before this ran, and the signal is blocked until the
+    // handler returns, so the raised one then ends the process as the
+    // original would have.
+    unsafe {
+        if !path.is_null() {
+            libc::unlink(path);
+        }
+        libc::raise(sig);
+    }
+}
+
+#[cfg(unix)]
+fn install_temp_removal() {
+    for sig in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP] {
+        // SAFETY: sigaction(2) with a zeroed struct as the output reads the
+        // current action; the new action runs only async-signal-safe code
+        // (remove_temp_and_end) and is installed only over the default one,
+        // so an ignored signal stays ignored and nobody else's handler is
+        // replaced.
+        unsafe {
+            let mut old: libc::sigaction = std::mem::zeroed();
+            if libc::sigaction(sig, std::ptr::null(), &mut old) != 0
+                || old.sa_sigaction != libc::SIG_DFL
+            {
+                continue;
+            }
+            let mut action: libc::sigaction = std::mem::zeroed();
+            action.sa_sigaction = remove_temp_and_end as extern "C" fn(std::ffi::c_int) as usize;
+            action.sa_flags = libc::SA_RESETHAND;
+            libc::sigemptyset(&mut action.sa_mask);
+            libc::sigaction(sig, &action, std::ptr::null_mut());
+        }
+    }
+}
 
 /// Most bytes glibc's allocator hands out from its heaps, reusing freed
 /// memory, rather than mapping fresh pages per allocation (glibc's upper

@@ -173,7 +173,7 @@ impl StepBar {
                 } else {
                     String::new()
                 };
-                eprintln!("bench [{percent:.0}%, {elapsed:.0} s{eta}] {msg}");
+                crate::console::say(&format!("bench [{percent:.0}%, {elapsed:.0} s{eta}] {msg}"));
             }
             None => {}
         }

@@ -77,9 +77,10 @@ pub fn encode(sets: &[(RaySet, Vec<Ray>)]) -> Vec<u8> {
     out
 }
 
-/// Writes `sets` to `path`.
+/// Writes `sets` to `path` (atomically, as every file raylab writes).
 pub fn write(path: &Path, sets: &[(RaySet, Vec<Ray>)]) -> Result<()> {
-    std::fs::write(path, encode(sets)).map_err(|e| Error::io(path, e))
+    let bytes = encode(sets);
+    crate::render::output::write_atomic(path, |w| std::io::Write::write_all(w, &bytes))
 }
 
 /// Reads a ray file: its rays grouped by kind, in [`KINDS`] order, kinds

@@ -225,11 +225,11 @@ pub fn double_fan(n: u32) -> TestMesh {
 /// Vertices at the same position are welded first (loaders split them where
 /// normals differ); then every edge must belong to exactly two triangles, since
 /// a ray through a hole is no leak and the suite's count would be meaningless.
-pub fn file_mesh(path: &Path) -> Result<TestMesh> {
+pub fn file_mesh(path: &Path, policy: crate::scene::refs::RefPolicy) -> Result<TestMesh> {
     fn unknown(_: Vec3) -> Option<Vec3> {
         None
     }
-    let scene = crate::scene::load::load_file(path)?;
+    let scene = crate::scene::load::load_file_with(path, policy)?;
     let (positions, triangles) = weld(&scene.positions, &scene.triangles);
     if let Some((edges, at)) = open_edges(&positions, &triangles) {
         return Err(Error::usage(

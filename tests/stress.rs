@@ -119,12 +119,12 @@ fn user_meshes_must_be_closed_and_backends_can_be_chosen() {
                   f 1//1 3//1 2//1\nf 1//2 2//2 4//2\nf 1//3 4//3 3//3\nf 2//4 3//4 4//4\n";
     std::fs::write(dir.join("open.obj"), open).unwrap();
     std::fs::write(dir.join("closed.obj"), closed).unwrap();
-    let Err(e) = file_mesh(&dir.join("open.obj")) else {
+    let Err(e) = file_mesh(&dir.join("open.obj"), Default::default()) else {
         panic!("an open mesh was taken")
     };
     let e = e.to_string();
     assert!(e.contains("not a closed mesh (3 edges"), "{e}");
-    let mesh = file_mesh(&dir.join("closed.obj")).unwrap();
+    let mesh = file_mesh(&dir.join("closed.obj"), Default::default()).unwrap();
     assert_eq!(mesh.positions.len(), 4, "split vertices are welded");
     let kinds = parse_stress_backends("bvh-sah").unwrap();
     let rows = leak_suite_with(&[mesh], 2, &kinds).unwrap();

@@ -93,6 +93,8 @@ pub struct BenchConfig {
     pub max_variant_s: f64,
     pub parts: Vec<Part>,
     pub out: PathBuf,
+    /// Write into `out` even when it holds files bench did not write.
+    pub force: bool,
     pub quiet: bool,
     /// Rays from a ray file (`--rays`), traced by the `libraries` part
     /// instead of the first view's recorded rays.

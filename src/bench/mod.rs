@@ -129,13 +129,52 @@ pub struct BenchReport {
     pub elapsed_s: f64,
 }
 
+/// The file bench writes first into its report folder. A folder that holds
+/// other files but not this one was not made by bench: its files could be
+/// the user's own `index.html` or `images/`, which bench would overwrite.
+pub const MARKER: &str = ".raylab-bench";
+
+/// Refuses `dir` as a report folder when it holds files bench did not write
+/// (it has no [`MARKER`]), unless `force`. A folder that does not exist yet,
+/// an empty one, or an earlier report's is taken.
+pub fn check_out_dir(dir: &Path, force: bool) -> Result<()> {
+    let entries = match std::fs::read_dir(dir) {
+        Ok(entries) => entries,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => return Err(Error::io(dir, e)),
+    };
+    let mut other = None;
+    for entry in entries {
+        let name = entry.map_err(|e| Error::io(dir, e))?.file_name();
+        if name == MARKER {
+            return Ok(());
+        }
+        other.get_or_insert(name);
+    }
+    match other {
+        Some(name) if !force => Err(Error::usage(
+            "--out",
+            format!(
+                "{} holds files raylab bench did not write (such as {name:?}), which it could overwrite: give a new or empty folder, or --force",
+                dir.display()
+            ),
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// Runs the bench and writes the report folder; returns the report.
 pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
     let started = std::time::Instant::now();
+    check_out_dir(&cfg.out, cfg.force)?;
     for sub in ["", "charts", "images"] {
         let dir = cfg.out.join(sub);
         std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
     }
+    output::write_text(
+        &cfg.out.join(MARKER),
+        "This folder holds a report of raylab bench, which writes into it again\nwithout --force.\n",
+    )?;
     output::check_writable(&cfg.out.join("images").join("probe.png"))?;
     if cfg.parts.iter().any(|p| parts::draws(*p)) {
         // Every part but validate draws a chart: fail before measuring for an

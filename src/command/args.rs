@@ -14,6 +14,8 @@ use crate::geometry::Intersector;
 use crate::render::default_ao_dist;
 use crate::render::{AoMode, RenderSettings};
 use crate::scene::light::LightArg;
+use crate::scene::load::{is_scene_file, load_scene_with};
+use crate::scene::refs::RefPolicy;
 use crate::scene::Scene;
 
 /// Camera, lighting and shading flags shared by commands that render.
@@ -68,8 +70,10 @@ impl ViewArgs {
     /// settings: the camera from the flags or, where they are not given, the
     /// scene's default view.
     pub fn prepare(&self, scene: &mut Scene) -> Result<RenderSettings> {
+        self.check()?;
         let light = self.light.map(|l| l.emitter(&scene.bounds()));
         scene.set_extra_light(light, self.up);
+        self.check_lights(scene)?;
         let (width, height) = self.size;
         let (eye, look) = default_view(scene, self.eye, self.look, self.up, self.fov, self.size);
         if !(eye.is_finite() && look.is_finite()) {
@@ -91,6 +95,119 @@ impl ViewArgs {
         };
         settings.validate()?;
         Ok(settings)
+    }
+}
+
+impl ViewArgs {
+    /// Refuses flags that another flag makes meaningless (they used to be
+    /// ignored silently); called before any scene is loaded, and again by
+    /// [`ViewArgs::prepare`].
+    pub fn check(&self) -> Result<()> {
+        if self.ao == AoMode::Off && self.ao_dist.is_some() {
+            return Err(Error::usage(
+                "--ao-dist",
+                "sets the length of AO rays, and --ao off casts none",
+            ));
+        }
+        Ok(())
+    }
+
+    /// Refuses lighting flags that change nothing in `scene` once lit.
+    fn check_lights(&self, scene: &Scene) -> Result<()> {
+        let lights = &scene.lights;
+        let only_point = lights.triangles.is_empty()
+            && matches!(
+                lights.extra,
+                Some(crate::scene::light::Emitter::Point { .. })
+            );
+        if only_point && self.light_samples > 1 {
+            // Every sample of a point light is the same ray: N of them only
+            // inflate the ray counts and Mrays/s.
+            return Err(Error::usage(
+                "--light-samples",
+                format!(
+                    "a point light is sampled by one shadow ray (its {} samples would be identical rays), and scene {} has no emissive triangles: give --light-samples 1",
+                    self.light_samples, scene.name
+                ),
+            ));
+        }
+        let user_quad = matches!(
+            lights.extra,
+            Some(crate::scene::light::Emitter::Quad { .. })
+        ) && self.light.is_some();
+        if self.two_sided_lights && lights.triangles.is_empty() && !user_quad {
+            return Err(Error::usage(
+                "--two-sided-lights",
+                format!(
+                    "scene {} has no emissive triangles, and its light ({}) has no second face to shine from",
+                    scene.name,
+                    if self.light.is_some() { "--light point" } else { "the default light above the scene, facing it" }
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The argument ids of [`ViewArgs`]' flags, with the flags.
+pub const VIEW_FLAGS: &[(&str, &str)] = &[
+    ("eye", "--eye"),
+    ("look", "--look"),
+    ("up", "--up"),
+    ("fov", "--fov"),
+    ("size", "--size"),
+    ("ao", "--ao"),
+    ("ao_dist", "--ao-dist"),
+    ("light_samples", "--light-samples"),
+    ("light", "--light"),
+    ("two_sided_lights", "--two-sided-lights"),
+    ("seed", "--seed"),
+];
+
+/// The first of `flags` (argument id, flag) given on the command line
+/// (defaults do not count).
+pub fn first_given<'a>(m: &clap::ArgMatches, flags: &[(&str, &'a str)]) -> Option<&'a str> {
+    use clap::parser::ValueSource;
+    flags
+        .iter()
+        .find(|(id, _)| m.value_source(id) == Some(ValueSource::CommandLine))
+        .map(|(_, flag)| *flag)
+}
+
+/// How scene files are read, for the commands that load them.
+#[derive(Args, Debug, Clone, Default)]
+pub struct SceneFileArgs {
+    /// Let a scene file's references (glTF buffer URIs, OBJ mtllib names)
+    /// lead outside its folder: absolute paths, `..`, symbolic links out.
+    /// Off by default, because a downloaded scene could otherwise make
+    /// raylab read (and show parts of) any file you can read.
+    #[arg(long)]
+    pub allow_outside_refs: bool,
+}
+
+impl SceneFileArgs {
+    pub fn policy(&self) -> RefPolicy {
+        RefPolicy {
+            allow_outside: self.allow_outside_refs,
+        }
+    }
+
+    /// Refuses `--allow-outside-refs` when none of `scenes` is a file: the
+    /// built-in scenes refer to nothing, and a flag that changes nothing is
+    /// not accepted silently.
+    pub fn check(&self, scenes: &[String]) -> Result<()> {
+        if self.allow_outside_refs && !scenes.iter().any(|s| is_scene_file(s)) {
+            return Err(Error::usage(
+                "--allow-outside-refs",
+                "applies to scene files' references; built-in scenes have none",
+            ));
+        }
+        Ok(())
+    }
+
+    /// Loads `spec` under these flags.
+    pub fn load(&self, spec: &str) -> Result<Scene> {
+        load_scene_with(spec, self.policy())
     }
 }
 

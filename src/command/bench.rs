@@ -6,13 +6,12 @@ use std::path::PathBuf;
 use clap::Args;
 use glam::Vec3;
 
-use super::args::{parse_fov, parse_size, parse_threads, parse_vec3};
+use super::args::{parse_fov, parse_size, parse_threads, parse_vec3, SceneFileArgs};
 use crate::bench::Part;
 use crate::error::{Error, Result};
 use crate::render::schedule::default_threads;
 use crate::render::AoMode;
 use crate::scene::builtin::BUILTIN_SCENES;
-use crate::scene::load::load_scene;
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {
@@ -73,7 +72,8 @@ pub struct BenchArgs {
     /// A ray file (`raylab rays`) for the `libraries` part to trace instead
     /// of a render's rays: every backend side by side on these rays (one
     /// scene; runs the `libraries` part only).
-    #[arg(long, value_name = "FILE")]
+    /// (Not with --variants: the libraries part traces every backend.)
+    #[arg(long, value_name = "FILE", conflicts_with = "variants")]
     rays: Option<PathBuf>,
     /// The cliff finder: run the `libraries` part over generated scenes of
     /// every class a user might bring (planar, architecture interior,
@@ -83,9 +83,16 @@ pub struct BenchArgs {
     /// the best peer.
     #[arg(long)]
     cliffs: bool,
-    /// Folder for bench.md, bench.csv, bench.json, charts/, images/ and index.html.
+    /// Folder for bench.md, bench.csv, bench.json, charts/, images/ and
+    /// index.html. A folder holding files bench did not write is refused
+    /// (they could be overwritten) unless --force is given.
     #[arg(long, value_name = "DIR", default_value = "bench-report")]
     out: PathBuf,
+    /// Write into --out even when it holds files bench did not write.
+    #[arg(long)]
+    force: bool,
+    #[command(flatten)]
+    files: SceneFileArgs,
     /// Print the report as one JSON object on stdout instead of the tables.
     #[arg(long)]
     json: bool,
@@ -205,10 +212,13 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         max_variant_s: args.max_variant_s,
         parts: parse_parts(&args.parts)?,
         out: args.out.clone(),
+        force: args.force,
         quiet: args.quiet,
         rays: None,
     };
     let mut cfg = cfg;
+    // Before the scenes load and the measuring starts.
+    crate::bench::check_out_dir(&cfg.out, cfg.force)?;
     if let Some(path) = &args.rays {
         if args.scenes.len() != 1 {
             return Err(Error::usage(
@@ -249,9 +259,10 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     } else {
         cfg.scenes.clone()
     };
+    args.files.check(&names)?;
     let mut scenes = names
         .iter()
-        .map(|n| load_scene(n))
+        .map(|n| args.files.load(n))
         .collect::<Result<Vec<_>>>()?;
     for scene in &mut scenes {
         // A view whose eye is the point it looks at: refused before any work.
@@ -271,20 +282,20 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         scene.set_extra_light(None, args.up);
         if !args.quiet {
             for w in &scene.warnings {
-                eprintln!("warning: {}: {w}", scene.name);
+                crate::console::say(&format!("warning: {}: {w}", scene.name));
             }
         }
     }
     let report = bench::run(&cfg, &scenes)?;
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        crate::console::outln(&serde_json::to_string_pretty(&report)?)?;
     } else {
-        print!("{}", bench::markdown(&report));
-        println!(
+        crate::console::out(&bench::markdown(&report))?;
+        crate::console::outln(&format!(
             "Report: {} (also bench.md, bench.csv, bench.json, charts/); {:.0} s.",
             cfg.out.join("index.html").display(),
             report.elapsed_s
-        );
+        ))?;
     }
     if let Some(m) = report.measurements.iter().find(|m| !m.deterministic) {
         return Err(Error::Other(format!(

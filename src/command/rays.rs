@@ -6,12 +6,11 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use super::args::{parse_threads, ViewArgs};
+use super::args::{parse_threads, SceneFileArgs, ViewArgs};
 use crate::accel::bvh::BuildParams;
 use crate::accel::{build_backend, BackendSpec};
 use crate::error::Result;
 use crate::render::schedule::default_threads;
-use crate::scene::load::load_scene;
 use crate::validate::{ray_sets, RaySet};
 
 #[derive(Args, Debug)]
@@ -30,6 +29,8 @@ pub struct RaysArgs {
     threads: Option<usize>,
     #[command(flatten)]
     view: ViewArgs,
+    #[command(flatten)]
+    files: SceneFileArgs,
 }
 
 /// The sets a ray file holds: what one render asks (primary, shadow, AO) and
@@ -39,7 +40,8 @@ const SETS: [RaySet; 4] = [RaySet::Primary, RaySet::Shadow, RaySet::Ao, RaySet::
 pub fn run(args: &RaysArgs) -> Result<()> {
     crate::render::output::check_creatable(&args.out, "--out")?;
     let threads = args.threads.unwrap_or_else(default_threads);
-    let mut scene = load_scene(&args.scene)?;
+    args.files.check(std::slice::from_ref(&args.scene))?;
+    let mut scene = args.files.load(&args.scene)?;
     let settings = args.view.prepare(&mut scene)?;
     // Recorded with raylab's tree: the naive scan's hits bit for bit.
     let recorder = build_backend(
@@ -59,12 +61,12 @@ pub fn run(args: &RaysArgs) -> Result<()> {
         .iter()
         .map(|(s, r)| format!("{} {}", r.len(), s.name()))
         .collect();
-    println!(
+    crate::console::outln(&format!(
         "{}: {} rays of {} ({})",
         args.out.display(),
         sets.iter().map(|(_, r)| r.len()).sum::<usize>(),
         scene.name,
         counts.join(", ")
-    );
+    ))?;
     Ok(())
 }

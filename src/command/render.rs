@@ -7,14 +7,13 @@ use std::time::{Duration, Instant};
 use clap::Args;
 use serde::Serialize;
 
-use super::args::{parse_threads, BackendArgs, ViewArgs};
+use super::args::{parse_threads, BackendArgs, SceneFileArgs, ViewArgs};
 use crate::accel::build_backend;
 use crate::accel::embree::version_or_none as embree_version;
 use crate::error::Result;
 use crate::progress::Progress;
 use crate::render::schedule::default_threads;
 use crate::render::{self, output, Schedule};
-use crate::scene::load::load_scene;
 use crate::table::ms;
 
 #[derive(Args, Debug)]
@@ -27,11 +26,14 @@ pub struct RenderArgs {
     /// How the image is divided between threads.
     #[arg(long, value_enum, default_value_t = Schedule::Tiles)]
     schedule: Schedule,
-    /// Worker threads for the tiles and rayon schedules [default: all hardware threads].
+    /// Worker threads for the tiles and rayon schedules [default: all hardware
+    /// threads]; refused with serial (one thread) and rows (a thread per row).
     #[arg(long, value_name = "N", value_parser = parse_threads)]
     threads: Option<usize>,
     #[command(flatten)]
     view: ViewArgs,
+    #[command(flatten)]
+    files: SceneFileArgs,
     /// Output PNG.
     #[arg(
         short = 'o',
@@ -113,14 +115,30 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     let threads = args.threads.unwrap_or_else(default_threads);
     // The flags are checked before any work.
     let spec = args.accel.spec(threads)?;
+    if let (Some(_), Schedule::Serial | Schedule::Rows) = (args.threads, args.schedule) {
+        return Err(crate::Error::usage(
+            "--threads",
+            format!(
+                "applies to --schedule tiles and rayon; {} runs {} (give --build-threads for the build's threads)",
+                args.schedule.name(),
+                if args.schedule == Schedule::Serial {
+                    "on one thread"
+                } else {
+                    "one thread per image row"
+                }
+            ),
+        ));
+    }
+    args.view.check()?;
+    args.files.check(std::slice::from_ref(&args.scene))?;
     let say = |line: String| {
         if !args.quiet {
-            eprintln!("{line}");
+            crate::console::say(&line);
         }
     };
 
     let start = Instant::now();
-    let mut scene = load_scene(&args.scene)?;
+    let mut scene = args.files.load(&args.scene)?;
     let load_time = start.elapsed();
     let settings = args.view.prepare(&mut scene)?;
     for w in &scene.warnings {
@@ -243,7 +261,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
             embree_version: backend.spec.is_embree().then(embree_version),
         };
         let text = serde_json::to_string(&report)?;
-        println!("{text}");
+        crate::console::outln(&text)?;
     }
     Ok(())
 }

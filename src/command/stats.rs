@@ -2,12 +2,11 @@
 
 use clap::Args;
 
-use super::args::{parse_leaf_size, parse_threads, ViewArgs};
+use super::args::{parse_leaf_size, parse_threads, SceneFileArgs, ViewArgs};
 use crate::accel::bvh::{BuildParams, BuilderKind};
 use crate::error::Result;
 use crate::render::schedule::default_threads;
 use crate::scene::builtin::BUILTIN_SCENES;
-use crate::scene::load::load_scene;
 
 /// What `--builder` takes: every builder's name, and `all`.
 const BUILDER_NAMES: [&str; BuilderKind::ALL.len() + 1] = [
@@ -44,6 +43,8 @@ pub struct StatsArgs {
     reps: u32,
     #[command(flatten)]
     view: ViewArgs,
+    #[command(flatten)]
+    files: SceneFileArgs,
     /// Print the reports as one JSON array on stdout instead of a table.
     #[arg(long)]
     json: bool,
@@ -67,16 +68,21 @@ pub fn run(args: &StatsArgs) -> Result<()> {
     } else {
         args.scenes.clone()
     };
+    args.files.check(&names)?;
     let mut reports = Vec::new();
     for name in &names {
-        let mut scene = load_scene(name)?;
+        let mut scene = args.files.load(name)?;
         let settings = args.view.prepare(&mut scene)?;
         for &builder in &builders {
             let mut params = BuildParams::for_builder(builder).with_optimize(args.optimize);
             if let Some(n) = args.leaf_size {
                 params = params.with_max_leaf_size(n);
             }
-            eprintln!("stats: {} with {} ...", scene.name, builder.name());
+            crate::console::say(&format!(
+                "stats: {} with {} ...",
+                scene.name,
+                builder.name()
+            ));
             reports.push(crate::stats::builder_report(
                 &scene,
                 &params,
@@ -87,13 +93,13 @@ pub fn run(args: &StatsArgs) -> Result<()> {
         }
     }
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&reports)?);
+        crate::console::outln(&serde_json::to_string_pretty(&reports)?)?;
     } else {
-        print!("{}", crate::stats::markdown_table(&reports));
-        println!(
+        crate::console::out(&crate::stats::markdown_table(&reports))?;
+        crate::console::outln(&format!(
             "Render for work per ray: {}x{}, ao {}, {} light sample(s); builds on 1 and {} threads, median of {}.",
             args.view.size.0, args.view.size.1, args.view.ao, args.view.light_samples, threads, args.reps
-        );
+        ))?;
     }
     Ok(())
 }

@@ -26,6 +26,8 @@ pub struct StressArgs {
     /// naive scan tests every triangle per ray: minutes on a mesh of 10^4.
     #[arg(long, value_name = "LIST", default_value = "all")]
     backends: String,
+    #[command(flatten)]
+    files: super::args::SceneFileArgs,
     /// Write stress.md, stress.json and leaks.csv into this folder.
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
@@ -42,22 +44,28 @@ pub fn run(args: &StressArgs) -> Result<()> {
         output::check_writable(&dir.join("probe.png"))?;
     }
     let kinds = parse_stress_backends(&args.backends)?;
+    if args.files.allow_outside_refs && args.mesh.is_empty() {
+        return Err(Error::usage(
+            "--allow-outside-refs",
+            "applies to the scene files of --mesh; none is given",
+        ));
+    }
     // The user's meshes are read (and refused when open) before any suite runs.
     let user_meshes = args
         .mesh
         .iter()
-        .map(|p| file_mesh(p))
+        .map(|p| file_mesh(p, args.files.policy()))
         .collect::<Result<Vec<_>>>()?;
     let mut report = StressReport::default();
     let q = args.quick;
     if want("leaks") {
-        eprintln!("stress: leaks ...");
+        crate::console::say("stress: leaks ...");
         let mut meshes = leak_meshes(q);
         meshes.extend(user_meshes);
         report.leaks = leak_suite_with(&meshes, if q { 2 } else { 4 }, &kinds)?;
     }
     if want("offset") {
-        eprintln!("stress: offset ...");
+        crate::console::say("stress: offset ...");
         let shifts: &[f32] = if q {
             &[0.0, 1e2, 1e4, 1e6]
         } else {
@@ -66,11 +74,11 @@ pub fn run(args: &StressArgs) -> Result<()> {
         report.offset = offset_suite(shifts, if q { 2000 } else { 20_000 })?;
     }
     if want("degenerate") {
-        eprintln!("stress: degenerate ...");
+        crate::console::say("stress: degenerate ...");
         report.degenerate = degenerate_suite(if q { 2000 } else { 20_000 }, &kinds)?;
     }
     if want("hostile") {
-        eprintln!("stress: hostile ...");
+        crate::console::say("stress: hostile ...");
         report.hostile = Some(hostile_suite(if q { 500 } else { 5000 }, 1)?);
     }
     let json = serde_json::to_string_pretty(&report)?;
@@ -111,9 +119,9 @@ pub fn run(args: &StressArgs) -> Result<()> {
         write("leaks.csv", &csv.csv())?;
     }
     if args.json {
-        println!("{json}");
+        crate::console::outln(&json)?;
     } else {
-        print!("{}", report.markdown());
+        crate::console::out(&report.markdown())?;
     }
     let hostile_failed = report
         .hostile

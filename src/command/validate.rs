@@ -5,14 +5,13 @@ use std::path::{Path, PathBuf};
 use clap::Args;
 use serde::Serialize;
 
-use super::args::{parse_threads, BackendArgs, ViewArgs};
+use super::args::{parse_threads, BackendArgs, SceneFileArgs, ViewArgs};
 use crate::accel::{build_backend, BackendKind, BackendSpec};
 use crate::error::{Error, Result};
 use crate::rayfile::RaySets;
 use crate::render::output;
 use crate::render::schedule::default_threads;
 use crate::scene::builtin::BUILTIN_SCENES;
-use crate::scene::load::load_scene;
 use crate::table::{
     Align::{Left, Right},
     Table,
@@ -52,6 +51,8 @@ pub struct ValidateArgs {
     threads: Option<usize>,
     #[command(flatten)]
     view: ViewArgs,
+    #[command(flatten)]
+    files: SceneFileArgs,
     /// Print one JSON array with a report per scene on stdout.
     #[arg(long)]
     json: bool,
@@ -118,12 +119,29 @@ struct ValidateReport {
     diff_image: Option<String>,
 }
 
+/// The names `--rays` takes for sets of a render's rays (else it is a file).
+const SETS: [&str; 7] = [
+    "primary", "shadow", "ao", "diffuse", "random", "edges", "all",
+];
+
+/// Refuses the view, size and AO flags with a ray file: its rays are traced
+/// as they are, so those flags would be ignored.
+pub fn check_ray_file_flags(m: &clap::ArgMatches, args: &ValidateArgs) -> Result<()> {
+    if SETS.contains(&args.rays.as_str()) {
+        return Ok(());
+    }
+    match super::args::first_given(m, super::args::VIEW_FLAGS) {
+        Some(flag) => Err(Error::usage(
+            flag,
+            "does not apply to --rays FILE: a ray file's rays are traced as they are (view, size, AO and light flags make the rays of a render)",
+        )),
+        None => Ok(()),
+    }
+}
+
 /// The rays of `--rays FILE`, or `None` when `--rays` names a set. A file
 /// applies to one scene, and has no raster for `--diff-image`.
 fn file_rays(args: &ValidateArgs, names: &[String]) -> Result<Option<RaySets>> {
-    const SETS: [&str; 7] = [
-        "primary", "shadow", "ao", "diffuse", "random", "edges", "all",
-    ];
     if SETS.contains(&args.rays.as_str()) {
         return Ok(None);
     }
@@ -192,6 +210,7 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
     } else {
         args.scenes.clone()
     };
+    args.files.check(&names)?;
     if let Some(path) = &args.diff_image {
         output::check_writable(&diff_image_path(path, &names[0], names.len() > 1))?;
     }
@@ -214,7 +233,7 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
     let reference_spec = BackendSpec::default_for(against, threads);
     let mut reports = Vec::new();
     for name in &names {
-        let mut scene = load_scene(name)?;
+        let mut scene = args.files.load(name)?;
         let settings = args.view.prepare(&mut scene)?;
         let tested = build_backend(&spec, &scene)?;
         let reference = build_backend(&reference_spec, &scene)?;
@@ -276,20 +295,20 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
         let behind = spawns.as_ref().map_or(0, |s| s.behind);
         let pass = genuine <= args.max_genuine && behind == 0;
         if !args.json {
-            println!(
+            crate::console::outln(&format!(
                 "{} ({} triangles): {} against {}",
                 scene.name,
                 scene.triangle_count(),
                 tested.name(),
                 reference.name()
-            );
-            print!("{}", set_table(&set_reports).markdown());
-            print_spawns(spawns.as_ref());
-            println!(
+            ))?;
+            crate::console::out(&set_table(&set_reports).markdown())?;
+            print_spawns(spawns.as_ref())?;
+            crate::console::outln(&format!(
                 "{}: {genuine} genuine disagreements (max {}), {ties} ties\n",
                 if pass { "ok" } else { "FAIL" },
                 args.max_genuine
-            );
+            ))?;
         }
         reports.push(ValidateReport {
             scene: scene.name.clone(),
@@ -310,15 +329,16 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
 
 /// Prints, under a set table, how many of the render's secondary rays start
 /// behind their own surface (the examples when any do).
-fn print_spawns(spawns: Option<&SpawnReport>) {
-    let Some(s) = spawns else { return };
-    println!(
+fn print_spawns(spawns: Option<&SpawnReport>) -> Result<()> {
+    let Some(s) = spawns else { return Ok(()) };
+    crate::console::outln(&format!(
         "secondary-ray origins: {} of {} behind or on their own surface",
         s.behind, s.surfaces
-    );
+    ))?;
     for (tri, origin) in &s.examples {
-        println!("  triangle {tri}: origin {origin:?}");
+        crate::console::outln(&format!("  triangle {tri}: origin {origin:?}"))?;
     }
+    Ok(())
 }
 
 /// Prints the JSON reports when asked, and fails naming the scenes with
@@ -331,7 +351,7 @@ fn finish<'a>(
     what: &str,
 ) -> Result<()> {
     if args.json {
-        println!("{}", serde_json::to_string_pretty(reports)?);
+        crate::console::outln(&serde_json::to_string_pretty(reports)?)?;
     }
     let failed: Vec<&str> = failed.collect();
     if failed.is_empty() {
@@ -365,7 +385,7 @@ fn run_exact(
     let count = args.count as usize;
     let mut reports = Vec::new();
     for name in names {
-        let mut scene = load_scene(name)?;
+        let mut scene = args.files.load(name)?;
         let settings = args.view.prepare(&mut scene)?;
         let tested = build_backend(&spec, &scene)?;
         let reference = ExactReference::new(scene.triangle_vertices());
@@ -400,20 +420,20 @@ fn run_exact(
             spawns,
         };
         if !args.json {
-            println!(
+            crate::console::outln(&format!(
                 "{} ({} triangles): {} against the exact reference",
                 scene.name,
                 scene.triangle_count(),
                 report.backend
-            );
-            print!("{}", exact_table(&report.sets).markdown());
-            print_spawns(report.spawns.as_ref());
-            println!(
+            ))?;
+            crate::console::out(&exact_table(&report.sets).markdown())?;
+            print_spawns(report.spawns.as_ref())?;
+            crate::console::outln(&format!(
                 "{}: {wrong} wrong answers ({:.1} per million queries, max {}), {undecidable} undecidable in double precision\n",
                 if report.pass { "ok" } else { "FAIL" },
                 report.wrong_per_million,
                 args.max_genuine
-            );
+            ))?;
         }
         reports.push(report);
     }

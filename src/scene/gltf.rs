@@ -17,12 +17,18 @@ use std::path::Path;
 use base64::Engine;
 use glam::{Mat3, Mat4, Vec3};
 
+use super::refs::{RefPolicy, Refs};
 use super::{Material, Scene};
 use crate::error::{Error, Result};
 
-/// Loads a glTF file's bytes (JSON or GLB); external buffers are read relative
-/// to `path`'s folder.
+/// Loads a glTF file's bytes (JSON or GLB); external buffers are read from
+/// `path`'s folder, never outside it.
 pub fn load_gltf_bytes(bytes: &[u8], path: &Path) -> Result<Scene> {
+    load_gltf_bytes_with(bytes, path, RefPolicy::default())
+}
+
+/// [`load_gltf_bytes`], external buffers read where `policy` allows.
+pub fn load_gltf_bytes_with(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Scene> {
     let err = |msg: String| Error::Parse {
         path: path.to_path_buf(),
         line: 0,
@@ -37,7 +43,7 @@ pub fn load_gltf_bytes(bytes: &[u8], path: &Path) -> Result<Scene> {
             err(format!("glTF: {}", first_complaint(&e)))
         }
     })?;
-    let buffers = load_buffers(&gltf, path)?;
+    let buffers = load_buffers(&gltf, path, &Refs::new(path, policy))?;
     check_accessors(&gltf.document, &buffers).map_err(err)?;
 
     let mut out = Flattened::default();
@@ -139,9 +145,11 @@ fn first_complaint(e: &gltf::Error) -> String {
 }
 
 /// Every buffer's bytes: the GLB's binary chunk, a base64 data URI, or a file
-/// beside the glTF.
-fn load_buffers(gltf: &gltf::Gltf, path: &Path) -> Result<Vec<Vec<u8>>> {
-    let dir = path.parent().unwrap_or(Path::new(""));
+/// beside the glTF (its first `byteLength` bytes, read as [`Refs`] allows).
+///
+/// Images are not read (raylab reads no textures), so their URIs are never
+/// opened.
+fn load_buffers(gltf: &gltf::Gltf, path: &Path, refs: &Refs) -> Result<Vec<Vec<u8>>> {
     let err = |msg: String| Error::Parse {
         path: path.to_path_buf(),
         line: 0,
@@ -168,16 +176,14 @@ fn load_buffers(gltf: &gltf::Gltf, path: &Path) -> Result<Vec<Vec<u8>>> {
                     .map_err(|e| err(format!("buffer {}: bad base64 data: {e}", buffer.index())))?
             }
             gltf::buffer::Source::Uri(uri) => {
-                let file = dir.join(percent_decode(uri));
-                std::fs::read(&file).map_err(|e| {
-                    err(format!(
-                        "buffer {}: {}: {e}",
-                        buffer.index(),
-                        file.display()
-                    ))
-                })?
+                // Named as written (quoted: one line whatever it holds);
+                // decoded before the folder rule, so %2e%2e%2f is ../ there.
+                refs.read_prefix(&percent_decode(uri), buffer.length() as u64)
+                    .map_err(|e| err(format!("buffer {} {uri:?}: {e}", buffer.index())))?
             }
         };
+        // The file's own bytes (GLB chunk, data URI): their count is the
+        // scene's, and worth telling.
         if data.len() < buffer.length() {
             return Err(err(format!(
                 "buffer {} has {} bytes, the file says {}",
@@ -189,6 +195,18 @@ fn load_buffers(gltf: &gltf::Gltf, path: &Path) -> Result<Vec<Vec<u8>>> {
         out.push(data);
     }
     Ok(out)
+}
+
+/// Whether all of `a`'s data lies in the glTF file itself (its GLB chunk or a
+/// data URI), whose values an error message may show; values read from a
+/// file beside it are not shown (with `--allow-outside-refs` that file could
+/// be any file of the user's).
+fn in_scene_file(a: &gltf::Accessor) -> bool {
+    let own = |v: &gltf::buffer::View| match v.buffer().source() {
+        gltf::buffer::Source::Bin => true,
+        gltf::buffer::Source::Uri(uri) => uri.starts_with("data:"),
+    };
+    a.view().is_none_or(|v| own(&v)) && a.sparse().is_none()
 }
 
 /// `%20`-style escapes in a relative URI.
@@ -316,8 +334,14 @@ impl Flattened {
             None => (0..count as u32).collect(),
         };
         if let Some(&bad) = indices.iter().find(|&&i| i as usize >= count) {
+            // The value only when it is the scene file's own (see in_scene_file).
+            let (accessor, value) = match prim.indices() {
+                Some(a) if in_scene_file(&a) => (a.index().to_string(), format!(" {bad}")),
+                Some(a) => (a.index().to_string(), String::new()),
+                None => ("?".into(), String::new()),
+            };
             return Err(format!(
-                "mesh primitive index {bad} out of range ({count} vertices)"
+                "accessor {accessor}: mesh primitive index{value} out of range ({count} vertices)"
             ));
         }
         let mirrored = world.determinant() < 0.0;

@@ -5,6 +5,7 @@
 
 use std::path::Path;
 
+use super::refs::RefPolicy;
 use super::{gltf, obj, ply, Scene, EXTENSIONS, READS};
 use crate::error::{Error, Result};
 
@@ -42,18 +43,24 @@ pub enum Format {
     Gltf,
 }
 
-/// Loads a scene file in any format raylab reads.
+/// Loads a scene file in any format raylab reads; the files it refers to
+/// must be in its folder.
 pub fn load_file(path: &Path) -> Result<Scene> {
+    load_file_with(path, RefPolicy::default())
+}
+
+/// [`load_file`], the files it refers to read where `policy` allows.
+pub fn load_file_with(path: &Path, policy: RefPolicy) -> Result<Scene> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     match detect(path, &bytes)? {
         Format::Ply => ply::load_ply_bytes(&bytes, path),
-        Format::Gltf => gltf::load_gltf_bytes(&bytes, path),
+        Format::Gltf => gltf::load_gltf_bytes_with(&bytes, path, policy),
         Format::Obj => {
             let text = String::from_utf8_lossy(&bytes);
             // A UTF-8 byte-order mark would make the first record unknown.
             let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
             let dir = path.parent().unwrap_or(Path::new(""));
-            obj::load_obj_str(text, path, dir)
+            obj::load_obj_str_with(text, path, dir, policy)
         }
     }
 }
@@ -61,17 +68,26 @@ pub fn load_file(path: &Path) -> Result<Scene> {
 /// Loads `spec`: a scene file (an existing file, a path, or a name with a scene
 /// extension), or else a built-in scene name.
 pub fn load_scene(spec: &str) -> Result<Scene> {
+    load_scene_with(spec, RefPolicy::default())
+}
+
+/// [`load_scene`], a scene file's references read where `policy` allows.
+pub fn load_scene_with(spec: &str, policy: RefPolicy) -> Result<Scene> {
+    if is_scene_file(spec) {
+        load_file_with(Path::new(spec), policy)
+    } else {
+        super::builtin::builtin(spec)
+    }
+}
+
+/// Whether [`load_scene`] takes `spec` for a file rather than a built-in name.
+pub fn is_scene_file(spec: &str) -> bool {
     let path = Path::new(spec);
     let has_scene_extension = path.extension().is_some_and(|e| {
         let e = e.to_string_lossy().to_ascii_lowercase();
         EXTENSIONS.contains(&e.as_str())
     });
-    let looks_like_file = has_scene_extension || spec.contains(std::path::MAIN_SEPARATOR);
-    if looks_like_file || path.is_file() {
-        load_file(path)
-    } else {
-        super::builtin::builtin(spec)
-    }
+    has_scene_extension || spec.contains(std::path::MAIN_SEPARATOR) || path.is_file()
 }
 
 /// The reader for `bytes` read from `path`, or an error naming what it is.

@@ -10,6 +10,7 @@ pub mod load;
 pub mod obj;
 pub mod ply;
 pub mod polygon;
+pub mod refs;
 
 use glam::Vec3;
 

@@ -27,6 +27,7 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
+use super::refs::{RefError, RefPolicy, Refs};
 use super::{polygon, Material, Scene};
 use crate::error::{Error, Result};
 
@@ -39,11 +40,21 @@ pub fn load_obj(path: &Path) -> Result<Scene> {
 }
 
 /// Loads OBJ text; `path` names it in messages and `mtl_dir` is where `mtllib`
-/// names are looked up. Used by [`load_obj`] and by tests with fixture strings.
+/// names are looked up (never outside it). Used by [`load_obj`] and by tests with fixture strings.
 pub fn load_obj_str(text: &str, path: &Path, mtl_dir: &Path) -> Result<Scene> {
+    load_obj_str_with(text, path, mtl_dir, RefPolicy::default())
+}
+
+/// [`load_obj_str`], MTL files read where `policy` allows.
+pub fn load_obj_str_with(
+    text: &str,
+    path: &Path,
+    mtl_dir: &Path,
+    policy: RefPolicy,
+) -> Result<Scene> {
     let mut reader = ObjReader {
         path,
-        mtl_dir,
+        refs: Refs::in_dir(mtl_dir, policy),
         positions: Vec::new(),
         normals: Vec::new(),
         texcoords: 0,
@@ -80,7 +91,8 @@ struct Face {
 /// The reader's state between records.
 struct ObjReader<'a> {
     path: &'a Path,
-    mtl_dir: &'a Path,
+    /// Where `mtllib` files may be read from.
+    refs: Refs,
     positions: Vec<Vec3>,
     normals: Vec<Vec3>,
     texcoords: i64,
@@ -161,8 +173,8 @@ impl ObjReader<'_> {
             "l" | "p" => self.lines_and_points += 1,
             "usemtl" => self.current = self.by_name.get(rest).copied(),
             "mtllib" => {
-                for file in mtl_names(rest, self.mtl_dir) {
-                    self.read_mtl(&self.mtl_dir.join(file))?;
+                for file in mtl_names(rest, &self.refs) {
+                    self.read_mtl(&file, line_no)?;
                 }
             }
             _ => {} // o, g, s, and keys raylab has no use for
@@ -214,10 +226,15 @@ impl ObjReader<'_> {
         })
     }
 
-    fn read_mtl(&mut self, mtl_path: &Path) -> Result<()> {
-        match std::fs::read(mtl_path) {
+    /// Reads the material library `name` (as the `mtllib` record on line
+    /// `line_no` writes it). One that cannot be read is a warning (the faces
+    /// get the default grey); one refused by the folder and file rules of
+    /// [`Refs`] is an error.
+    fn read_mtl(&mut self, name: &str, line_no: usize) -> Result<()> {
+        match self.refs.read_whole(name, MTL_CAP) {
             Ok(bytes) => {
-                let (mats, mut warnings) = parse_mtl(&String::from_utf8_lossy(&bytes), mtl_path)?;
+                let mtl_path = self.refs.dir().join(name);
+                let (mats, mut warnings) = parse_mtl(&String::from_utf8_lossy(&bytes), &mtl_path)?;
                 self.warnings.append(&mut warnings);
                 for m in mats {
                     self.by_name
@@ -225,10 +242,12 @@ impl ObjReader<'_> {
                     self.materials.push(m);
                 }
             }
-            Err(e) => self.warnings.push(format!(
-                "{}: material library {}: {e}; using default grey",
+            Err(RefError::Refused(e)) => {
+                return Err(self.err(line_no, format!("material library {name:?}: {e}")))
+            }
+            Err(RefError::Unreadable(e)) => self.warnings.push(format!(
+                "{}: material library {name:?}: {e}; using default grey",
                 self.path.display(),
-                mtl_path.display()
             )),
         }
         Ok(())
@@ -387,10 +406,14 @@ fn number(w: &str, key: &str) -> std::result::Result<f32, String> {
     Ok(x)
 }
 
+/// The longest material library read: a hand-written or exported MTL is
+/// kilobytes; this only keeps a hostile reference from filling memory.
+const MTL_CAP: u64 = 64 << 20;
+
 /// The files of an `mtllib` record: the whole rest of the line when a file of
 /// that name exists (names with spaces), else its words.
-fn mtl_names(rest: &str, dir: &Path) -> Vec<String> {
-    if rest.contains(char::is_whitespace) && dir.join(rest).is_file() {
+fn mtl_names(rest: &str, refs: &Refs) -> Vec<String> {
+    if rest.contains(char::is_whitespace) && refs.resolve(rest).is_ok_and(|p| p.is_file()) {
         return vec![rest.to_string()];
     }
     rest.split_whitespace().map(str::to_string).collect()

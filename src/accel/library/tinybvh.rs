@@ -233,7 +233,7 @@ impl TinybvhBackend {
         let tree = tree?;
         let printed = printed.split_whitespace().collect::<Vec<_>>().join(" ");
         if !printed.is_empty() {
-            eprintln!("raylab: tinybvh printed: {printed}");
+            crate::console::say(&format!("raylab: tinybvh printed: {printed}"));
         }
         Ok(TinybvhBackend { tree })
     }
