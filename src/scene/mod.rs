@@ -3,6 +3,7 @@
 //! material table (only what MTL files give and the shader uses) and the emissive
 //! triangles with their areas for light sampling. No scene graph.
 
+pub mod budget;
 pub mod builtin;
 pub mod gltf;
 pub mod light;

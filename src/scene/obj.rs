@@ -194,7 +194,8 @@ impl ObjReader<'_> {
             if i == 0 {
                 return Err(self.err(line_no, format!("{name} index 0 (OBJ counts from 1)")));
             }
-            if i < 0 && -i > counts[kind] {
+            // `i < -count`, not `-i > count`: -i overflows for i64::MIN.
+            if i < 0 && i < -counts[kind] {
                 return Err(self.err(
                     line_no,
                     format!(
@@ -506,6 +507,17 @@ mod tests {
         let s = load("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf -3//1 -2//1 -1//1\n").unwrap();
         assert_eq!(s.triangle_count(), 1);
         assert_eq!(s.shading_normal(0, 0.2, 0.2), Some(Vec3::Z));
+    }
+
+    #[test]
+    fn the_most_negative_index_is_an_error_not_an_overflow() {
+        let e = load("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -9223372036854775808\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("fixture.obj:4:") && e.contains("before the first"),
+            "{e}"
+        );
     }
 
     #[test]

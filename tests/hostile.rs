@@ -1,0 +1,146 @@
+//! Hostile files, flags and rays through the `raylab` binary (issue 41): each
+//! case is its minimal file, and each must end in one line on stderr and exit
+//! 1 (2 for flags), never a panic (101) or an abort (a signal).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use base64::Engine;
+use common::{raylab, temp_dir};
+
+/// Runs `raylab render FILE --size 16x12` and asserts a one-line error with
+/// exit 1 holding every one of `needles`.
+fn assert_refused(file: &Path, needles: &[&str]) {
+    let out_png = file.with_extension("png");
+    let out = raylab(&[
+        "render",
+        file.to_str().unwrap(),
+        "--size",
+        "16x12",
+        "-o",
+        out_png.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{}: {err}", file.display());
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    for n in needles {
+        assert!(err.contains(n), "expected '{n}' in: {err}");
+    }
+    assert!(!out_png.exists());
+}
+
+/// Writes `text` to `name` in `dir`.
+fn write(dir: &Path, name: &str, text: impl AsRef<[u8]>) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// A one-triangle glTF (three f32 positions, three u16 indices, embedded as
+/// base64) with `edit` applied to its JSON.
+fn triangle_gltf(edit: impl Fn(String) -> String) -> String {
+    let mut bin = Vec::new();
+    for x in [0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0] {
+        bin.extend(x.to_le_bytes());
+    }
+    for i in [0u16, 1, 2, 0] {
+        bin.extend(i.to_le_bytes());
+    }
+    let data = base64::engine::general_purpose::STANDARD.encode(&bin);
+    edit(format!(
+        r#"{{"asset":{{"version":"2.0"}},"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
+        "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1}}]}}],
+        "buffers":[{{"uri":"data:application/octet-stream;base64,{data}","byteLength":44}}],
+        "bufferViews":[{{"buffer":0,"byteLength":36}},{{"buffer":0,"byteOffset":36,"byteLength":8}}],
+        "accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}},
+                     {{"bufferView":1,"componentType":5123,"count":3,"type":"SCALAR"}}]}}"#
+    ))
+}
+
+#[test]
+fn the_most_negative_obj_index_is_refused() {
+    let d = temp_dir("hostile-obj-index");
+    let f = write(
+        &d,
+        "min.obj",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -9223372036854775808\n",
+    );
+    assert_refused(&f, &["min.obj:4:", "before the first vertex"]);
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn gltf_that_the_gltf_crate_would_panic_on_is_refused() {
+    let d = temp_dir("hostile-gltf");
+    let ok = write(&d, "ok.gltf", triangle_gltf(|j| j));
+    let png = d.join("ok.png");
+    let out = raylab(&[
+        "render",
+        ok.to_str().unwrap(),
+        "--size",
+        "16x12",
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for (name, from, to, needle) in [
+        (
+            "float-index.gltf",
+            r#""componentType":5123,"count":3"#,
+            r#""componentType":5126,"count":2"#,
+            "index accessor 1 is F32",
+        ),
+        (
+            "signed-index.gltf",
+            r#""componentType":5123"#,
+            r#""componentType":5122"#,
+            "index accessor 1 is I16",
+        ),
+        (
+            "stride.gltf",
+            r#""byteLength":36}"#,
+            r#""byteLength":36,"byteStride":4}"#,
+            "byteStride 4, smaller than its 12-byte elements",
+        ),
+        (
+            "position-past.gltf",
+            r#""POSITION":0"#,
+            r#""POSITION":7"#,
+            "names accessor 7, the file has 2",
+        ),
+        (
+            "shared-child.gltf",
+            r#""nodes":[{"mesh":0}]"#,
+            r#""nodes":[{"mesh":0},{"children":[0]},{"children":[0]}]"#,
+            "glTF node graphs must be trees",
+        ),
+        (
+            "negative-colour.gltf",
+            r#""indices":1}]}],"#,
+            r#""indices":1,"material":0}]}],"materials":[{"pbrMetallicRoughness":{"baseColorFactor":[1,-1,1,1]}}],"#,
+            "must be finite and non-negative",
+        ),
+        (
+            "meshopt.gltf",
+            r#""scenes""#,
+            r#""extensionsRequired":["EXT_meshopt_compression","KHR_mesh_quantization"],"scenes""#,
+            "does not read: EXT_meshopt_compression (compressed",
+        ),
+    ] {
+        let f = write(
+            &d,
+            name,
+            triangle_gltf(|j| {
+                assert!(j.contains(from), "{from}");
+                j.replacen(from, to, 1)
+            }),
+        );
+        assert_refused(&f, &[name, needle]);
+    }
+    std::fs::remove_dir_all(&d).ok();
+}
