@@ -144,3 +144,141 @@ fn gltf_that_the_gltf_crate_would_panic_on_is_refused() {
     }
     std::fs::remove_dir_all(&d).ok();
 }
+
+/// Rays no backend may crash on: non-finite, zero directions, tmin past
+/// tmax, denormals, and finite coordinates past Embree's limit or whose move
+/// to tmin overflows f32 (for the libraries without tmin). Each with whether
+/// it must be a miss everywhere (it is not a valid ray).
+fn hostile_rays() -> Vec<(raylab::geometry::Ray, bool)> {
+    use glam::Vec3;
+    use raylab::geometry::Ray;
+    let ray = |o: Vec3, d: Vec3, tmin: f32, tmax: f32| Ray {
+        origin: o,
+        dir: d,
+        tmin,
+        tmax,
+    };
+    let (eye, down) = (Vec3::new(0.0, 1.0, 3.0), Vec3::new(0.0, 0.0, -1.0));
+    let inf = f32::INFINITY;
+    let big = 3e38f32;
+    vec![
+        (ray(Vec3::new(f32::NAN, 1.0, 3.0), down, 0.0, inf), true),
+        (ray(eye, Vec3::new(0.0, f32::NAN, -1.0), 0.0, inf), true),
+        (ray(Vec3::new(inf, 1.0, 3.0), down, 0.0, inf), true),
+        (ray(eye, Vec3::new(-inf, 0.0, -1.0), 0.0, inf), true),
+        (ray(eye, Vec3::ZERO, 0.0, inf), true),
+        (ray(eye, down, 2.0, 1.0), true),
+        (ray(eye, down, f32::NAN, inf), true),
+        (ray(eye, down, 0.0, f32::NAN), true),
+        (ray(eye, down, -1.0, inf), true),
+        // Valid rays the libraries must survive, hit or miss.
+        (
+            ray(
+                Vec3::new(2e18, 1.0, 3.0),
+                Vec3::new(-1.0, 0.0, -1e-18),
+                0.0,
+                inf,
+            ),
+            false,
+        ),
+        (
+            ray(
+                Vec3::new(-big, big, 0.0),
+                Vec3::new(1.0, -1.0, 0.0),
+                0.0,
+                inf,
+            ),
+            false,
+        ),
+        (ray(eye, Vec3::new(big, -big, -big), 0.0, inf), false),
+        (ray(eye, Vec3::new(big, big, -big), 10.0, inf), false),
+        (ray(eye, Vec3::new(1e-40, 1e-40, -1e-40), 0.0, inf), false),
+        (ray(eye, down, 1e-45, 1e-44), false),
+        (ray(eye, down, 0.0, f32::MAX), false),
+        (
+            ray(Vec3::splat(1e-42), Vec3::new(1e-42, 1.0, -1e-42), 0.0, inf),
+            false,
+        ),
+    ]
+}
+
+#[test]
+fn hostile_rays_through_every_backend_are_answered() {
+    use raylab::accel::library::{Library, ObvhsLayout};
+    use raylab::accel::{build_backend, BackendSpec, Query};
+    let scene = raylab::scene::builtin::builtin("cornell-original").unwrap();
+    let mut specs = vec![
+        BackendSpec::naive(),
+        BackendSpec::bvh(raylab::accel::bvh::BuildParams::sah().with_width(8)),
+        BackendSpec::bvh(raylab::accel::bvh::BuildParams::sah())
+            .with_intersector(raylab::geometry::Intersector::Watertight),
+    ];
+    for library in Library::ALL.into_iter().filter(Library::available) {
+        specs.push(BackendSpec::library(library, 2));
+    }
+    specs.push(BackendSpec::library(
+        Library::Obvhs {
+            layout: ObvhsLayout::Bvh2,
+            quality: raylab::accel::embree::Quality::High,
+        },
+        2,
+    ));
+    if cfg!(feature = "embree") {
+        for q in Query::ALL {
+            if let Ok(s) = BackendSpec::embree(2).with_query(q) {
+                specs.push(s);
+            }
+        }
+    }
+    let rays = hostile_rays();
+    let all: Vec<_> = rays.iter().map(|(r, _)| *r).collect();
+    for spec in specs {
+        let name = spec.name();
+        let built = build_backend(&spec, &scene).unwrap();
+        let b = &built.backend;
+        let mut hits = vec![None; all.len()];
+        let mut occluded = vec![false; all.len()];
+        b.intersect_stream(&all, &mut hits);
+        b.occluded_stream(&all, &mut occluded);
+        for (i, (ray, must_miss)) in rays.iter().enumerate() {
+            let (hit, occ) = (b.intersect(ray), b.occluded(ray));
+            if *must_miss {
+                assert!(hit.is_none() && !occ, "{name}: ray {i} {ray:?}");
+                assert!(hits[i].is_none() && !occluded[i], "{name} stream: ray {i}");
+            }
+            if let Some(h) = hit {
+                assert!(h.t.is_finite() && h.t >= ray.tmin, "{name}: ray {i}: {h:?}");
+            }
+            if spec.is_embree() && ray.origin.abs().max_element() > 1.844e18 {
+                assert!(hit.is_none() && !occ, "{name}: ray {i} past Embree's limit");
+            }
+        }
+    }
+}
+
+#[test]
+fn an_eye_past_embrees_limit_renders_without_aborting() {
+    let d = temp_dir("hostile-eye");
+    let png = d.join("far.png");
+    for backend in ["embree", "tinybvh", "obvhs", "bvh-crate", "bvh"] {
+        let out = raylab(&[
+            "render",
+            "--backend",
+            backend,
+            "--eye",
+            "2e18,1,3",
+            "--size",
+            "16x12",
+            "-o",
+            png.to_str().unwrap(),
+        ]);
+        let code = out.status.code();
+        let err = String::from_utf8_lossy(&out.stderr);
+        // 0, or 1 where this raylab lacks the backend's feature.
+        assert!(
+            code == Some(0) || code == Some(1),
+            "{backend}: {code:?} {err}"
+        );
+    }
+    std::fs::remove_dir_all(&d).ok();
+}

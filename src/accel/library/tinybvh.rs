@@ -93,6 +93,18 @@ impl RayRoom {
     }
 }
 
+/// Whether tinybvh's `VALIDATE_RAY` (tiny_bvh.h) passes `ray`: it sums the
+/// direction, `t` and origin and ends the process ("Input ray contains
+/// NaNs", exit 1) when the sum is NaN, as it is for a finite ray whose move
+/// to tmin overflowed to +inf and -inf. Rays with any non-finite component
+/// are answered as misses without calling it (the sum of finite values
+/// cannot be NaN; [`started_at_tmin`] already refuses such moves, this keeps
+/// the library's exit unreachable whatever builds the ray).
+fn tinybvh_takes(ray: &tinybvh_rs::Ray) -> bool {
+    let (d, o) = (ray.dir, ray.origin);
+    ray.hit.t.is_finite() && d.iter().chain(o.iter()).all(|x| x.is_finite())
+}
+
 /// tinybvh's binary tree and the vertices it reads.
 struct WaldTree {
     // Declared first, so dropped before the vertices it borrows.
@@ -243,8 +255,11 @@ impl TinybvhBackend {
         if !ray.is_valid() {
             return None;
         }
-        let (origin, tmax, shift) = started_at_tmin(ray);
+        let (origin, tmax, shift) = started_at_tmin(ray)?;
         let mut room = RayRoom::new(origin, ray.dir, tmax);
+        if !tinybvh_takes(&room.ray) {
+            return None;
+        }
         match &self.tree {
             Tree::Bvh8(tree) => tree.intersect(&mut room.ray),
             Tree::Wald(wald) => wald.tree.intersect(&mut room.ray),
