@@ -249,8 +249,13 @@ fn hostile_rays_through_every_backend_are_answered() {
             if let Some(h) = hit {
                 assert!(h.t.is_finite() && h.t >= ray.tmin, "{name}: ray {i}: {h:?}");
             }
-            if spec.is_embree() && ray.origin.abs().max_element() > 1.844e18 {
-                assert!(hit.is_none() && !occ, "{name}: ray {i} past Embree's limit");
+            let past_limit =
+                ray.origin.abs().max_element() > 1.844e18 || ray.dir.abs().max_element() > 1.844e18;
+            if (spec.is_embree() || name.starts_with("tinybvh")) && past_limit {
+                assert!(
+                    hit.is_none() && !occ,
+                    "{name}: ray {i} past the library's limit"
+                );
             }
         }
     }

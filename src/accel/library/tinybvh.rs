@@ -93,16 +93,25 @@ impl RayRoom {
     }
 }
 
-/// Whether tinybvh's `VALIDATE_RAY` (tiny_bvh.h) passes `ray`: it sums the
-/// direction, `t` and origin and ends the process ("Input ray contains
-/// NaNs", exit 1) when the sum is NaN, as it is for a finite ray whose move
-/// to tmin overflowed to +inf and -inf. Rays with any non-finite component
-/// are answered as misses without calling it (the sum of finite values
-/// cannot be NaN; [`started_at_tmin`] already refuses such moves, this keeps
-/// the library's exit unreachable whatever builds the ray).
+/// The largest origin or direction component tinybvh is given, as Embree's
+/// `FLT_LARGE`: past it its traversal meets infinities and NaNs (box minus
+/// origin overflows, 1/dir is denormal and flushed to 0, inf * 0), and
+/// BVH8_CPU's `Intersect` crashed (SIGSEGV, found by tests/fuzz.rs) on the
+/// finite ray from (-f32::MAX, 3e38, f32::MAX) towards the Cornell box.
+pub const TINYBVH_MAX_COORDINATE: f32 = 1.844e18;
+
+/// Whether tinybvh can take `ray` (after its move to tmin). tinybvh's
+/// `VALIDATE_RAY` (tiny_bvh.h) ends the process ("Input ray contains NaNs",
+/// exit 1) when the sum of the direction, `t` and origin is NaN, as it is
+/// for a finite ray whose move to tmin overflowed to +inf and -inf; and
+/// components past [`TINYBVH_MAX_COORDINATE`] crash its traversal. Such
+/// rays are answered as misses without calling it.
 fn tinybvh_takes(ray: &tinybvh_rs::Ray) -> bool {
     let (d, o) = (ray.dir, ray.origin);
-    ray.hit.t.is_finite() && d.iter().chain(o.iter()).all(|x| x.is_finite())
+    ray.hit.t.is_finite()
+        && d.iter()
+            .chain(o.iter())
+            .all(|x| x.abs() <= TINYBVH_MAX_COORDINATE)
 }
 
 /// tinybvh's binary tree and the vertices it reads.
