@@ -287,3 +287,154 @@ fn an_eye_past_embrees_limit_renders_without_aborting() {
     }
     std::fs::remove_dir_all(&d).ok();
 }
+
+#[test]
+fn budgets_are_checked_before_allocating_and_name_their_flag() {
+    let d = temp_dir("hostile-budgets");
+    let png = d.join("x.png");
+    let png = png.to_str().unwrap();
+    // 6.4 GB of image buffers.
+    common::assert_one_line_error_naming(
+        &["render", "--size", "16384x16384", "-o", png],
+        &["--size", "268435456 pixels", "--max-pixels"],
+    );
+    let out = raylab(&[
+        "render",
+        "--size",
+        "16x12",
+        "--max-pixels",
+        "100",
+        "-o",
+        png,
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("over the budget of 100"));
+    let bad = raylab(&["render", "--max-pixels", "0", "-o", png]);
+    assert_eq!(bad.status.code(), Some(2));
+    // Triangles: OBJ faces as they are read, glTF instances before reading.
+    let obj = write(
+        &d,
+        "quads.obj",
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\nf 1 2 3 4\n",
+    );
+    let out = raylab(&[
+        "render",
+        obj.to_str().unwrap(),
+        "--max-triangles",
+        "3",
+        "-o",
+        png,
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("quads.obj:6: expands to 4 triangles, over the budget of 3 (raise it with --max-triangles)"), "{err}");
+    let gltf = write(
+        &d,
+        "inst.gltf",
+        triangle_gltf(|j| {
+            j.replace(
+                r#""nodes":[{"mesh":0}]"#,
+                r#""nodes":[{"mesh":0},{"mesh":0}]"#,
+            )
+            .replace(r#""nodes":[0]"#, r#""nodes":[0,1]"#)
+        }),
+    );
+    let out = raylab(&[
+        "render",
+        gltf.to_str().unwrap(),
+        "--max-triangles",
+        "1",
+        "-o",
+        png,
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("expands to 2 triangles") && err.contains("--max-triangles"),
+        "{err}"
+    );
+    let out = raylab(&[
+        "render",
+        gltf.to_str().unwrap(),
+        "--max-triangles",
+        "2",
+        "--size",
+        "16x12",
+        "-o",
+        png,
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn blender_279_mtl_loads_with_one_warning() {
+    let d = temp_dir("hostile-ns");
+    write(&d, "b.mtl", "newmtl skin\nNs -1.960784\nKd 0.8 0.6 0.5\n");
+    let obj = write(
+        &d,
+        "b.obj",
+        "mtllib b.mtl\nusemtl skin\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+    );
+    let png = d.join("b.png");
+    let out = raylab(&[
+        "render",
+        obj.to_str().unwrap(),
+        "--size",
+        "16x12",
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert_eq!(
+        err.lines()
+            .filter(|l| l.contains("'Ns' -1.960784 is negative; read as 0"))
+            .count(),
+        1,
+        "{err}"
+    );
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn obvhs_refuses_a_chain_of_identical_triangles_in_one_line() {
+    let d = temp_dir("hostile-obvhs");
+    let obj = write(
+        &d,
+        "same.obj",
+        // 5,000 make a chain as deep as 25,000 did (which overflowed the
+        // stack) past the limit, in a fifth of the build time.
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\n".to_string() + &"f 1 2 3\n".repeat(5_000),
+    );
+    let png = d.join("s.png");
+    let out = raylab(&[
+        "render",
+        obj.to_str().unwrap(),
+        "--backend",
+        "obvhs",
+        "--size",
+        "16x12",
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    if err.contains("built without") {
+        return;
+    }
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.trim_end()
+            .lines()
+            .last()
+            .unwrap()
+            .contains("obvhs: its binary tree is")
+            && err.contains("--layout bvh2"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&d).ok();
+}

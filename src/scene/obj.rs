@@ -55,6 +55,8 @@ pub fn load_obj_str(text: &str, path: &Path, mtl_dir: &Path) -> Result<Scene> {
         by_name: HashMap::new(),
         current: None,
         warnings: Vec::new(),
+        mtl_read: std::collections::HashSet::new(),
+        triangles: 0,
     };
     for (line_no, line) in logical_lines(text) {
         reader.record(line_no, &line)?;
@@ -93,6 +95,11 @@ struct ObjReader<'a> {
     by_name: HashMap<String, u32>,
     current: Option<u32>,
     warnings: Vec<String>,
+    /// MTL files read so far: a file named again is not read again (a 16 KB
+    /// OBJ repeating `mtllib` made 40 million materials).
+    mtl_read: std::collections::HashSet<PathBuf>,
+    /// Triangles the faces so far will make, for the budget.
+    triangles: u64,
 }
 
 impl ObjReader<'_> {
@@ -151,6 +158,12 @@ impl ObjReader<'_> {
                 if corners.len() < 3 {
                     self.short_faces += 1;
                 } else {
+                    // Checked as the faces come: a face makes corners - 2
+                    // triangles (and the file's size bounds the rest).
+                    self.triangles += corners.len() as u64 - 2;
+                    if let Some(msg) = super::budget::triangles_over(self.triangles) {
+                        return Err(self.err(line_no, msg));
+                    }
                     self.faces.push(Face {
                         corners,
                         material: self.current,
@@ -216,6 +229,13 @@ impl ObjReader<'_> {
     }
 
     fn read_mtl(&mut self, mtl_path: &Path) -> Result<()> {
+        // The same file under another spelling (./a.mtl) is the same file.
+        let key = mtl_path
+            .canonicalize()
+            .unwrap_or_else(|_| mtl_path.to_path_buf());
+        if !self.mtl_read.insert(key) {
+            return Ok(());
+        }
         match std::fs::read(mtl_path) {
             Ok(bytes) => {
                 let (mats, mut warnings) = parse_mtl(&String::from_utf8_lossy(&bytes), mtl_path)?;
@@ -337,6 +357,10 @@ impl ObjReader<'_> {
             }
             material_ids.extend(std::iter::repeat_n(material, added));
         }
+        if triangulator.huge_faces > 0 {
+            self.warnings
+                .push(huge_faces_warning(path, triangulator.huge_faces));
+        }
         if unnamed > 0 && grey > 0 {
             self.warnings.push(format!(
                 "{}: {unnamed} triangles name no known material; using default grey",
@@ -355,6 +379,15 @@ impl ObjReader<'_> {
             self.warnings,
         )
     }
+}
+
+/// The warning for `count` concave faces too large to ear-clip, fanned.
+pub(crate) fn huge_faces_warning(path: &Path, count: usize) -> String {
+    format!(
+        "{}: {count} concave faces of more than {} corners fanned, not ear-clipped (its time grows with the square of the corners); they may be covered wrongly",
+        path.display(),
+        polygon::MAX_EAR_CLIPPED
+    )
 }
 
 /// The file's records with their 1-based line numbers: a line ending in `\`
@@ -447,6 +480,17 @@ pub fn parse_mtl(text: &str, path: &Path) -> Result<(Vec<Material>, Vec<String>)
             let x: f32 = w
                 .parse()
                 .map_err(|_| err(line_no, format!("'{key}': '{w}' is not a number")))?;
+            if key == "Ns" && x.is_finite() && x < 0.0 {
+                // Blender 2.79 wrote negative exponents (Ns -1.960784); the
+                // MTL is advisory, and tinyobjloader and Blender read them,
+                // so clamp to 0 (no highlight) and say so.
+                warnings.push(format!(
+                    "{}:{line_no}: 'Ns' {w} is negative; read as 0",
+                    path.display()
+                ));
+                values.push(0.0);
+                continue;
+            }
             if !(x.is_finite() && x >= 0.0) {
                 return Err(err(
                     line_no,
@@ -679,6 +723,39 @@ mod tests {
         // Blender's Ka 0 0 0 means "none": the ambient term uses Kd.
         let (m, _) = parse_mtl("newmtl b\nKa 0 0 0\nKd 0.5 0.4 0.3\n", Path::new("x.mtl")).unwrap();
         assert_eq!(m[0].ka, Vec3::new(0.5, 0.4, 0.3));
+    }
+
+    #[test]
+    fn blenders_negative_ns_is_clamped_with_a_warning() {
+        let (m, w) = parse_mtl("newmtl a\nNs -1.960784\nKd 1 1 1\n", Path::new("x.mtl")).unwrap();
+        assert_eq!(m[0].ns, 0.0);
+        assert_eq!(w.len(), 1);
+        assert!(
+            w[0].starts_with("x.mtl:2: 'Ns' -1.960784 is negative"),
+            "{w:?}"
+        );
+        // Other negatives still name their line.
+        let e = parse_mtl("newmtl a\nKd -1 1 1\n", Path::new("x.mtl")).unwrap_err();
+        assert!(e.to_string().starts_with("x.mtl:2:"), "{e}");
+    }
+
+    #[test]
+    fn a_repeated_mtllib_is_read_once() {
+        let dir = std::env::temp_dir().join(format!("raylab-mtllib-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(
+            dir.join("m.mtl"),
+            "newmtl red\nKd 1 0 0\nnewmtl blue\nKd 0 0 1\n",
+        )
+        .unwrap();
+        let text = "mtllib m.mtl\n".repeat(10_000)
+            + "mtllib ./m.mtl\nusemtl blue\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
+        let s = load_obj_str(&text, Path::new("r.obj"), &dir);
+        std::fs::remove_dir_all(&dir).ok();
+        let s = s.unwrap();
+        // red, blue and the default grey.
+        assert_eq!(s.materials.len(), 3);
+        assert_eq!(s.material_of(0).name, "blue");
     }
 
     #[test]
