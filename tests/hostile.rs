@@ -438,3 +438,58 @@ fn obvhs_refuses_a_chain_of_identical_triangles_in_one_line() {
     );
     std::fs::remove_dir_all(&d).ok();
 }
+
+/// The Cornell-like box of `tests/cli.rs`'s scenes scaled by `s`.
+fn scaled_box(s: f32) -> String {
+    let mut text = String::new();
+    for v in [
+        [-1.0f32, 0.0, -1.0],
+        [1.0, 0.0, -1.0],
+        [1.0, 2.0, -1.0],
+        [-1.0, 2.0, -1.0],
+        [-1.0, 0.0, 1.0],
+        [1.0, 0.0, 1.0],
+    ] {
+        text += &format!("v {} {} {}\n", v[0] * s, v[1] * s, v[2] * s);
+    }
+    text + "f 1 2 3 4\nf 1 5 6 2\n"
+}
+
+#[test]
+fn scenes_too_large_or_too_small_for_f32_rays_are_refused_not_black() {
+    let d = temp_dir("hostile-scale");
+    for (s, needle) in [
+        (1e13f32, "too large to frame and trace with f32 rays"),
+        (1e-20, "too small to frame and trace with f32 rays"),
+        // Was "--look: look-at point equals the eye", with no --look given.
+        (1e-30, "too small to frame and trace with f32 rays"),
+    ] {
+        let f = write(&d, &format!("box{s:e}.obj"), scaled_box(s));
+        assert_refused(&f, &[needle, "scale the scene"]);
+        let out = raylab(&["validate", f.to_str().unwrap(), "--size", "16x12"]);
+        assert_eq!(out.status.code(), Some(1));
+        assert!(String::from_utf8_lossy(&out.stderr).contains(needle));
+    }
+    // Within the range, both ends render lit.
+    for s in [1e12f32, 1e-9] {
+        let f = write(&d, &format!("ok{s:e}.obj"), scaled_box(s));
+        let png = d.join(format!("ok{s:e}.png"));
+        let out = raylab(&[
+            "render",
+            f.to_str().unwrap(),
+            "--size",
+            "32x24",
+            "-o",
+            png.to_str().unwrap(),
+        ]);
+        assert!(
+            out.status.success(),
+            "{s}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let img = image::open(&png).unwrap().to_rgb8();
+        let lit = img.pixels().filter(|p| p.0.iter().any(|&c| c > 20)).count();
+        assert!(lit > 50, "{s}: only {lit} lit pixels");
+    }
+    std::fs::remove_dir_all(&d).ok();
+}

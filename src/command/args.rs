@@ -77,6 +77,7 @@ impl ViewArgs {
         if let Some(msg) = crate::scene::budget::pixels_over(self.size.0, self.size.1) {
             return Err(Error::usage("--size", msg));
         }
+        scene.check_traceable()?;
         let light = self.light.map(|l| l.emitter(&scene.bounds()));
         scene.set_extra_light(light, self.up);
         let (width, height) = self.size;
