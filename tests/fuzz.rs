@@ -213,11 +213,11 @@ fn gltf_json(uri: Option<&str>) -> String {
 /// A GLB container of `json` and `bin`.
 fn glb(json: &str, bin: &[u8]) -> Vec<u8> {
     let mut j = json.as_bytes().to_vec();
-    while j.len() % 4 != 0 {
+    while !j.len().is_multiple_of(4) {
         j.push(b' ');
     }
     let mut b = bin.to_vec();
-    while b.len() % 4 != 0 {
+    while !b.len().is_multiple_of(4) {
         b.push(0);
     }
     let mut out = b"glTF".to_vec();
@@ -257,14 +257,9 @@ const FIXTURES: usize = 8;
 fn seeds() -> Vec<Seed> {
     let mut obj = seed("box.obj", OBJ);
     obj.companions.push(("box.mtl".into(), MTL.into()));
-    let mtl_first = Seed {
-        name: "mtl.obj".into(),
-        bytes: OBJ.replace("box.mtl", "mtl.mtl").into_bytes(),
-        companions: Vec::new(),
-    };
-    // The MTL mutated, the OBJ kept: mutants of `bytes` are written as the
-    // companion named "mtl.mtl" (see `run_file_case`).
-    let mut mtl = mtl_first;
+    // The MTL mutated, the OBJ kept: mutants of this seed are written as
+    // its companion "mtl.mtl" (see `run_file_case`).
+    let mut mtl = seed("mtl.obj", OBJ.replace("box.mtl", "mtl.mtl"));
     mtl.companions.push(("mtl.mtl".into(), MTL.into()));
     let data = base64::engine::general_purpose::STANDARD.encode(gltf_buffer());
     let mut external = seed("ext.gltf", gltf_json(Some("ext.bin")));

@@ -107,9 +107,7 @@ impl BvhCrateBackend {
 
 impl Backend for BvhCrateBackend {
     fn intersect(&self, ray: &Ray) -> Option<Hit> {
-        let Some((r, tmax, shift)) = Self::ray(ray) else {
-            return None;
-        };
+        let (r, tmax, shift) = Self::ray(ray)?;
         let mut best: Option<Hit> = None;
         let mut best_t = tmax;
         for shape in self.tree.nearest_traverse_iterator(&r, &self.shapes) {
