@@ -14,6 +14,12 @@ use crate::scene::builtin::{BUILTIN_SCENES, PROCEDURAL_SCENES};
     about = "Compare ray-tracing acceleration structures on the CPU"
 )]
 struct Cli {
+    /// The most triangles a scene may expand to (glTF instances times their
+    /// meshes, OBJ and PLY faces after triangulation), checked before they
+    /// are allocated; the default, 200 million, is about 10 GB loaded and
+    /// built.
+    #[arg(long, global = true, value_name = "N", default_value_t = crate::scene::budget::DEFAULT_MAX_TRIANGLES, value_parser = crate::command::args::parse_budget)]
+    max_triangles: u64,
     #[command(subcommand)]
     command: Command,
 }
@@ -85,6 +91,7 @@ pub fn main() -> i32 {
             return 2;
         }
     };
+    crate::scene::budget::set_max_triangles(cli.max_triangles);
     let sub = matches.subcommand().map(|(_, m)| m);
     let result = match &cli.command {
         Command::Render(args) => sub

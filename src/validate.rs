@@ -131,20 +131,48 @@ pub fn classify(ray: &Ray, a: Option<Hit>, b: Option<Hit>, triangles: &[[Vec3; 3
                 Agreement::Genuine
             }
         }
-        (Some(h), None) | (None, Some(h)) if on_edge(&h) => Agreement::Tie,
+        (Some(h), None) | (None, Some(h)) if on_edge(ray, &h, triangles) => Agreement::Tie,
         // One backend hits a triangle on its edge, the other passed through that
         // edge and hit something farther: the same edge rounding as a hit
         // against a miss (Moller-Trumbore leaks through shared edges; seen on a
         // primary ray through the sphere of CornellBox-Water).
-        (Some(x), Some(y)) if on_edge(if x.t <= y.t { &x } else { &y }) => Agreement::Tie,
+        (Some(x), Some(y)) if on_edge(ray, if x.t <= y.t { &x } else { &y }, triangles) => {
+            Agreement::Tie
+        }
         _ => Agreement::Genuine,
     }
 }
 
 /// Whether a hit lies on its triangle's boundary (a barycentric coordinate
-/// within 1e-5 of 0), where inclusive and exclusive edge rules disagree.
-fn on_edge(h: &Hit) -> bool {
-    h.u.min(h.v).min(1.0 - h.u - h.v) <= 1e-5
+/// within 1e-5 of 0), where inclusive and exclusive edge rules disagree: by
+/// the backend's barycentrics, unless the hit point itself (computed in f64
+/// from the ray and the triangle) lies clearly inside, 1% of the way in from
+/// every edge. Barycentrics that overflowed (Embree's on a scene 1e13
+/// across come back 0) made every hit an "edge", so a backend missing
+/// interior hits passed as ties; no rounding of a hit's `t` moves it 1% of
+/// its triangle.
+fn on_edge(ray: &Ray, h: &Hit, triangles: &[[Vec3; 3]]) -> bool {
+    let by_backend = h.u.min(h.v).min(1.0 - h.u - h.v) <= 1e-5;
+    by_backend
+        && triangles
+            .get(h.tri as usize)
+            .is_none_or(|tri| !clearly_inside(ray, h.t, tri))
+}
+
+/// Whether the point at `t` along `ray` projects into `tri` at least 1% of
+/// the way in from every edge, in f64 (false when that cannot be computed).
+fn clearly_inside(ray: &Ray, t: f32, tri: &[Vec3; 3]) -> bool {
+    let p = ray.origin.as_dvec3() + ray.dir.as_dvec3() * f64::from(t);
+    let [a, b, c] = tri.map(|v| v.as_dvec3());
+    let (e1, e2, w) = (b - a, c - a, p - a);
+    let n = e1.cross(e2);
+    let n2 = n.length_squared();
+    if !(n2 > 0.0 && n2.is_finite() && p.is_finite()) {
+        return false;
+    }
+    let b1 = w.cross(e2).dot(n) / n2;
+    let b2 = e1.cross(w).dot(n) / n2;
+    b1.min(b2).min(1.0 - b1 - b2) > 0.01
 }
 
 /// The kinds of ray set `validate` compares.
@@ -717,6 +745,9 @@ mod tests {
         );
         assert_eq!(classify(&r, hit(1.0, 0), None, &tris), Agreement::Genuine);
         assert_eq!(classify(&r, None, hit(1.0, 0), &tris), Agreement::Genuine);
+        // A hit on the edge v = 0 of triangle 0, by its barycentrics and by
+        // its point: a tie against a miss.
+        let r = Ray::new(Vec3::new(0.5, 0.0, -1.0), Vec3::Z);
         let edge = Some(Hit {
             t: 1.0,
             u: 0.5,
@@ -724,6 +755,10 @@ mod tests {
             tri: 0,
         });
         assert_eq!(classify(&r, edge, None, &tris), Agreement::Tie);
+        // Barycentrics saying "edge" for a point well inside (overflowed,
+        // as Embree's on a scene 1e13 across): a genuine disagreement.
+        let inside = Ray::new(Vec3::new(0.2, 0.2, -1.0), Vec3::Z);
+        assert_eq!(classify(&inside, edge, None, &tris), Agreement::Genuine);
         // Through the edge to something farther: a tie; nearer off the edge and
         // the edge hit farther: genuine.
         assert_eq!(classify(&r, edge, hit(1.5, 2), &tris), Agreement::Tie);

@@ -476,7 +476,7 @@ fn build_library(
         #[cfg(feature = "obvhs")]
         Library::Obvhs { layout, quality } => Box::new(super::library::obvhs::ObvhsBackend::new(
             mesh, layout, quality, threads,
-        )),
+        )?),
         #[cfg(feature = "bvh-crate")]
         Library::BvhCrate => Box::new(super::library::bvh_crate::BvhCrateBackend::new(
             mesh, threads,

@@ -38,6 +38,11 @@ pub struct ViewArgs {
     /// Image size.
     #[arg(long, value_name = "WxH", default_value = "1024x768", value_parser = parse_size)]
     pub size: (u32, u32),
+    /// The most pixels an image may have, checked before its buffers (about
+    /// 24 bytes a pixel) are allocated: the default, 100 million (2.4 GB),
+    /// takes 10000x10000.
+    #[arg(long, value_name = "N", default_value_t = crate::scene::budget::DEFAULT_MAX_PIXELS, value_parser = parse_budget)]
+    pub max_pixels: u64,
     /// Ambient occlusion: off, paper (the study's 14 fixed directions) or cosine:N.
     #[arg(long, value_name = "MODE", default_value = "paper")]
     pub ao: AoMode,
@@ -71,6 +76,11 @@ impl ViewArgs {
     /// scene's default view.
     pub fn prepare(&self, scene: &mut Scene) -> Result<RenderSettings> {
         self.check()?;
+        crate::scene::budget::set_max_pixels(self.max_pixels);
+        if let Some(msg) = crate::scene::budget::pixels_over(self.size.0, self.size.1) {
+            return Err(Error::usage("--size", msg));
+        }
+        scene.check_traceable()?;
         let light = self.light.map(|l| l.emitter(&scene.bounds()));
         scene.set_extra_light(light, self.up);
         self.check_lights(scene)?;
@@ -476,6 +486,14 @@ pub fn parse_size(s: &str) -> std::result::Result<(u32, u32), String> {
         return Err("width and height must be at most 16384".into());
     }
     Ok((w, h))
+}
+
+/// A budget (`--max-triangles`, `--max-pixels`): a whole number from 1.
+pub fn parse_budget(s: &str) -> std::result::Result<u64, String> {
+    match s.parse::<u64>() {
+        Ok(n) if n >= 1 => Ok(n),
+        _ => Err(format!("'{s}' is not a whole number of at least 1")),
+    }
 }
 
 pub fn parse_fov(s: &str) -> std::result::Result<f32, String> {

@@ -34,33 +34,32 @@ pub fn load_gltf_bytes_with(bytes: &[u8], path: &Path, policy: RefPolicy) -> Res
         line: 0,
         msg,
     };
-    let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| {
+    let gltf = gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| {
         if is_gltf1(bytes) {
             err(format!("a glTF 1.0 file: {}", super::READS))
-        } else if uses_draco(bytes) {
-            err("Draco-compressed meshes (KHR_draco_mesh_compression) are not read: raylab reads uncompressed glTF 2.0".into())
         } else {
             err(format!("glTF: {}", first_complaint(&e)))
         }
     })?;
+    let gltf::Gltf { document, blob } = gltf;
+    let doc = validated(document.into_json()).map_err(|m| {
+        if is_gltf1(bytes) {
+            err(format!("a glTF 1.0 file: {}", super::READS))
+        } else {
+            err(m)
+        }
+    })?;
+    let gltf = gltf::Gltf {
+        document: doc,
+        blob,
+    };
     let buffers = load_buffers(&gltf, path, &Refs::new(path, policy))?;
     check_accessors(&gltf.document, &buffers).map_err(err)?;
+    let doc = &gltf.document;
+    let roots = root_nodes(doc).map_err(err)?;
+    check_budget(&roots).map_err(err)?;
 
     let mut out = Flattened::default();
-    let doc = &gltf.document;
-    let roots: Vec<gltf::Node> = match doc.default_scene().or_else(|| doc.scenes().next()) {
-        Some(scene) => scene.nodes().collect(),
-        None => {
-            // No scene: every node that is nobody's child.
-            let children: std::collections::HashSet<usize> = doc
-                .nodes()
-                .flat_map(|n| n.children().map(|c| c.index()).collect::<Vec<_>>())
-                .collect();
-            doc.nodes()
-                .filter(|n| !children.contains(&n.index()))
-                .collect()
-        }
-    };
     for node in roots {
         out.node(&node, Mat4::IDENTITY, &buffers, 0).map_err(err)?;
     }
@@ -111,17 +110,6 @@ fn is_gltf1(bytes: &[u8]) -> bool {
         || v["meshes"].is_object()
 }
 
-/// Whether the file's JSON lists the Draco extension as used or required.
-fn uses_draco(bytes: &[u8]) -> bool {
-    let Some(v) = gltf_json(bytes) else {
-        return false;
-    };
-    ["extensionsUsed", "extensionsRequired"].iter().any(|k| {
-        v[k].as_array()
-            .is_some_and(|a| a.iter().any(|e| e == "KHR_draco_mesh_compression"))
-    })
-}
-
 /// The JSON of a .gltf, or of a .glb's first chunk.
 fn gltf_json(bytes: &[u8]) -> Option<serde_json::Value> {
     let json = if bytes.starts_with(b"glTF") {
@@ -131,6 +119,146 @@ fn gltf_json(bytes: &[u8]) -> Option<serde_json::Value> {
         bytes
     };
     serde_json::from_slice(json).ok()
+}
+
+/// Extensions raylab reads itself, beyond those the gltf crate knows.
+const READ_EXTENSIONS: &[&str] = &[
+    // Quantized (integer, normalized or not) POSITION and NORMAL: read by
+    // [`read_vec3s`].
+    "KHR_mesh_quantization",
+];
+
+/// The document checked so that nothing the gltf crate or this reader calls
+/// later can panic: every primitive's attributes name accessors that exist
+/// (the crate's validation hook indexes them unchecked), every required
+/// extension is one raylab reads (all that are not are named in one line),
+/// then the crate's own validation (every index in range, every enum known).
+fn validated(mut json: gltf::json::Root) -> std::result::Result<gltf::Document, String> {
+    let accessors = json.accessors.len();
+    for (m, mesh) in json.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            let named = prim.attributes.values().chain(prim.indices.as_ref());
+            if let Some(bad) = named.map(|a| a.value()).find(|&a| a >= accessors) {
+                return Err(format!(
+                    "mesh {m} primitive {p} names accessor {bad}, the file has {accessors}"
+                ));
+            }
+        }
+    }
+    let unread: Vec<&str> = json
+        .extensions_required
+        .iter()
+        .map(String::as_str)
+        .filter(|e| {
+            !gltf::json::extensions::ENABLED_EXTENSIONS.contains(e) && !READ_EXTENSIONS.contains(e)
+        })
+        .collect();
+    if !unread.is_empty() {
+        let compressed = unread.iter().any(|e| {
+            matches!(
+                *e,
+                "KHR_draco_mesh_compression"
+                    | "EXT_meshopt_compression"
+                    | "KHR_meshopt_compression"
+            )
+        });
+        return Err(format!(
+            "requires glTF extensions raylab does not read: {}{}",
+            unread.join(", "),
+            if compressed {
+                " (compressed meshes: raylab reads uncompressed glTF 2.0; e.g. gltfpack without -c, or gltf-transform decompress)"
+            } else {
+                ""
+            }
+        ));
+    }
+    // Read here, so not left for the crate to call unsupported.
+    json.extensions_required
+        .retain(|e| !READ_EXTENSIONS.contains(&e.as_str()));
+    gltf::Document::from_json(json).map_err(|e| format!("glTF: {}", first_complaint(&e)))
+}
+
+/// The nodes the scene is made of: the default scene's roots (or the first
+/// scene's; every parentless node if there is no scene). The node graph must
+/// be a tree, as the format says: a node with two parents (or listed twice by
+/// one) would be instanced once per path, 2^40 times from a 1.4 KB file, and
+/// a cycle would never end; both are refused here, before any walk.
+fn root_nodes(doc: &gltf::Document) -> std::result::Result<Vec<gltf::Node<'_>>, String> {
+    let mut parent: Vec<Option<usize>> = vec![None; doc.nodes().count()];
+    for node in doc.nodes() {
+        for child in node.children() {
+            if let Some(other) = parent[child.index()].replace(node.index()) {
+                return Err(format!(
+                    "node {} is a child of nodes {other} and {}: glTF node graphs must be trees",
+                    child.index(),
+                    node.index()
+                ));
+            }
+        }
+    }
+    let roots: Vec<gltf::Node> = match doc.default_scene().or_else(|| doc.scenes().next()) {
+        Some(scene) => scene.nodes().collect(),
+        None => doc
+            .nodes()
+            .filter(|n| parent[n.index()].is_none())
+            .collect(),
+    };
+    let mut listed = vec![false; parent.len()];
+    for root in &roots {
+        if let Some(p) = parent[root.index()] {
+            return Err(format!(
+                "the scene lists node {} as a root, but it is a child of node {p}: glTF node graphs must be trees",
+                root.index()
+            ));
+        }
+        if std::mem::replace(&mut listed[root.index()], true) {
+            return Err(format!(
+                "the scene lists node {} twice: glTF node graphs must be trees",
+                root.index()
+            ));
+        }
+    }
+    // With one parent at most and parentless roots, a cycle cannot be reached
+    // from a root; so the walk from the roots visits each node once.
+    Ok(roots)
+}
+
+/// Counts the triangles and vertices the scene will expand to (each mesh
+/// once per node instancing it) and refuses it past the budget, before
+/// anything is read or allocated.
+fn check_budget(roots: &[gltf::Node]) -> std::result::Result<(), String> {
+    let (mut triangles, mut vertices) = (0u64, 0u64);
+    let mut stack: Vec<gltf::Node> = roots.to_vec();
+    while let Some(node) = stack.pop() {
+        if let Some(mesh) = node.mesh() {
+            for prim in mesh.primitives() {
+                let (t, v) = primitive_size(&prim);
+                triangles = triangles.saturating_add(t);
+                vertices = vertices.saturating_add(v);
+            }
+        }
+        stack.extend(node.children());
+    }
+    match super::budget::triangles_over(triangles) {
+        Some(msg) => Err(msg),
+        None => super::budget::vertices_over(vertices).map_or(Ok(()), Err),
+    }
+}
+
+/// The triangles and vertices one instance of `prim` adds (0, 0 for points
+/// and lines, which are skipped).
+fn primitive_size(prim: &gltf::Primitive) -> (u64, u64) {
+    use gltf::mesh::Mode;
+    let Some(positions) = prim.get(&gltf::Semantic::Positions) else {
+        return (0, 0);
+    };
+    let vertices = positions.count() as u64;
+    let corners = prim.indices().map_or(vertices, |a| a.count() as u64);
+    match prim.mode() {
+        Mode::Triangles => (corners / 3, vertices),
+        Mode::TriangleStrip | Mode::TriangleFan => (corners.saturating_sub(2), vertices),
+        _ => (0, 0),
+    }
 }
 
 /// The gltf crate's message, cut to its first complaint: its validation lists
@@ -246,6 +374,15 @@ fn check_accessors(doc: &gltf::Document, buffers: &[Vec<u8>]) -> std::result::Re
             continue;
         }
         let stride = view.stride().unwrap_or(a.size());
+        if stride < a.size() {
+            // Elements would overlap; the gltf crate's reader panics on it.
+            return Err(format!(
+                "accessor {}: buffer view {} has byteStride {stride}, smaller than its {}-byte elements",
+                a.index(),
+                view.index(),
+                a.size()
+            ));
+        }
         let end = stride
             .checked_mul(count - 1)
             .and_then(|x| x.checked_add(a.offset()))
@@ -255,6 +392,162 @@ fn check_accessors(doc: &gltf::Document, buffers: &[Vec<u8>]) -> std::result::Re
         }
     }
     Ok(())
+}
+
+/// An accessor's elements, `n` components each, every component decoded by
+/// `decode` from its bytes, sparse substitutions applied. Every read is
+/// bounds-checked: the gltf crate's reader panics on component types,
+/// strides and sparse data it does not expect, so raylab reads accessors
+/// itself; and sparse data that cannot be read is an error, never "no data".
+fn read_elements<T: Copy + Default>(
+    a: &gltf::Accessor,
+    buffers: &[Vec<u8>],
+    n: usize,
+    decode: impl Fn(&[u8]) -> T,
+) -> std::result::Result<Vec<T>, String> {
+    let size = a.data_type().size();
+    let count = a.count();
+    let past = || format!("accessor {} runs past its buffer view", a.index());
+    let mut out = Vec::new();
+    match a.view() {
+        Some(view) => {
+            let stride = view.stride().unwrap_or(size * n);
+            let data = view_bytes(&view, buffers).ok_or_else(past)?;
+            out.reserve(count.saturating_mul(n).min(data.len()));
+            for i in 0..count {
+                let start = i
+                    .checked_mul(stride)
+                    .and_then(|x| x.checked_add(a.offset()))
+                    .ok_or_else(past)?;
+                let element = data
+                    .get(start..start.saturating_add(size * n))
+                    .ok_or_else(past)?;
+                out.extend(element.chunks_exact(size).map(&decode));
+            }
+        }
+        // No view: zeros, then the sparse values (the budget has bounded
+        // `count` by the vertex budget before this allocates).
+        None => out.resize(count.saturating_mul(n), T::default()),
+    }
+    if let Some(sparse) = a.sparse() {
+        let bad = |what: &str| {
+            format!(
+                "accessor {}: sparse {what} run past their buffer view",
+                a.index()
+            )
+        };
+        let indices = sparse.indices();
+        let index_bytes = view_bytes(&indices.view(), buffers)
+            .and_then(|d| d.get(indices.offset()..))
+            .ok_or_else(|| bad("indices"))?;
+        let values = sparse.values();
+        let value_bytes = view_bytes(&values.view(), buffers)
+            .and_then(|d| d.get(values.offset()..))
+            .ok_or_else(|| bad("values"))?;
+        let index_size = match indices.index_type() {
+            gltf::accessor::sparse::IndexType::U8 => 1,
+            gltf::accessor::sparse::IndexType::U16 => 2,
+            gltf::accessor::sparse::IndexType::U32 => 4,
+        };
+        for k in 0..sparse.count() {
+            let ib = index_bytes
+                .get(k * index_size..(k + 1) * index_size)
+                .ok_or_else(|| bad("indices"))?;
+            let mut le = [0u8; 4];
+            le[..index_size].copy_from_slice(ib);
+            let target = u32::from_le_bytes(le) as usize;
+            if target >= count {
+                return Err(format!(
+                    "accessor {}: sparse index {target} out of range ({count} elements)",
+                    a.index()
+                ));
+            }
+            let vb = value_bytes
+                .get(k * size * n..(k + 1) * size * n)
+                .ok_or_else(|| bad("values"))?;
+            for (c, b) in vb.chunks_exact(size).enumerate() {
+                out[target * n + c] = decode(b);
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// One component of a float attribute: f32, or an integer normalized or not
+/// (`KHR_mesh_quantization`'s POSITION and NORMAL types).
+fn decode_float(ty: gltf::accessor::DataType, normalized: bool, b: &[u8]) -> f32 {
+    use gltf::accessor::DataType;
+    match ty {
+        DataType::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+        DataType::U8 if normalized => f32::from(b[0]) / 255.0,
+        DataType::U8 => f32::from(b[0]),
+        // Signed normalized: -128 and -127 both give -1 (the spec's max()).
+        DataType::I8 if normalized => (f32::from(b[0] as i8) / 127.0).max(-1.0),
+        DataType::I8 => f32::from(b[0] as i8),
+        DataType::U16 if normalized => f32::from(u16::from_le_bytes([b[0], b[1]])) / 65535.0,
+        DataType::U16 => f32::from(u16::from_le_bytes([b[0], b[1]])),
+        DataType::I16 if normalized => {
+            (f32::from(i16::from_le_bytes([b[0], b[1]])) / 32767.0).max(-1.0)
+        }
+        DataType::I16 => f32::from(i16::from_le_bytes([b[0], b[1]])),
+        DataType::U32 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f32,
+    }
+}
+
+/// The bytes of a buffer view, when they lie inside its buffer.
+fn view_bytes<'a>(view: &gltf::buffer::View, buffers: &'a [Vec<u8>]) -> Option<&'a [u8]> {
+    let start = view.offset();
+    buffers
+        .get(view.buffer().index())?
+        .get(start..start.checked_add(view.length())?)
+}
+
+/// A VEC3 attribute (`what`: its semantic, for messages) as finite vectors.
+fn read_vec3s(
+    a: &gltf::Accessor,
+    buffers: &[Vec<u8>],
+    what: &str,
+) -> std::result::Result<Vec<Vec3>, String> {
+    if a.dimensions() != gltf::accessor::Dimensions::Vec3 {
+        return Err(format!(
+            "{what} accessor {} is {:?}, not VEC3",
+            a.index(),
+            a.dimensions()
+        ));
+    }
+    let (ty, normalized) = (a.data_type(), a.normalized());
+    let flat = read_elements(a, buffers, 3, |b| decode_float(ty, normalized, b))?;
+    let v: Vec<Vec3> = flat.chunks_exact(3).map(Vec3::from_slice).collect();
+    if let Some(i) = v.iter().position(|p| !p.is_finite()) {
+        return Err(format!(
+            "{what} accessor {} element {i} is not finite",
+            a.index()
+        ));
+    }
+    Ok(v)
+}
+
+/// A primitive's indices: unsigned SCALAR integers, as the format requires
+/// (float or signed index types are refused, never cast).
+fn read_indices(a: &gltf::Accessor, buffers: &[Vec<u8>]) -> std::result::Result<Vec<u32>, String> {
+    use gltf::accessor::DataType;
+    if a.dimensions() != gltf::accessor::Dimensions::Scalar
+        || !matches!(a.data_type(), DataType::U8 | DataType::U16 | DataType::U32)
+        || a.normalized()
+    {
+        return Err(format!(
+            "index accessor {} is {:?} {:?}{}: indices must be unsigned 8-, 16- or 32-bit SCALARs",
+            a.index(),
+            a.data_type(),
+            a.dimensions(),
+            if a.normalized() { " normalized" } else { "" }
+        ));
+    }
+    read_elements(a, buffers, 1, |b| {
+        let mut le = [0u8; 4];
+        le[..b.len()].copy_from_slice(b);
+        u32::from_le_bytes(le)
+    })
 }
 
 /// The flattened geometry, gathered node by node.
@@ -313,24 +606,37 @@ impl Flattened {
             self.skipped_primitives += 1;
             return Ok(());
         }
-        let reader = prim.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
-        let Some(positions) = reader.read_positions() else {
+        let Some(position_accessor) = prim.get(&gltf::Semantic::Positions) else {
             self.skipped_primitives += 1;
             return Ok(());
         };
-        let base = self.positions.len() as u32;
-        let normal_matrix = Mat3::from_mat4(world).inverse().transpose();
+        let positions = read_vec3s(&position_accessor, buffers, "POSITION")?;
         let count = positions.len();
+        // Indices are u32 in the scene: the vertices so far plus these must
+        // be numbered by one (the budget keeps them far below; this keeps a
+        // raised budget from wrapping an index to 0).
+        let base = u32::try_from(self.positions.len())
+            .ok()
+            .filter(|b| u32::try_from(count).is_ok_and(|c| b.checked_add(c).is_some()))
+            .ok_or("more than 2^32 vertices: raylab numbers vertices with 32 bits")?;
+        let normal_matrix = Mat3::from_mat4(world).inverse().transpose();
         self.positions
-            .extend(positions.map(|p| world.transform_point3(Vec3::from_array(p))));
-        match reader.read_normals() {
-            Some(normals) if normals.len() == count => self
-                .normals
-                .extend(normals.map(|n| (normal_matrix * Vec3::from_array(n)).normalize_or_zero())),
-            _ => self.normals.extend(std::iter::repeat_n(Vec3::ZERO, count)),
+            .extend(positions.into_iter().map(|p| world.transform_point3(p)));
+        let normals = match prim.get(&gltf::Semantic::Normals) {
+            Some(a) => read_vec3s(&a, buffers, "NORMAL")?,
+            None => Vec::new(),
+        };
+        if normals.len() == count {
+            self.normals.extend(
+                normals
+                    .into_iter()
+                    .map(|n| (normal_matrix * n).normalize_or_zero()),
+            );
+        } else {
+            self.normals.extend(std::iter::repeat_n(Vec3::ZERO, count));
         }
-        let indices: Vec<u32> = match reader.read_indices() {
-            Some(ix) => ix.into_u32().collect(),
+        let indices: Vec<u32> = match prim.indices() {
+            Some(a) => read_indices(&a, buffers)?,
             None => (0..count as u32).collect(),
         };
         if let Some(&bad) = indices.iter().find(|&&i| i as usize >= count) {
@@ -345,7 +651,7 @@ impl Flattened {
             ));
         }
         let mirrored = world.determinant() < 0.0;
-        let material = self.material(&prim.material());
+        let material = self.material(&prim.material())?;
         let mut push = |a: u32, b: u32, c: u32| {
             let t = if mirrored { [a, c, b] } else { [a, b, c] };
             self.triangles.push(t.map(|i| base + i));
@@ -376,9 +682,11 @@ impl Flattened {
         Ok(())
     }
 
-    fn material(&mut self, m: &gltf::Material) -> u32 {
+    /// The scene's material for `m`; colours must be finite and non-negative,
+    /// as the MTL reader asks (a negative colour would make negative light).
+    fn material(&mut self, m: &gltf::Material) -> std::result::Result<u32, String> {
         if let Some(&id) = self.material_of.get(&m.index()) {
-            return id;
+            return Ok(id);
         }
         let mat = match m.index() {
             None => Material::default_grey(),
@@ -387,6 +695,13 @@ impl Flattened {
                 let kd = Vec3::new(r, g, b);
                 let ke =
                     Vec3::from_array(m.emissive_factor()) * m.emissive_strength().unwrap_or(1.0);
+                for (what, c) in [("baseColorFactor", kd), ("emissive colour", ke)] {
+                    if !(c.is_finite() && c.min_element() >= 0.0) {
+                        return Err(format!(
+                            "material {i}: {what} {c} must be finite and non-negative"
+                        ));
+                    }
+                }
                 Material {
                     name: m
                         .name()
@@ -402,7 +717,7 @@ impl Flattened {
         let id = self.materials.len() as u32;
         self.materials.push(mat);
         self.material_of.insert(m.index(), id);
-        id
+        Ok(id)
     }
 }
 
@@ -575,6 +890,192 @@ mod tests {
             assert!(e.starts_with("b.gltf: glTF"), "{e}");
             assert_eq!(e.lines().count(), 1, "{e}");
         }
+    }
+
+    /// The error loading the fixture GLB with `from` replaced by `to` in its
+    /// JSON (the replacement must apply).
+    fn fixture_error(from: &str, to: &str) -> String {
+        let json = fixture_json(None);
+        assert!(json.contains(from), "{from}");
+        let bytes = glb(&json.replacen(from, to, 1), &fixture_buffer());
+        let e = load_gltf_bytes(&bytes, Path::new("hostile.glb"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("hostile.glb: "), "{e}");
+        assert_eq!(e.lines().count(), 1, "{e}");
+        e
+    }
+
+    #[test]
+    fn what_the_gltf_crate_would_panic_on_is_refused_first() {
+        // Float and signed index types (the crate's reader: unreachable!()).
+        let e = fixture_error(
+            r#""componentType":5123,"count":6"#,
+            r#""componentType":5126,"count":3"#,
+        );
+        assert!(
+            e.contains("index accessor 1 is F32") && e.contains("unsigned"),
+            "{e}"
+        );
+        let e = fixture_error(
+            r#""componentType":5123,"count":6"#,
+            r#""componentType":5122,"count":6"#,
+        );
+        assert!(e.contains("index accessor 1 is I16"), "{e}");
+        // A stride smaller than the element (the crate's reader: assert!).
+        let e = fixture_error(r#""byteLength":48}"#, r#""byteLength":48,"byteStride":4}"#);
+        assert!(
+            e.contains("byteStride 4, smaller than its 12-byte elements"),
+            "{e}"
+        );
+        // An attribute naming an accessor past the list (the crate's
+        // validation hook indexes it unchecked).
+        let e = fixture_error(
+            r#"{"POSITION":0},"indices":1"#,
+            r#"{"POSITION":9},"indices":1"#,
+        );
+        assert!(
+            e.contains("mesh 0 primitive 0 names accessor 9, the file has 3"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn node_graphs_must_be_trees() {
+        let shared = fixture_error(
+            r#"{"mesh":0,"translation":[5,0,0]}"#,
+            r#"{"mesh":0,"translation":[5,0,0],"children":[2]}"#,
+        );
+        assert!(
+            shared.contains("node 2 is a child of nodes 0 and 1") && shared.contains("trees"),
+            "{shared}"
+        );
+        let twice = fixture_error(r#""children":[2]"#, r#""children":[2,2]"#);
+        assert!(
+            twice.contains("node 2 is a child of nodes 1 and 1"),
+            "{twice}"
+        );
+        let cycle = fixture_error(
+            r#"{"mesh":0,"translation":[10,0,0]}"#,
+            r#"{"mesh":0,"translation":[10,0,0],"children":[1]}"#,
+        );
+        assert!(
+            cycle.contains("lists node 1 as a root, but it is a child of node 2"),
+            "{cycle}"
+        );
+        let listed_twice = fixture_error(r#""nodes":[0,1,3]"#, r#""nodes":[0,1,3,0]"#);
+        assert!(
+            listed_twice.contains("lists node 0 twice"),
+            "{listed_twice}"
+        );
+    }
+
+    #[test]
+    fn expansion_past_the_triangle_budget_is_refused_before_allocating() {
+        // An index accessor of 2 * 10^8 + 1000 triangles, view-less and
+        // sparse, instanced twice (plus the strip's 2): a few hundred bytes
+        // that would take gigabytes.
+        let huge = r#"{"bufferView":1,"componentType":5123,"count":6,"type":"SCALAR"}"#;
+        let sparse = r#"{"componentType":5125,"count":600003000,"type":"SCALAR",
+            "sparse":{"count":1,"indices":{"bufferView":2,"componentType":5123},"values":{"bufferView":2}}}"#;
+        let e = fixture_error(huge, sparse);
+        assert!(
+            e.contains("expands to 400002002 triangles") && e.contains("--max-triangles"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn unreadable_sparse_data_is_an_error_not_no_data() {
+        let e = fixture_error(
+            r#""type":"VEC3","min":[0,0,0],"max":[1,1,0]}"#,
+            r#""type":"VEC3","min":[0,0,0],"max":[1,1,0],
+              "sparse":{"count":5,"indices":{"bufferView":2,"componentType":5123},"values":{"bufferView":0}}}"#,
+        );
+        assert!(e.contains("accessor 0: sparse indices run past"), "{e}");
+    }
+
+    #[test]
+    fn sparse_values_replace_elements() {
+        // Sparse indices [0, 1] (the strip's view) take the values (1,0,0)
+        // and (1,1,0) (positions 1 and 2 of the position view).
+        let json = fixture_json(None).replacen(
+            r#""type":"VEC3","min":[0,0,0],"max":[1,1,0]}"#,
+            r#""type":"VEC3","min":[0,0,0],"max":[1,1,0],
+              "sparse":{"count":2,"indices":{"bufferView":2,"componentType":5123},
+                        "values":{"bufferView":0,"byteOffset":12}}}"#,
+            1,
+        );
+        let s = load_gltf_bytes(&glb(&json, &fixture_buffer()), Path::new("s.glb")).unwrap();
+        // Seen through the first instance's translation by 5 in x.
+        assert_eq!(s.positions[0], Vec3::new(6.0, 0.0, 0.0));
+        assert_eq!(s.positions[1], Vec3::new(6.0, 1.0, 0.0));
+    }
+
+    #[test]
+    fn colours_must_be_finite_and_non_negative() {
+        let e = fixture_error("[0.2,0.4,0.6,1]", "[-0.2,0.4,0.6,1]");
+        assert!(
+            e.contains("material 0: baseColorFactor") && e.contains("non-negative"),
+            "{e}"
+        );
+        let e = fixture_error(r#""emissiveStrength":4"#, r#""emissiveStrength":1e39"#);
+        assert!(e.contains("emissive colour"), "{e}");
+    }
+
+    #[test]
+    fn unread_required_extensions_are_all_named() {
+        let e = fixture_error(
+            r#""scene":0,"#,
+            r#""scene":0,"extensionsRequired":["EXT_meshopt_compression","KHR_mesh_quantization","KHR_draco_mesh_compression"],"#,
+        );
+        assert!(
+            e.contains(
+                "does not read: EXT_meshopt_compression, KHR_draco_mesh_compression (compressed"
+            ),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn quantized_attributes_are_read() {
+        // KHR_mesh_quantization as gltfpack writes it: u16 positions (not
+        // normalized, 8-byte stride), i8 normalized normals (4-byte stride).
+        let mut bin = Vec::new();
+        for p in [[0u16, 0, 0], [2, 0, 0], [0, 2, 0]] {
+            for c in p {
+                bin.extend(c.to_le_bytes());
+            }
+            bin.extend([0, 0]);
+        }
+        for _ in 0..3 {
+            bin.extend([0u8, 0, 127, 0]);
+        }
+        let json = r#"{"asset":{"version":"2.0"},
+            "extensionsUsed":["KHR_mesh_quantization"],"extensionsRequired":["KHR_mesh_quantization"],
+            "scenes":[{"nodes":[0]}],"nodes":[{"mesh":0,"scale":[0.5,0.5,0.5]}],
+            "meshes":[{"primitives":[{"attributes":{"POSITION":0,"NORMAL":1}}]}],
+            "buffers":[{"byteLength":36}],
+            "bufferViews":[{"buffer":0,"byteLength":24,"byteStride":8},
+                           {"buffer":0,"byteOffset":24,"byteLength":12,"byteStride":4}],
+            "accessors":[
+              {"bufferView":0,"componentType":5123,"count":3,"type":"VEC3","min":[0,0,0],"max":[2,2,0]},
+              {"bufferView":1,"componentType":5120,"normalized":true,"count":3,"type":"VEC3"}]}"#;
+        let s = load_gltf_bytes(&glb(json, &bin), Path::new("q.glb")).unwrap();
+        assert_eq!(s.positions, vec![Vec3::ZERO, Vec3::X, Vec3::Y]);
+        assert_eq!(s.shading_normal(0, 0.2, 0.2), Some(Vec3::Z));
+        assert_eq!(
+            decode_float(gltf::accessor::DataType::I8, true, &[0x80]),
+            -1.0
+        );
+        assert_eq!(
+            decode_float(gltf::accessor::DataType::U16, true, &[0xff, 0xff]),
+            1.0
+        );
+        assert_eq!(
+            decode_float(gltf::accessor::DataType::I16, false, &[0xfe, 0xff]),
+            -2.0
+        );
     }
 
     #[test]

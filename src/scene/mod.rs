@@ -3,6 +3,7 @@
 //! material table (only what MTL files give and the shader uses) and the emissive
 //! triangles with their areas for light sampling. No scene graph.
 
+pub mod budget;
 pub mod builtin;
 pub mod gltf;
 pub mod light;
@@ -22,6 +23,21 @@ pub const READS: &str = "raylab reads OBJ (.obj), PLY (.ply) and glTF 2.0 (.gltf
 
 /// File extensions of scene formats raylab reads, in lower case.
 pub const EXTENSIONS: &[&str] = &["obj", "ply", "gltf", "glb"];
+
+/// The largest coordinate a scene may have to be rendered: Moller-Trumbore
+/// and the watertight test multiply three coordinates (edge x edge . offset),
+/// which overflow f32 (3.4e38) near 7e12. The Cornell box scaled until its
+/// coordinates reach 4e12 renders as at 1 with every test; at 6e12 it is dim
+/// with raylab's tests, at 2e13 black (Embree's still lit, wrongly); so half
+/// of the largest that rendered right.
+pub const MAX_TRACEABLE_COORDINATE: f32 = 2e12;
+
+/// The smallest extent (bounding-box diagonal) a scene may have to be
+/// rendered: products of three lengths underflow into denormals, which
+/// Embree flushes to zero (the Cornell box scaled to 1e-13 renders dim with
+/// Embree, at 1e-20 black with every backend), and the default view's eye
+/// rounds onto the point it looks at.
+pub const MIN_TRACEABLE_EXTENT: f32 = 1e-10;
 
 /// The MTL values the shader uses; everything else in an MTL file is ignored.
 #[derive(Clone, Debug, PartialEq)]
@@ -329,6 +345,30 @@ impl Scene {
     #[inline]
     pub fn material_of(&self, tri: u32) -> &Material {
         &self.materials[self.material_ids[tri as usize] as usize]
+    }
+
+    /// Whether f32 rays can render the scene: its coordinates within
+    /// [`MAX_TRACEABLE_COORDINATE`] and its extent at least
+    /// [`MIN_TRACEABLE_EXTENT`]; else the error says which, and what to do.
+    pub fn check_traceable(&self) -> Result<()> {
+        let b = self.bounds();
+        let reach = b.min.abs().max(b.max.abs()).max_element();
+        let extent = (b.max - b.min).length();
+        let msg = if reach > MAX_TRACEABLE_COORDINATE {
+            format!(
+                "too large to frame and trace with f32 rays: its coordinates reach {reach:e}, past {MAX_TRACEABLE_COORDINATE:e}, where ray/triangle tests (products of three coordinates) overflow; scale the scene down (and move it near the origin)"
+            )
+        } else if !(extent >= MIN_TRACEABLE_EXTENT) {
+            format!(
+                "too small to frame and trace with f32 rays: it is {extent:e} across, under {MIN_TRACEABLE_EXTENT:e}, where ray/triangle tests (products of three lengths) underflow; scale the scene up"
+            )
+        } else {
+            return Ok(());
+        };
+        Err(Error::Scene {
+            name: self.name.clone(),
+            msg,
+        })
     }
 
     /// Bounds of all referenced vertices.

@@ -66,6 +66,8 @@ pub fn load_obj_str_with(
         by_name: HashMap::new(),
         current: None,
         warnings: Vec::new(),
+        mtl_read: std::collections::HashSet::new(),
+        triangles: 0,
     };
     for (line_no, line) in logical_lines(text) {
         reader.record(line_no, &line)?;
@@ -105,6 +107,11 @@ struct ObjReader<'a> {
     by_name: HashMap<String, u32>,
     current: Option<u32>,
     warnings: Vec<String>,
+    /// MTL files read so far: a file named again is not read again (a 16 KB
+    /// OBJ repeating `mtllib` made 40 million materials).
+    mtl_read: std::collections::HashSet<PathBuf>,
+    /// Triangles the faces so far will make, for the budget.
+    triangles: u64,
 }
 
 impl ObjReader<'_> {
@@ -163,6 +170,12 @@ impl ObjReader<'_> {
                 if corners.len() < 3 {
                     self.short_faces += 1;
                 } else {
+                    // Checked as the faces come: a face makes corners - 2
+                    // triangles (and the file's size bounds the rest).
+                    self.triangles += corners.len() as u64 - 2;
+                    if let Some(msg) = super::budget::triangles_over(self.triangles) {
+                        return Err(self.err(line_no, msg));
+                    }
                     self.faces.push(Face {
                         corners,
                         material: self.current,
@@ -206,7 +219,8 @@ impl ObjReader<'_> {
             if i == 0 {
                 return Err(self.err(line_no, format!("{name} index 0 (OBJ counts from 1)")));
             }
-            if i < 0 && -i > counts[kind] {
+            // `i < -count`, not `-i > count`: -i overflows for i64::MIN.
+            if i < 0 && i < -counts[kind] {
                 return Err(self.err(
                     line_no,
                     format!(
@@ -227,10 +241,16 @@ impl ObjReader<'_> {
     }
 
     /// Reads the material library `name` (as the `mtllib` record on line
-    /// `line_no` writes it). One that cannot be read is a warning (the faces
-    /// get the default grey); one refused by the folder and file rules of
-    /// [`Refs`] is an error.
+    /// `line_no` writes it), once: the same file named again (or under
+    /// another spelling, ./a.mtl) is not read again. One that cannot be read
+    /// is a warning (the faces get the default grey); one refused by the
+    /// folder and file rules of [`Refs`] is an error.
     fn read_mtl(&mut self, name: &str, line_no: usize) -> Result<()> {
+        let joined = self.refs.dir().join(name);
+        let key = joined.canonicalize().unwrap_or(joined);
+        if !self.mtl_read.insert(key) {
+            return Ok(());
+        }
         match self.refs.read_whole(name, MTL_CAP) {
             Ok(bytes) => {
                 let mtl_path = self.refs.dir().join(name);
@@ -355,6 +375,10 @@ impl ObjReader<'_> {
             }
             material_ids.extend(std::iter::repeat_n(material, added));
         }
+        if triangulator.huge_faces > 0 {
+            self.warnings
+                .push(huge_faces_warning(path, triangulator.huge_faces));
+        }
         if unnamed > 0 && grey > 0 {
             self.warnings.push(format!(
                 "{}: {unnamed} triangles name no known material; using default grey",
@@ -373,6 +397,15 @@ impl ObjReader<'_> {
             self.warnings,
         )
     }
+}
+
+/// The warning for `count` concave faces too large to ear-clip, fanned.
+pub(crate) fn huge_faces_warning(path: &Path, count: usize) -> String {
+    format!(
+        "{}: {count} concave faces of more than {} corners fanned, not ear-clipped (its time grows with the square of the corners); they may be covered wrongly",
+        path.display(),
+        polygon::MAX_EAR_CLIPPED
+    )
 }
 
 /// The file's records with their 1-based line numbers: a line ending in `\`
@@ -469,6 +502,17 @@ pub fn parse_mtl(text: &str, path: &Path) -> Result<(Vec<Material>, Vec<String>)
             let x: f32 = w
                 .parse()
                 .map_err(|_| err(line_no, format!("'{key}': '{w}' is not a number")))?;
+            if key == "Ns" && x.is_finite() && x < 0.0 {
+                // Blender 2.79 wrote negative exponents (Ns -1.960784); the
+                // MTL is advisory, and tinyobjloader and Blender read them,
+                // so clamp to 0 (no highlight) and say so.
+                warnings.push(format!(
+                    "{}:{line_no}: 'Ns' {w} is negative; read as 0",
+                    path.display()
+                ));
+                values.push(0.0);
+                continue;
+            }
             if !(x.is_finite() && x >= 0.0) {
                 return Err(err(
                     line_no,
@@ -529,6 +573,17 @@ mod tests {
         let s = load("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf -3//1 -2//1 -1//1\n").unwrap();
         assert_eq!(s.triangle_count(), 1);
         assert_eq!(s.shading_normal(0, 0.2, 0.2), Some(Vec3::Z));
+    }
+
+    #[test]
+    fn the_most_negative_index_is_an_error_not_an_overflow() {
+        let e = load("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -9223372036854775808\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("fixture.obj:4:") && e.contains("before the first"),
+            "{e}"
+        );
     }
 
     #[test]
@@ -690,6 +745,39 @@ mod tests {
         // Blender's Ka 0 0 0 means "none": the ambient term uses Kd.
         let (m, _) = parse_mtl("newmtl b\nKa 0 0 0\nKd 0.5 0.4 0.3\n", Path::new("x.mtl")).unwrap();
         assert_eq!(m[0].ka, Vec3::new(0.5, 0.4, 0.3));
+    }
+
+    #[test]
+    fn blenders_negative_ns_is_clamped_with_a_warning() {
+        let (m, w) = parse_mtl("newmtl a\nNs -1.960784\nKd 1 1 1\n", Path::new("x.mtl")).unwrap();
+        assert_eq!(m[0].ns, 0.0);
+        assert_eq!(w.len(), 1);
+        assert!(
+            w[0].starts_with("x.mtl:2: 'Ns' -1.960784 is negative"),
+            "{w:?}"
+        );
+        // Other negatives still name their line.
+        let e = parse_mtl("newmtl a\nKd -1 1 1\n", Path::new("x.mtl")).unwrap_err();
+        assert!(e.to_string().starts_with("x.mtl:2:"), "{e}");
+    }
+
+    #[test]
+    fn a_repeated_mtllib_is_read_once() {
+        let dir = std::env::temp_dir().join(format!("raylab-mtllib-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(
+            dir.join("m.mtl"),
+            "newmtl red\nKd 1 0 0\nnewmtl blue\nKd 0 0 1\n",
+        )
+        .unwrap();
+        let text = "mtllib m.mtl\n".repeat(10_000)
+            + "mtllib ./m.mtl\nusemtl blue\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
+        let s = load_obj_str(&text, Path::new("r.obj"), &dir);
+        std::fs::remove_dir_all(&dir).ok();
+        let s = s.unwrap();
+        // red, blue and the default grey.
+        assert_eq!(s.materials.len(), 3);
+        assert_eq!(s.material_of(0).name, "blue");
     }
 
     #[test]

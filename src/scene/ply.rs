@@ -190,6 +190,14 @@ pub fn load_ply_bytes(bytes: &[u8], path: &Path) -> Result<Scene> {
             })
             .collect()
     });
+    // The file's size bounds the faces read; the budget still holds.
+    let expands_to: u64 = faces
+        .iter()
+        .map(|f| f.indices.len().saturating_sub(2) as u64)
+        .sum();
+    if let Some(msg) = super::budget::triangles_over(expands_to) {
+        return Err(err(msg));
+    }
     let mut triangles = Vec::with_capacity(faces.len() * 2);
     let mut short_faces = 0usize;
     let mut triangulator = polygon::FaceTriangulator::default();
@@ -215,6 +223,12 @@ pub fn load_ply_bytes(bytes: &[u8], path: &Path) -> Result<Scene> {
         triangulator.face(&positions, &ids, &mut triangles);
     }
     let mut warnings = Vec::new();
+    if triangulator.huge_faces > 0 {
+        warnings.push(super::obj::huge_faces_warning(
+            path,
+            triangulator.huge_faces,
+        ));
+    }
     if stray_lines > 0 {
         warnings.push(format!(
             "{}: {stray_lines} header lines without a keyword read as comments (old Blender exports write them)",

@@ -356,7 +356,7 @@ impl EmbreeScene {
 
     #[inline]
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
-        if !ray.is_valid() {
+        if !embree_takes(ray) {
             return None;
         }
         let mut rh = ffi::RTCRayHit {
@@ -379,7 +379,7 @@ impl EmbreeScene {
 
     #[inline]
     pub fn occluded(&self, ray: &Ray) -> bool {
-        if !ray.is_valid() {
+        if !embree_takes(ray) {
             return false;
         }
         let mut r = embree_ray(ray);
@@ -396,7 +396,7 @@ struct Valid<const N: usize>([i32; N]);
 
 /// The closest-hit and any-hit queries over a stream in packets of one width:
 /// consecutive rays fill a packet's lanes, the last packet partly; invalid
-/// rays ([`Ray::is_valid`]) are left out of the valid mask and answer a miss,
+/// rays ([`embree_takes`]) are left out of the valid mask and answer a miss,
 /// as the single-ray queries do.
 macro_rules! packet_queries {
     ($intersect:ident, $occluded:ident, $n:literal, $ray_hit:ident, $ray:ident, $api_intersect:ident, $api_occluded:ident) => {
@@ -411,7 +411,7 @@ macro_rules! packet_queries {
                     p.hit.geomID = [api::INVALID_ID; $n];
                     p.hit.primID = [api::INVALID_ID; $n];
                     for (lane, ray) in rays.iter().enumerate() {
-                        if ray.is_valid() {
+                        if embree_takes(ray) {
                             valid.0[lane] = -1;
                             set_lane!(p.ray, lane, ray);
                         }
@@ -438,7 +438,7 @@ macro_rules! packet_queries {
                     // SAFETY: as above.
                     let mut p: ffi::$ray = unsafe { std::mem::zeroed() };
                     for (lane, ray) in rays.iter().enumerate() {
-                        if ray.is_valid() {
+                        if embree_takes(ray) {
                             valid.0[lane] = -1;
                             set_lane!(p, lane, ray);
                         }
@@ -491,7 +491,7 @@ impl EmbreeScene {
             .iter()
             .map(|ray| {
                 let mut r = embree_ray(ray);
-                if !ray.is_valid() {
+                if !embree_takes(ray) {
                     r.tfar = f32::NEG_INFINITY; // Embree skips rays with tfar < tnear
                 }
                 ffi::RTCRayHit {
@@ -507,7 +507,7 @@ impl EmbreeScene {
         // SAFETY: `self.raw` is a committed scene kept alive by `self`.
         unsafe { api::intersect_stream(self.raw, &mut records) };
         for ((hit, rh), ray) in hits.iter_mut().zip(&records).zip(rays) {
-            *hit = (ray.is_valid() && rh.hit.geomID != api::INVALID_ID).then_some(Hit {
+            *hit = (embree_takes(ray) && rh.hit.geomID != api::INVALID_ID).then_some(Hit {
                 t: rh.ray.tfar,
                 u: rh.hit.u,
                 v: rh.hit.v,
@@ -521,7 +521,7 @@ impl EmbreeScene {
             .iter()
             .map(|ray| {
                 let mut r = embree_ray(ray);
-                if !ray.is_valid() {
+                if !embree_takes(ray) {
                     r.tfar = f32::NEG_INFINITY;
                     r.tnear = 0.0;
                 }
@@ -531,7 +531,7 @@ impl EmbreeScene {
         // SAFETY: as above.
         unsafe { api::occluded_stream(self.raw, &mut records) };
         for ((o, r), ray) in occluded.iter_mut().zip(&records).zip(rays) {
-            *o = ray.is_valid() && r.tfar == f32::NEG_INFINITY;
+            *o = embree_takes(ray) && r.tfar == f32::NEG_INFINITY;
         }
     }
 }
@@ -541,6 +541,21 @@ impl Drop for EmbreeScene {
         // SAFETY: releases our reference to a scene we created.
         unsafe { ffi::rtcReleaseScene(self.raw) };
     }
+}
+
+/// Embree's `FLT_LARGE` (common/math/constants.h): the largest origin or
+/// direction component its ray validation (`RayK::valid`) accepts. Builds
+/// with assertions on (Debian's) abort the process on a ray past it.
+pub const EMBREE_MAX_COORDINATE: f32 = 1.844e18;
+
+/// Whether Embree can take `ray`: a valid ray ([`Ray::is_valid`]) whose
+/// origin and direction components are within [`EMBREE_MAX_COORDINATE`].
+/// Any other ray is answered as a miss without calling Embree.
+#[inline]
+pub fn embree_takes(ray: &Ray) -> bool {
+    ray.is_valid()
+        && ray.origin.abs().max_element() <= EMBREE_MAX_COORDINATE
+        && ray.dir.abs().max_element() <= EMBREE_MAX_COORDINATE
 }
 
 /// Our ray in Embree's layout: all mask bits set (Embree 4 gives geometries mask

@@ -88,25 +88,26 @@ impl BvhCrateBackend {
     }
 
     /// The crate's ray for `ray` started at its tmin, the tmax left after
-    /// the move, and the `t` to add back.
-    fn ray(ray: &Ray) -> (BvhRay<f32, 3>, f32, f32) {
-        let (origin, tmax, shift) = started_at_tmin(ray);
+    /// the move, and the `t` to add back; `None` for a ray it cannot take
+    /// (invalid, or moved out of f32's range).
+    fn ray(ray: &Ray) -> Option<(BvhRay<f32, 3>, f32, f32)> {
+        if !ray.is_valid() {
+            return None;
+        }
+        let (origin, tmax, shift) = started_at_tmin(ray)?;
         let dir = Vector3::new(ray.dir.x, ray.dir.y, ray.dir.z);
         let r = BvhRay {
             origin: point(origin),
             direction: dir,
             inv_direction: dir.map(|x| 1.0 / x),
         };
-        (r, tmax, shift)
+        Some((r, tmax, shift))
     }
 }
 
 impl Backend for BvhCrateBackend {
     fn intersect(&self, ray: &Ray) -> Option<Hit> {
-        if !ray.is_valid() {
-            return None;
-        }
-        let (r, tmax, shift) = Self::ray(ray);
+        let (r, tmax, shift) = Self::ray(ray)?;
         let mut best: Option<Hit> = None;
         let mut best_t = tmax;
         for shape in self.tree.nearest_traverse_iterator(&r, &self.shapes) {
@@ -132,10 +133,9 @@ impl Backend for BvhCrateBackend {
     }
 
     fn occluded(&self, ray: &Ray) -> bool {
-        if !ray.is_valid() {
+        let Some((r, tmax, _)) = Self::ray(ray) else {
             return false;
-        }
-        let (r, tmax, _) = Self::ray(ray);
+        };
         self.tree.traverse_iterator(&r, &self.shapes).any(|shape| {
             let [a, b, c] = &shape.vertices;
             r.intersects_triangle(a, b, c).distance < tmax

@@ -156,16 +156,16 @@ pub fn unavailable(library: &Library) -> crate::Error {
 /// For the libraries whose rays have no `tmin`: the ray moved to start at
 /// `tmin` (origin + tmin * dir, tmax - tmin), the way their users write it,
 /// and the `t` to add back to their hits. Exact for tmin = 0, which is every
-/// ray the renderer traces; other rays get the rounding of the move.
+/// ray the renderer traces; other rays get the rounding of the move. `None`
+/// where the moved origin is not finite (a finite ray whose tmin * dir
+/// overflows f32): no ray of the library's can say it, so it is a miss.
 #[allow(dead_code)] // used by the library modules that are compiled in
-pub(crate) fn started_at_tmin(ray: &crate::geometry::Ray) -> (glam::Vec3, f32, f32) {
+pub(crate) fn started_at_tmin(ray: &crate::geometry::Ray) -> Option<(glam::Vec3, f32, f32)> {
     if ray.tmin == 0.0 {
-        (ray.origin, ray.tmax, 0.0)
-    } else {
-        (
-            ray.origin + ray.dir * ray.tmin,
-            ray.tmax - ray.tmin,
-            ray.tmin,
-        )
+        return Some((ray.origin, ray.tmax, 0.0));
     }
+    let origin = ray.origin + ray.dir * ray.tmin;
+    origin
+        .is_finite()
+        .then_some((origin, ray.tmax - ray.tmin, ray.tmin))
 }

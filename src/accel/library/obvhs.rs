@@ -49,8 +49,100 @@ fn vec3a(v: glam::Vec3) -> Vec3A {
     Vec3A::new(v.x, v.y, v.z)
 }
 
+/// Binary-tree depth past which the CwBvh conversion is refused: obvhs's
+/// `bvh2_to_cwbvh` recurses once per level of the binary tree (about 100
+/// bytes of stack a level in `calculate_cost_impl`, more in
+/// `convert_to_cwbvh_impl`), so 25,000 identical triangles, which its PLOC
+/// builder stacks into a chain, overflowed a 2 MiB pool thread's stack and
+/// aborted the process. Real scenes' trees are under 100 levels deep.
+pub const MAX_CWBVH_DEPTH: usize = 2048;
+
+/// obvhs's `build_cwbvh_from_tris` (cwbvh/builder.rs, 0.4), step for step,
+/// with the binary tree's depth checked before its recursive conversion.
+fn build_cwbvh(triangles: &[Triangle], config: BvhBuildParams) -> crate::Result<CwBvh> {
+    use obvhs::bvh2::reinsertion::ReinsertionOptimizer;
+    use obvhs::ploc::PlocBuilder;
+    let mut bvh2 = if config.pre_split {
+        let mut largest_half_area = 0.0f32;
+        let mut avg_area = 0.0;
+        let mut aabbs: Vec<_> = triangles
+            .iter()
+            .map(|tri| {
+                let aabb = tri.aabb();
+                let half_area = aabb.half_area();
+                largest_half_area = half_area.max(largest_half_area);
+                avg_area += half_area;
+                aabb
+            })
+            .collect();
+        let mut indices: Vec<u32> = (0..triangles.len() as u32).collect();
+        avg_area /= triangles.len() as f32;
+        obvhs::splits::split_aabbs_preset(
+            &mut aabbs,
+            &mut indices,
+            triangles,
+            avg_area,
+            largest_half_area,
+        );
+        PlocBuilder::with_capacity(aabbs.len()).build(
+            config.ploc_search_distance,
+            &aabbs,
+            indices,
+            config.sort_precision,
+            config.search_depth_threshold,
+        )
+    } else {
+        PlocBuilder::with_capacity(triangles.len()).build(
+            config.ploc_search_distance,
+            triangles,
+            (0..triangles.len() as u32).collect::<Vec<_>>(),
+            config.sort_precision,
+            config.search_depth_threshold,
+        )
+    };
+    bvh2.uses_spatial_splits = config.pre_split;
+    ReinsertionOptimizer::default().run(&mut bvh2, config.reinsertion_batch_ratio, None);
+    let depth = bvh2_depth(&bvh2);
+    if depth > MAX_CWBVH_DEPTH {
+        return Err(crate::Error::Other(format!(
+            "obvhs: its binary tree is {depth} levels deep ({} triangles, many of them in one place), past the {MAX_CWBVH_DEPTH} its recursive CwBvh conversion can take without overflowing the stack: use --layout bvh2 or another backend",
+            triangles.len()
+        )));
+    }
+    Ok(obvhs::cwbvh::bvh2_to_cwbvh::bvh2_to_cwbvh(
+        &bvh2,
+        config.max_prims_per_leaf.clamp(1, 3),
+        true,
+        false,
+    ))
+}
+
+/// The depth of an obvhs binary tree, counted without recursion (obvhs's own
+/// `Bvh2::depth` recurses, and would overflow on the trees this guards).
+fn bvh2_depth(bvh2: &Bvh2) -> usize {
+    let mut deepest = 0;
+    let mut stack = vec![(0usize, 1usize)];
+    while let Some((i, d)) = stack.pop() {
+        let Some(node) = bvh2.nodes.get(i) else {
+            continue;
+        };
+        deepest = deepest.max(d);
+        if !node.is_leaf() {
+            let first = node.first_index as usize;
+            stack.push((first, d + 1));
+            stack.push((first + 1, d + 1));
+        }
+    }
+    deepest
+}
+
 impl ObvhsBackend {
-    pub fn new(mesh: &MeshRef, layout: ObvhsLayout, quality: Quality, threads: usize) -> Self {
+    pub fn new(
+        mesh: &MeshRef,
+        layout: ObvhsLayout,
+        quality: Quality,
+        threads: usize,
+    ) -> crate::Result<Self> {
         let input: Vec<Triangle> = (0..mesh.triangle_count())
             .map(|i| {
                 let [v0, v1, v2] = mesh.triangle(i);
@@ -62,35 +154,36 @@ impl ObvhsBackend {
             })
             .collect();
         if input.is_empty() {
-            return ObvhsBackend {
+            return Ok(ObvhsBackend {
                 tree: Tree::Empty,
                 triangles: Vec::new(),
                 scene_index: Vec::new(),
-            };
+            });
         }
         let params = preset(quality);
         let mut core_time = Duration::default();
         // obvhs's parallel parts run on the rayon pool they are called in.
-        let (tree, order) = in_pool(threads, || match layout {
-            ObvhsLayout::CwBvh => {
-                let tree =
-                    obvhs::cwbvh::builder::build_cwbvh_from_tris(&input, params, &mut core_time);
-                let order = tree.primitive_indices.clone();
-                (Tree::CwBvh(tree), order)
-            }
-            ObvhsLayout::Bvh2 => {
-                let tree =
-                    obvhs::bvh2::builder::build_bvh2_from_tris(&input, params, &mut core_time);
-                let order = tree.primitive_indices.clone();
-                (Tree::Bvh2(tree), order)
-            }
-        });
+        let (tree, order) = in_pool(threads, || -> crate::Result<_> {
+            Ok(match layout {
+                ObvhsLayout::CwBvh => {
+                    let tree = build_cwbvh(&input, params)?;
+                    let order = tree.primitive_indices.clone();
+                    (Tree::CwBvh(tree), order)
+                }
+                ObvhsLayout::Bvh2 => {
+                    let tree =
+                        obvhs::bvh2::builder::build_bvh2_from_tris(&input, params, &mut core_time);
+                    let order = tree.primitive_indices.clone();
+                    (Tree::Bvh2(tree), order)
+                }
+            })
+        })?;
         let triangles = order.iter().map(|&i| input[i as usize]).collect();
-        ObvhsBackend {
+        Ok(ObvhsBackend {
             tree,
             triangles,
             scene_index: order,
-        }
+        })
     }
 
     fn ray(ray: &Ray) -> ObvhsRay {

@@ -93,6 +93,27 @@ impl RayRoom {
     }
 }
 
+/// The largest origin or direction component tinybvh is given, as Embree's
+/// `FLT_LARGE`: past it its traversal meets infinities and NaNs (box minus
+/// origin overflows, 1/dir is denormal and flushed to 0, inf * 0), and
+/// BVH8_CPU's `Intersect` crashed (SIGSEGV, found by tests/fuzz.rs) on the
+/// finite ray from (-f32::MAX, 3e38, f32::MAX) towards the Cornell box.
+pub const TINYBVH_MAX_COORDINATE: f32 = 1.844e18;
+
+/// Whether tinybvh can take `ray` (after its move to tmin). tinybvh's
+/// `VALIDATE_RAY` (tiny_bvh.h) ends the process ("Input ray contains NaNs",
+/// exit 1) when the sum of the direction, `t` and origin is NaN, as it is
+/// for a finite ray whose move to tmin overflowed to +inf and -inf; and
+/// components past [`TINYBVH_MAX_COORDINATE`] crash its traversal. Such
+/// rays are answered as misses without calling it.
+fn tinybvh_takes(ray: &tinybvh_rs::Ray) -> bool {
+    let (d, o) = (ray.dir, ray.origin);
+    ray.hit.t.is_finite()
+        && d.iter()
+            .chain(o.iter())
+            .all(|x| x.abs() <= TINYBVH_MAX_COORDINATE)
+}
+
 /// tinybvh's binary tree and the vertices it reads.
 struct WaldTree {
     // Declared first, so dropped before the vertices it borrows.
@@ -243,8 +264,11 @@ impl TinybvhBackend {
         if !ray.is_valid() {
             return None;
         }
-        let (origin, tmax, shift) = started_at_tmin(ray);
+        let (origin, tmax, shift) = started_at_tmin(ray)?;
         let mut room = RayRoom::new(origin, ray.dir, tmax);
+        if !tinybvh_takes(&room.ray) {
+            return None;
+        }
         match &self.tree {
             Tree::Bvh8(tree) => tree.intersect(&mut room.ray),
             Tree::Wald(wald) => wald.tree.intersect(&mut room.ray),
