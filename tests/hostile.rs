@@ -307,7 +307,9 @@ fn budgets_are_checked_before_allocating_and_name_their_flag() {
         "-o",
         png,
     ]);
-    assert_eq!(out.status.code(), Some(1));
+    // A flag's value over its budget is a usage error: exit 2, as every
+    // refused flag.
+    assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("over the budget of 100"));
     let bad = raylab(&["render", "--max-pixels", "0", "-o", png]);
     assert_eq!(bad.status.code(), Some(2));
