@@ -415,6 +415,9 @@ pub fn ray_sets(
     Ok(ray_sets_judged(scene, recorder, settings, sets, count, whole_primary)?.0)
 }
 
+/// Ray sets, each with its rays.
+pub type SetRays = Vec<(RaySet, Vec<Ray>)>;
+
 /// [`ray_sets`], and when a render was recorded for them, its secondary-ray
 /// origins judged ([`judge_spawns`]).
 pub fn ray_sets_judged(
@@ -424,7 +427,7 @@ pub fn ray_sets_judged(
     sets: &[RaySet],
     count: usize,
     whole_primary: bool,
-) -> crate::Result<(Vec<(RaySet, Vec<Ray>)>, Option<SpawnReport>)> {
+) -> crate::Result<(SetRays, Option<SpawnReport>)> {
     let needs_recording = sets.iter().any(|s| s.is_recorded());
     let recorded = if needs_recording {
         Some(recorded_rays(scene, recorder, settings)?)

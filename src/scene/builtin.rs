@@ -404,7 +404,7 @@ impl Builder {
         });
         let k = ((n as f64 / 2.0).sqrt().ceil() as usize).max(1);
         let cell = 100.0 / k as f32;
-        let mut rng = crate::render::rng::Rng::for_pixel(0, 0x6669_656c_64, 3);
+        let mut rng = crate::render::rng::Rng::for_pixel(0, 0x66_6965_6c64, 3);
         let first = self.positions.len() as u32;
         for j in 0..=k {
             for i in 0..=k {

@@ -79,7 +79,7 @@ pub fn cliffs(points: &[LibraryPoint]) -> Vec<Cliff> {
                     .filter(|p| p.scene == scene && p.failed.is_none() && family(&p.family))
                     .filter_map(|p| {
                         let m = *p.mrays.get(k)?;
-                        m.is_finite().then(|| (m, p))
+                        m.is_finite().then_some((m, p))
                     })
                     .max_by(|a, b| a.0.total_cmp(&b.0))
             };
