@@ -166,7 +166,7 @@ fn validated(mut json: gltf::json::Root) -> std::result::Result<gltf::Document, 
             "requires glTF extensions raylab does not read: {}{}",
             unread.join(", "),
             if compressed {
-                " (compressed meshes: raylab reads uncompressed glTF 2.0; e.g. gltfpack without -c, or gltf-transform decompress)"
+                " (Draco- or meshopt-compressed meshes: raylab reads uncompressed glTF 2.0; e.g. gltfpack without -c, or gltf-transform decompress)"
             } else {
                 ""
             }
