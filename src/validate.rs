@@ -132,6 +132,17 @@ pub fn classify(ray: &Ray, a: Option<Hit>, b: Option<Hit>, triangles: &[[Vec3; 3
             }
         }
         (Some(h), None) | (None, Some(h)) if on_edge(ray, &h, triangles) => Agreement::Tie,
+        // A hit at the segment's end that the other test put just beyond it:
+        // along a ray grazing the triangle's plane, the plane's few ulps of
+        // rounding move the hit by that over the cosine (a shadow ray running
+        // along a ceiling to its light: cosine 6e-5, Embree's t past tmax,
+        // raylab's 2e-4 inside, and the exact reference with raylab).
+        (Some(h), None) | (None, Some(h))
+            if ray.tmax.is_finite()
+                && same_t_grazing(ray, h.t, ray.tmax, &triangles[h.tri as usize]) =>
+        {
+            Agreement::Tie
+        }
         // One backend hits a triangle on its edge, the other passed through that
         // edge and hit something farther: the same edge rounding as a hit
         // against a miss (Moller-Trumbore leaks through shared edges; seen on a
@@ -717,6 +728,42 @@ mod tests {
         // Other triangles get no such slack.
         assert_eq!(
             classify(&grazing, hit(t, 0), hit(t + 0.1, 1), &tris),
+            Agreement::Genuine
+        );
+    }
+
+    #[test]
+    fn a_grazing_hit_at_the_segment_end_against_a_miss_is_a_tie() {
+        let tris = [[Vec3::ZERO, Vec3::X, Vec3::Y]];
+        // Along z = 0 at cosine 6e-5, ending 2e-4 (relative) past the hit.
+        let grazing = Ray::segment(
+            Vec3::new(-0.1, 0.2, -3e-5),
+            Vec3::new(1.0, 0.0, 6e-5).normalize(),
+            0.0,
+            0.5 * (1.0 + 2e-4),
+        );
+        assert_eq!(classify(&grazing, hit(0.5, 0), None, &tris), Agreement::Tie);
+        // Head on, or far inside the segment, a miss is genuine; and an
+        // unbounded ray has no end to be near.
+        let head_on = Ray::segment(Vec3::new(0.2, 0.2, -0.5), Vec3::Z, 0.0, 0.5 * (1.0 + 2e-4));
+        assert_eq!(
+            classify(&head_on, None, hit(0.5, 0), &tris),
+            Agreement::Genuine
+        );
+        let long = Ray {
+            tmax: 2.0,
+            ..grazing
+        };
+        assert_eq!(
+            classify(&long, hit(0.5, 0), None, &tris),
+            Agreement::Genuine
+        );
+        let unbounded = Ray {
+            tmax: f32::INFINITY,
+            ..grazing
+        };
+        assert_eq!(
+            classify(&unbounded, hit(0.5, 0), None, &tris),
             Agreement::Genuine
         );
     }
