@@ -359,7 +359,7 @@ fn gltf_with_an_embedded_buffer_renders_through_the_cli() {
     for x in [0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0] {
         bin.extend(x.to_le_bytes());
     }
-    let b64 = base64_encode(&bin);
+    let b64 = common::base64_encode(&bin);
     let json = format!(
         r#"{{"asset":{{"version":"2.0"}},"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0,"scale":[2,2,2]}}],
         "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}}}}]}}],
@@ -373,25 +373,6 @@ fn gltf_with_an_embedded_buffer_renders_through_the_cli() {
     assert_eq!(v["triangles"], 1);
     assert!(v["rays"]["primary_hits"].as_u64().unwrap() > 100);
     std::fs::remove_dir_all(&d).ok();
-}
-
-/// Standard base64 with padding (the test's own, to need no crate).
-fn base64_encode(bytes: &[u8]) -> String {
-    const A: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let mut out = String::new();
-    for c in bytes.chunks(3) {
-        let n = (c[0] as u32) << 16
-            | (*c.get(1).unwrap_or(&0) as u32) << 8
-            | *c.get(2).unwrap_or(&0) as u32;
-        for k in 0..4 {
-            if k <= c.len() {
-                out.push(A[(n >> (18 - 6 * k) & 63) as usize] as char);
-            } else {
-                out.push('=');
-            }
-        }
-    }
-    out
 }
 
 #[test]

@@ -189,7 +189,7 @@ fn index_values_from_an_outside_buffer_are_not_shown() {
         "the index value leaked: {err}"
     );
     // The scene's own buffer (a data URI): its value helps and is shown.
-    let b64 = base64(&triangle_bin());
+    let b64 = common::base64_encode(&triangle_bin());
     let own = gltf_json(&format!("data:application/octet-stream;base64,{b64}"), true);
     std::fs::write(scene.join("own.gltf"), own).unwrap();
     let own = scene.join("own.gltf");
@@ -199,24 +199,6 @@ fn index_values_from_an_outside_buffer_are_not_shown() {
         &["accessor 1: mesh primitive index 16706 out of range"],
     );
     std::fs::remove_dir_all(&root).ok();
-}
-
-fn base64(bytes: &[u8]) -> String {
-    const A: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let mut out = String::new();
-    for c in bytes.chunks(3) {
-        let n = (c[0] as u32) << 16
-            | (*c.get(1).unwrap_or(&0) as u32) << 8
-            | *c.get(2).unwrap_or(&0) as u32;
-        for k in 0..4 {
-            out.push(if k <= c.len() {
-                A[(n >> (18 - 6 * k) & 63) as usize] as char
-            } else {
-                '='
-            });
-        }
-    }
-    out
 }
 
 const BOX_OBJ: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nusemtl red\nf 1 2 3 4\n";

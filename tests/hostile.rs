@@ -129,7 +129,7 @@ fn gltf_that_the_gltf_crate_would_panic_on_is_refused() {
             "meshopt.gltf",
             r#""scenes""#,
             r#""extensionsRequired":["EXT_meshopt_compression","KHR_mesh_quantization"],"scenes""#,
-            "does not read: EXT_meshopt_compression (compressed",
+            "does not read: EXT_meshopt_compression (Draco- or meshopt-compressed",
         ),
     ] {
         let f = write(

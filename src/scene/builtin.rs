@@ -102,14 +102,7 @@ pub fn builtin(name: &str) -> Result<Scene> {
                 }
             }
         }
-        return Scene::new(
-            name,
-            b.positions,
-            Some(b.normals),
-            b.triangles,
-            b.material_ids,
-            b.materials,
-        );
+        return b.into_scene(name);
     }
     b.cornell_box();
     match name {
@@ -172,14 +165,7 @@ pub fn builtin(name: &str) -> Result<Scene> {
             ));
         }
     }
-    let mut scene = Scene::new(
-        name,
-        b.positions,
-        Some(b.normals),
-        b.triangles,
-        b.material_ids,
-        b.materials,
-    )?;
+    let mut scene = b.into_scene(name)?;
     scene.study_frame = true;
     Ok(scene)
 }
@@ -218,6 +204,17 @@ struct Builder {
 }
 
 impl Builder {
+    fn into_scene(self, name: &str) -> Result<Scene> {
+        Scene::new(
+            name,
+            self.positions,
+            Some(self.normals),
+            self.triangles,
+            self.material_ids,
+            self.materials,
+        )
+    }
+
     fn material(&mut self, m: Material) -> u32 {
         self.materials.push(m);
         self.materials.len() as u32 - 1

@@ -1031,7 +1031,7 @@ mod tests {
         );
         assert!(
             e.contains(
-                "does not read: EXT_meshopt_compression, KHR_draco_mesh_compression (compressed"
+                "does not read: EXT_meshopt_compression, KHR_draco_mesh_compression (Draco- or meshopt-compressed"
             ),
             "{e}"
         );
