@@ -753,3 +753,12 @@ fn validate_judges_the_secondary_ray_origins_of_a_flat_field() {
         assert_eq!(spawns["behind"].as_u64(), Some(0), "{spawns}");
     }
 }
+
+#[test]
+fn the_cliff_finder_runs_the_libraries_part_only() {
+    assert_one_line_error(
+        &["bench", "--cliffs", "--parts", "trace"],
+        "--cliffs: the cliff finder runs the libraries part only",
+    );
+    assert_one_line_error(&["bench", "--cliffs", "--rays", "x.rays"], "--cliffs");
+}

@@ -80,8 +80,8 @@ pub struct BenchArgs {
     /// closed scan, CAD slivers, foliage, huge and tiny, far from the
     /// origin, heavy overlap, the study's box; smaller with --quick) and
     /// the SCENEs given, and lead with where raylab's best path is behind
-    /// the best peer.
-    #[arg(long)]
+    /// the best peer. (Not with --rays: each class traces its own rays.)
+    #[arg(long, conflicts_with = "rays")]
     cliffs: bool,
     /// Folder for bench.md, bench.csv, bench.json, charts/, images/ and
     /// index.html. A folder holding files bench did not write is refused
@@ -240,12 +240,6 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             return Err(Error::usage(
                 "--cliffs",
                 "the cliff finder runs the libraries part only (--parts libraries)",
-            ));
-        }
-        if args.rays.is_some() {
-            return Err(Error::usage(
-                "--cliffs",
-                "sweeps scene classes with their own rays; --rays traces one scene's file",
             ));
         }
         cfg.parts = vec![crate::bench::config::Part::Libraries];

@@ -777,6 +777,33 @@ mod tests {
     }
 
     #[test]
+    fn class_scenes_have_about_n_triangles_where_they_say() {
+        for (name, lo, hi) in [
+            ("plane:20000", 20_000, 20_002),
+            ("rooms:20000", 16_000, 24_000),
+            ("pipes:20000", 20_000, 20_048),
+            ("overlap:5000", 5000, 5000),
+            ("far:20000", 19_000, 21_000),
+        ] {
+            let s = builtin(name).unwrap();
+            let n = s.triangle_count();
+            assert!((lo..=hi).contains(&n), "{name}: {n}");
+            assert!(!s.lights.triangles.is_empty() || !name.starts_with("rooms"));
+        }
+        // The field lies in y = 0 but for its light; far is far.
+        let field = builtin("plane:2000").unwrap();
+        let flat = field.positions.iter().filter(|p| p.y == 0.0).count();
+        assert_eq!(flat, field.positions.len() - 4);
+        assert!(builtin("far:2000").unwrap().bounds().min.x > 9.9e4);
+        // Framed from their bounds, except the rooms (the study's eye stands in one).
+        assert!(!field.study_frame && builtin("rooms:2000").unwrap().study_frame);
+        for bad in ["plane:1", "rooms:10", "pipes:1e8", "overlap:x", "far:5"] {
+            let e = builtin(bad).unwrap_err().to_string();
+            assert!(e.contains(":N must be"), "{bad}: {e}");
+        }
+    }
+
+    #[test]
     fn unknown_name_lists_the_builtins() {
         let e = builtin("cornell-nope").unwrap_err().to_string();
         assert!(e.contains("cornell-water"), "{e}");
