@@ -411,27 +411,15 @@ impl RaySet {
     }
 }
 
-/// The rays of each of `sets`, at most `count` per set (evenly subsampled), except
-/// that primary rays are kept whole (one per pixel, in raster order) when
-/// `whole_primary`. Shadow and AO rays are those a serial render with `recorder`
-/// casts.
-pub fn ray_sets(
-    scene: &Scene,
-    recorder: &dyn Backend,
-    settings: &RenderSettings,
-    sets: &[RaySet],
-    count: usize,
-    whole_primary: bool,
-) -> crate::Result<Vec<(RaySet, Vec<Ray>)>> {
-    Ok(ray_sets_judged(scene, recorder, settings, sets, count, whole_primary)?.0)
-}
-
 /// Ray sets, each with its rays.
 pub type SetRays = Vec<(RaySet, Vec<Ray>)>;
 
-/// [`ray_sets`], and when a render was recorded for them, its secondary-ray
+/// The rays of each of `sets`, at most `count` per set (evenly subsampled), except
+/// that primary rays are kept whole (one per pixel, in raster order) when
+/// `whole_primary`. Shadow and AO rays are those a serial render with `recorder`
+/// casts. With them, when a render was recorded for them, its secondary-ray
 /// origins judged ([`judge_spawns`]).
-pub fn ray_sets_judged(
+pub fn ray_sets(
     scene: &Scene,
     recorder: &dyn Backend,
     settings: &RenderSettings,

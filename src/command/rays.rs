@@ -48,6 +48,7 @@ pub fn run(args: &RaysArgs) -> Result<()> {
         &BackendSpec::bvh(BuildParams::sah().with_width(8).with_threads(threads)),
         &scene,
     )?;
+    // (The rays only: the origins are judged by `validate`.)
     let sets = ray_sets(
         &scene,
         recorder.as_ref(),
@@ -55,7 +56,8 @@ pub fn run(args: &RaysArgs) -> Result<()> {
         &SETS,
         args.count as usize,
         false,
-    )?;
+    )?
+    .0;
     crate::rayfile::write(&args.out, &sets)?;
     let counts: Vec<String> = sets
         .iter()

@@ -16,7 +16,7 @@ use crate::table::{
     Align::{Left, Right},
     Table,
 };
-use crate::validate::{ray_sets_judged, RaySet, SpawnReport};
+use crate::validate::{ray_sets, RaySet, SpawnReport};
 
 #[derive(Args, Debug)]
 pub struct ValidateArgs {
@@ -256,7 +256,7 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
         };
         let (set_rays, spawns) = match &file_rays {
             Some(rays) => (subsampled(rays, count), None),
-            None => ray_sets_judged(
+            None => ray_sets(
                 &scene,
                 recorder,
                 &settings,
@@ -396,7 +396,7 @@ fn run_exact(
                 // hits bit for bit), so every backend is judged on the same rays.
                 let recorder =
                     build_backend(&BackendSpec::default_for(BackendKind::Bvh, threads), &scene)?;
-                ray_sets_judged(&scene, recorder.as_ref(), &settings, sets, count, false)?
+                ray_sets(&scene, recorder.as_ref(), &settings, sets, count, false)?
             }
         };
         let set_reports: Vec<crate::exact::ExactReport> = set_rays

@@ -70,6 +70,7 @@ fn validation(
     };
     let reference = build_backend(&BackendSpec::default_for(against, threads), scene)?;
     let triangles = scene.triangle_vertices();
+    // (The rays only: the origins are judged by `validate`.)
     let sets = ray_sets(
         scene,
         reference.as_ref(),
@@ -77,7 +78,8 @@ fn validation(
         &RaySet::ALL,
         count,
         false,
-    )?;
+    )?
+    .0;
     let mut out = Vec::new();
     for builder in [BuilderKind::Median, BuilderKind::Sah] {
         bar.set_message(format!(
