@@ -130,8 +130,10 @@ pub fn framing(
 }
 
 /// The eye and look-at point: the given ones, else the study's view for a
-/// built-in box, else the framing of the scene's bounds (a given `look` moves
-/// the framed eye with it).
+/// built-in box, else the framing of the scene's bounds. A `look` given
+/// without an `eye` is a target: the camera stays where it would stand and
+/// turns towards it (as Embree's tutorials, pbrt and Mitsuba read a look-at
+/// point).
 pub fn default_view(
     scene: &crate::scene::Scene,
     eye: Option<Vec3>,
@@ -153,7 +155,7 @@ pub fn default_view(
     match (eye, look) {
         (Some(e), Some(l)) => (e, l),
         (Some(e), None) => (e, framed_look),
-        (None, Some(l)) => (l + (framed_eye - framed_look), l),
+        (None, Some(l)) => (framed_eye, l),
         (None, None) => (framed_eye, framed_look),
     }
 }
@@ -268,5 +270,16 @@ mod tests {
             .unwrap_err()
             .to_string()
             .starts_with("--size"));
+    }
+
+    #[test]
+    fn a_look_without_an_eye_turns_the_camera_and_keeps_it_in_place() {
+        for name in ["cornell-empty", "mesh:200"] {
+            let scene = crate::scene::builtin::builtin(name).unwrap();
+            let (eye, look) = default_view(&scene, None, None, Vec3::Y, 60.0, (64, 48));
+            let target = look + Vec3::new(0.25, -0.5, 0.125);
+            let (eye2, look2) = default_view(&scene, None, Some(target), Vec3::Y, 60.0, (64, 48));
+            assert_eq!((eye2, look2), (eye, target), "{name}");
+        }
     }
 }

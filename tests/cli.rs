@@ -17,6 +17,8 @@ fn bad_flags_fail_with_one_line_naming_the_flag() {
     assert_one_line_error(&["render", "--size", "big", "-o", o], "--size");
     assert_one_line_error(&["render", "--fov", "0", "-o", o], "--fov");
     assert_one_line_error(&["render", "--fov", "180", "-o", o], "--fov");
+    assert_one_line_error(&["render", "--fov", "-10", "-o", o], "--fov");
+    assert_one_line_error(&["bench", "--fov", "-10", "--out", o], "--fov");
     assert_one_line_error(&["render", "--eye", "1,2", "-o", o], "--eye");
     assert_one_line_error(&["render", "--eye", "0,1,nan", "-o", o], "--eye");
     assert_one_line_error(&["render", "--eye", "-1,2", "-o", o], "--eye");
@@ -229,6 +231,23 @@ fn scenes_lists_the_builtins() {
         "cornell-water",
     ] {
         assert!(text.contains(name));
+    }
+}
+
+#[test]
+fn validate_and_stats_say_what_they_do_on_stderr_unless_quiet() {
+    for cmd in [
+        &["validate", "cornell-empty", "--size", "16x12"][..],
+        &["stats", "cornell-empty", "--builder", "sah", "--reps", "1"][..],
+    ] {
+        let loud = raylab(cmd);
+        assert!(loud.status.success(), "{cmd:?}");
+        let said = String::from_utf8_lossy(&loud.stderr);
+        assert!(said.contains("cornell-empty"), "{cmd:?}: {said}");
+        let quiet = raylab(&[cmd, &["-q"]].concat());
+        assert!(quiet.status.success(), "{cmd:?} -q");
+        assert!(quiet.stderr.is_empty(), "{cmd:?} -q: {quiet:?}");
+        assert!(!quiet.stdout.is_empty(), "{cmd:?} -q still reports");
     }
 }
 
@@ -636,6 +655,26 @@ fn a_light_from_the_command_line_replaces_the_default_one() {
         &["render", obj.to_str().unwrap(), "--light", "spot:0,1,0"],
         "--light",
     );
+    // A quad faces down --up: over a Z-up floor it lights every point the
+    // camera sees (one shadow ray each), as over the Y-up one.
+    let zup = d.join("floor-z.obj");
+    std::fs::write(
+        &zup,
+        "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nf 1 2 3\nf 1 3 4\n",
+    )
+    .unwrap();
+    for (file, up, light) in [
+        (&obj, "0,1,0", "quad:0,2,0:0.5"),
+        (&zup, "0,0,1", "quad:0,0,2:0.5"),
+    ] {
+        let v = render_json(
+            file,
+            &d.join("up.png"),
+            &["--up", up, "--light", light, "--ao", "off"],
+        );
+        assert_eq!(v["rays"]["shadow"], v["rays"]["primary_hits"], "{up}: {v}");
+        assert!(v["rays"]["primary_hits"].as_u64().unwrap() > 0);
+    }
     std::fs::remove_dir_all(&d).ok();
 }
 

@@ -21,7 +21,8 @@ pub enum BackendKind {
     Naive,
     /// A hand-built BVH (`--builder` chooses how).
     Bvh,
-    /// Intel Embree's single-ray queries (rtcIntersect1/rtcOccluded1).
+    /// Intel Embree (16-ray packets by default, rtcIntersect16/rtcOccluded16;
+    /// `--query` picks single rays, streams or other packet widths).
     Embree,
     /// tinybvh through tinybvh-rs (`--layout bvh8|bvh`; `--quality high`: BuildHQ).
     Tinybvh,

@@ -33,7 +33,7 @@ pub struct ViewArgs {
     #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, default_value = "0,1,0", value_parser = parse_vec3)]
     pub up: Vec3,
     /// Vertical field of view in degrees, in (0, 180).
-    #[arg(long, value_name = "DEG", default_value_t = 60.0, value_parser = parse_fov)]
+    #[arg(long, value_name = "DEG", default_value_t = 60.0, allow_negative_numbers = true, value_parser = parse_fov)]
     pub fov: f32,
     /// Image size.
     #[arg(long, value_name = "WxH", default_value = "1024x768", value_parser = parse_size)]
@@ -54,7 +54,8 @@ pub struct ViewArgs {
     #[arg(long, value_name = "N", default_value_t = 1)]
     pub light_samples: u32,
     /// A light that is not geometry: point:X,Y,Z (or point:X,Y,Z:INTENSITY), or
-    /// quad:X,Y,Z:SIZE (or quad:X,Y,Z:SIZE:RADIANCE), a square facing down -Y;
+    /// quad:X,Y,Z:SIZE (or quad:X,Y,Z:SIZE:RADIANCE), a square facing down
+    /// the --up axis;
     /// without a power it gives the default light's irradiance at the scene's
     /// centre. It is added to the scene's emitters, and replaces the default
     /// light of a scene without.
@@ -81,7 +82,7 @@ impl ViewArgs {
             return Err(Error::usage("--size", msg));
         }
         scene.check_traceable()?;
-        let light = self.light.map(|l| l.emitter(&scene.bounds()));
+        let light = self.light.map(|l| l.emitter(&scene.bounds(), self.up));
         scene.set_extra_light(light, self.up);
         self.check_lights(scene)?;
         let (width, height) = self.size;

@@ -15,7 +15,8 @@ use crate::scene::builtin::BUILTIN_SCENES;
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {
-    /// .obj files or built-in names [default: the four built-in Cornell boxes].
+    /// Scene files (.obj, .ply, .gltf, .glb) or built-in names [default: the
+    /// four built-in Cornell boxes].
     scenes: Vec<String>,
     /// Views: `default` (the study's (0,1,3) and (2,1,3) for the built-in boxes,
     /// the framing rule for other scenes), `paper` (the study's two for every
@@ -39,7 +40,7 @@ pub struct BenchArgs {
     #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, default_value = "0,1,0", value_parser = parse_vec3)]
     up: Vec3,
     /// Vertical field of view in degrees, in (0, 180).
-    #[arg(long, value_name = "DEG", default_value_t = 60.0, value_parser = parse_fov)]
+    #[arg(long, value_name = "DEG", default_value_t = 60.0, allow_negative_numbers = true, value_parser = parse_fov)]
     fov: f32,
     /// Variants: all, paper (the study's combinations), or names separated by commas.
     #[arg(long, value_name = "LIST", default_value = "all")]

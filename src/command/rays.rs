@@ -15,7 +15,7 @@ use crate::validate::{ray_sets, RaySet};
 
 #[derive(Args, Debug)]
 pub struct RaysArgs {
-    /// A scene file or built-in name [default: cornell-original].
+    /// A scene file or built-in name.
     #[arg(default_value = "cornell-original")]
     scene: String,
     /// The ray file to write.

@@ -18,7 +18,8 @@ use crate::table::ms;
 
 #[derive(Args, Debug)]
 pub struct RenderArgs {
-    /// An .obj file or a built-in scene name (see `raylab scenes`).
+    /// A scene file (.obj, .ply, .gltf, .glb) or a built-in scene name (see
+    /// `raylab scenes`).
     #[arg(default_value = "cornell-original")]
     scene: String,
     #[command(flatten)]

@@ -22,7 +22,8 @@ const BUILDER_NAMES: [&str; BuilderKind::ALL.len() + 1] = [
 
 #[derive(Args, Debug)]
 pub struct StatsArgs {
-    /// .obj files or built-in names [default: the four built-in Cornell boxes].
+    /// Scene files (.obj, .ply, .gltf, .glb) or built-in names [default: the
+    /// four built-in Cornell boxes].
     scenes: Vec<String>,
     /// Which builders to measure: median, lbvh, sah, sbvh, embree-low,
     /// embree-medium, embree-high, or all (the Embree ones only when Embree
@@ -48,6 +49,9 @@ pub struct StatsArgs {
     /// Print the reports as one JSON array on stdout instead of a table.
     #[arg(long)]
     json: bool,
+    /// No progress lines on stderr (one per scene and builder).
+    #[arg(long, short = 'q')]
+    quiet: bool,
 }
 
 pub fn run(args: &StatsArgs) -> Result<()> {
@@ -78,11 +82,13 @@ pub fn run(args: &StatsArgs) -> Result<()> {
             if let Some(n) = args.leaf_size {
                 params = params.with_max_leaf_size(n);
             }
-            crate::console::say(&format!(
-                "stats: {} with {} ...",
-                scene.name,
-                builder.name()
-            ));
+            if !args.quiet {
+                crate::console::say(&format!(
+                    "stats: {} with {} ...",
+                    scene.name,
+                    builder.name()
+                ));
+            }
             reports.push(crate::stats::builder_report(
                 &scene,
                 &params,

@@ -20,7 +20,8 @@ use crate::validate::{ray_sets, RaySet, SpawnReport};
 
 #[derive(Args, Debug)]
 pub struct ValidateArgs {
-    /// .obj files or built-in names [default: the four built-in Cornell boxes].
+    /// Scene files (.obj, .ply, .gltf, .glb) or built-in names [default: the
+    /// four built-in Cornell boxes].
     scenes: Vec<String>,
     #[command(flatten)]
     pub accel: BackendArgs,
@@ -56,6 +57,9 @@ pub struct ValidateArgs {
     /// Print one JSON array with a report per scene on stdout.
     #[arg(long)]
     json: bool,
+    /// No progress lines on stderr (one per scene as its validation starts).
+    #[arg(long, short = 'q')]
+    quiet: bool,
 }
 
 /// `--against`: a backend kind, or the exact reference.
@@ -117,6 +121,19 @@ struct ValidateReport {
     /// See [`ExactValidateReport::spawns`].
     spawns: Option<SpawnReport>,
     diff_image: Option<String>,
+}
+
+/// Says on stderr which scene is being validated, unless `--quiet`: a large
+/// scene's build and recording render take a while.
+fn announce(args: &ValidateArgs, scene: &crate::scene::Scene, spec: &BackendSpec, against: &str) {
+    if !args.quiet {
+        crate::console::say(&format!(
+            "validate: {} ({} triangles), {} against {against} ...",
+            scene.name,
+            scene.triangles.len(),
+            spec.name()
+        ));
+    }
 }
 
 /// The names `--rays` takes for sets of a render's rays (else it is a file).
@@ -235,6 +252,7 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
     for name in &names {
         let mut scene = args.files.load(name)?;
         let settings = args.view.prepare(&mut scene)?;
+        announce(args, &scene, &spec, &reference_spec.name());
         let tested = build_backend(&spec, &scene)?;
         let reference = build_backend(&reference_spec, &scene)?;
         let triangles = scene.triangle_vertices();
@@ -387,6 +405,7 @@ fn run_exact(
     for name in names {
         let mut scene = args.files.load(name)?;
         let settings = args.view.prepare(&mut scene)?;
+        announce(args, &scene, &spec, "the exact reference");
         let tested = build_backend(&spec, &scene)?;
         let reference = ExactReference::new(scene.triangle_vertices());
         let (set_rays, spawns) = match &file_rays {

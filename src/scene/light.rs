@@ -119,7 +119,7 @@ pub fn frame_axes(up: Vec3) -> (Vec3, Vec3, Vec3) {
 
 /// `--light`: `point:X,Y,Z[:INTENSITY]` (a white point light of that radiant
 /// intensity) or `quad:X,Y,Z:SIZE[:RADIANCE]` (a white square of side SIZE
-/// centred at X,Y,Z, facing down -Y). Without a power, the light gives
+/// centred at X,Y,Z, facing down `-up`). Without a power, the light gives
 /// [`TARGET_IRRADIANCE`] at the scene's centre, which [`LightArg::emitter`]
 /// works out from the scene's bounds.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -136,8 +136,9 @@ pub enum LightArg {
 }
 
 impl LightArg {
-    /// The emitter for a scene with bounds `bounds`.
-    pub fn emitter(&self, bounds: &Aabb) -> Emitter {
+    /// The emitter for a scene with bounds `bounds` and up axis `up` (a quad
+    /// faces down it, its edges along the view's right and front axes).
+    pub fn emitter(&self, bounds: &Aabb, up: Vec3) -> Emitter {
         let c = bounds.center();
         match *self {
             LightArg::Point {
@@ -158,7 +159,8 @@ impl LightArg {
                 radiance,
             } => {
                 let dist = ((c - centre).as_dvec3().length() as f32).max(f32::MIN_POSITIVE);
-                let mut quad = Emitter::square(centre, -Vec3::Y * dist, Vec3::X, side);
+                let (up, _, right) = frame_axes(up);
+                let mut quad = Emitter::square(centre, -up * dist, right, side);
                 if let (Some(l), Emitter::Quad { radiance: r, .. }) = (radiance, &mut quad) {
                     *r = Vec3::splat(l);
                 }
@@ -283,7 +285,7 @@ mod tests {
             }
         );
         // Without a power: the target irradiance at the scene's centre.
-        let Emitter::Point { intensity, .. } = l.emitter(&unit_box()) else {
+        let Emitter::Point { intensity, .. } = l.emitter(&unit_box(), Vec3::Y) else {
             panic!()
         };
         let r2 = (Vec3::new(1.0, 2.0, 3.0) - Vec3::splat(0.5)).length_squared();
@@ -293,7 +295,7 @@ mod tests {
             edge_u,
             edge_v,
             ..
-        } = q.emitter(&unit_box())
+        } = q.emitter(&unit_box(), Vec3::Y)
         else {
             panic!()
         };
@@ -302,6 +304,15 @@ mod tests {
             edge_u.cross(edge_v).normalize().dot(-Vec3::Y) > 0.999,
             "faces down"
         );
+        // Down is -up: a Z-up scene's quad faces -Z, with edges of SIZE.
+        let Emitter::Quad { edge_u, edge_v, .. } = q.emitter(&unit_box(), Vec3::Z) else {
+            panic!()
+        };
+        assert!(
+            edge_u.cross(edge_v).normalize().dot(-Vec3::Z) > 0.999,
+            "faces down -Z"
+        );
+        assert_eq!((edge_u.length(), edge_v.length()), (2.0, 2.0));
         for bad in [
             "",
             "spot:1,2,3",
