@@ -1068,7 +1068,7 @@ mod tests {
 
     #[test]
     fn the_tree_finds_what_the_brute_force_finds() {
-        let mut rng = crate::render::rng::Rng::for_pixel(1, 2, 3);
+        let mut rng = crate::rng::Rng::for_pixel(1, 2, 3);
         let mut r = || rng.next_f32() * 2.0 - 1.0;
         let tris: Vec<[Vec3; 3]> = (0..500)
             .map(|_| {

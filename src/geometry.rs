@@ -860,7 +860,7 @@ mod tests {
     /// from the origin, in directions down to a cosine of 0.01, against
     /// their own triangle with Moller-Trumbore and the watertight test.
     fn spawned_self_hits(step: f32) -> (usize, usize, usize) {
-        let mut rng = crate::render::rng::Rng::for_pixel(1, 2, 3);
+        let mut rng = crate::rng::Rng::for_pixel(1, 2, 3);
         let mut r = || rng.next_f32();
         let (mut mt, mut wt, mut behind) = (0, 0, 0);
         for i in 0..200_000 {

@@ -80,7 +80,7 @@ pub fn encode(sets: &[(RaySet, Vec<Ray>)]) -> Vec<u8> {
 /// Writes `sets` to `path` (atomically, as every file raylab writes).
 pub fn write(path: &Path, sets: &[(RaySet, Vec<Ray>)]) -> Result<()> {
     let bytes = encode(sets);
-    crate::render::output::write_atomic(path, |w| std::io::Write::write_all(w, &bytes))
+    crate::output::write_atomic(path, |w| std::io::Write::write_all(w, &bytes))
 }
 
 /// Reads a ray file: its rays grouped by kind, in [`KINDS`] order, kinds

@@ -28,7 +28,7 @@ use crate::accel::{build_backend, Backend, BackendSpec, Built};
 use crate::error::{Error, Result};
 use crate::exact::{judge_answers, ExactReference};
 use crate::geometry::{Aabb, Hit, Intersector, OffsetStrategy, Ray};
-use crate::render::rng::Rng;
+use crate::rng::Rng;
 use crate::scene::MeshRef;
 use crate::table::{
     Align::{Left, Right},

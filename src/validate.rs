@@ -310,7 +310,7 @@ impl Recorded {
                 if n.dot(ray.dir) > 0.0 {
                     n = -n;
                 }
-                let mut rng = crate::render::rng::Rng::for_pixel(i as u64, seed, STREAM_DIFFUSE);
+                let mut rng = crate::rng::Rng::for_pixel(i as u64, seed, STREAM_DIFFUSE);
                 let (u1, u2) = (rng.next_f32(), rng.next_f32());
                 let origin = crate::render::shade::secondary_origin(scene, &hit, n);
                 Some(Ray::new(
@@ -463,7 +463,7 @@ pub fn ray_sets(
 /// `n` rays with origins uniform in `bounds` grown by half its size on every
 /// side and uniformly distributed directions; deterministic for a `seed`.
 pub fn random_rays(bounds: Aabb, n: usize, seed: u64) -> Vec<Ray> {
-    let mut rng = crate::render::rng::Rng::for_pixel(0, seed, 0xA11D);
+    let mut rng = crate::rng::Rng::for_pixel(0, seed, 0xA11D);
     let margin = bounds.extent() * 0.5 + Vec3::splat(1e-3);
     let (lo, size) = (bounds.min - margin, bounds.extent() + 2.0 * margin);
     let mut rays = Vec::with_capacity(n);
@@ -479,7 +479,7 @@ pub fn random_rays(bounds: Aabb, n: usize, seed: u64) -> Vec<Ray> {
 /// One draw of a uniformly distributed unit direction: a point in the cube
 /// [-1, 1]^3, kept (normalised) when it lies in the unit ball and not at
 /// its centre, else None (the caller draws again).
-fn ball_direction(rng: &mut crate::render::rng::Rng) -> Option<Vec3> {
+fn ball_direction(rng: &mut crate::rng::Rng) -> Option<Vec3> {
     let d = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - Vec3::ONE;
     let len = d.length();
     (len > 1e-3 && len <= 1.0).then(|| d / len)
@@ -492,7 +492,7 @@ fn ball_direction(rng: &mut crate::render::rng::Rng) -> Option<Vec3> {
 /// of the scene's size behind the target (so some start almost on the
 /// surface). Deterministic for a `seed`; empty for a scene with no triangles.
 pub fn edge_rays(triangles: &[[Vec3; 3]], n: usize, seed: u64) -> Vec<Ray> {
-    let mut rng = crate::render::rng::Rng::for_pixel(0, seed, 0xED6E);
+    let mut rng = crate::rng::Rng::for_pixel(0, seed, 0xED6E);
     if triangles.is_empty() {
         return Vec::new();
     }

@@ -125,7 +125,7 @@ fn json_report_has_the_stable_keys_and_matches_the_png() {
     assert_eq!(png.dimensions(), (40, 30));
     assert_eq!(
         v["image_hash"],
-        raylab::render::output::image_hash(png.as_raw())
+        raylab::render::srgb::image_hash(png.as_raw())
     );
 
     // Negative coordinates are values, not flags.

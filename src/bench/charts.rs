@@ -161,14 +161,14 @@ pub(super) fn save(
         let root = SVGBackend::with_string(&mut text, size).into_drawing_area();
         svg(root).map_err(fail)?;
     }
-    crate::render::output::write_text(&dir.join(format!("{name}.svg")), &text)?;
+    crate::output::write_text(&dir.join(format!("{name}.svg")), &text)?;
     let mut pixels = vec![255u8; size.0 as usize * size.1 as usize * 3];
     {
         let root = BitMapBackend::with_buffer(&mut pixels, size).into_drawing_area();
         png(root).map_err(fail)?;
     }
     let file = format!("{name}.png");
-    crate::render::output::write_png(&dir.join(&file), size.0, size.1, &pixels)?;
+    crate::output::write_png(&dir.join(&file), size.0, size.1, &pixels)?;
     Ok(file)
 }
 

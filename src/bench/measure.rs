@@ -19,7 +19,7 @@ use crate::accel::{build_backend, BackendKind};
 use crate::camera::Camera;
 use crate::error::Result;
 use crate::progress::{Progress, StepBar};
-use crate::render::{output, render, AoMode, Frame, RenderSettings, RenderStats, Schedule};
+use crate::render::{render, srgb, AoMode, Frame, RenderSettings, RenderStats, Schedule};
 use crate::scene::Scene;
 use crate::table::ms;
 
@@ -417,7 +417,7 @@ impl Matrix<'_> {
                 bar.inc(units);
                 let seconds = (build_ms + render_ms) / 1e3;
                 a.last_s = seconds;
-                let hash = output::image_hash(&output::to_srgb8(&frame));
+                let hash = srgb::image_hash(&srgb::to_srgb8(&frame));
                 match &a.hash {
                     None => a.hash = Some(hash),
                     Some(h) => a.deterministic &= *h == hash,

@@ -2,7 +2,7 @@
 //! sRGB-encoded values in [0, 1] (before 8-bit rounding), over all channels.
 
 use crate::error::{Error, Result};
-use crate::render::output::linear_to_srgb;
+use crate::render::srgb::linear_to_srgb;
 use crate::render::Frame;
 
 fn same_size(a: &Frame, b: &Frame) -> Result<()> {
@@ -64,7 +64,7 @@ pub fn difference_image(a: &Frame, b: &Frame, gain: f32) -> Result<(Vec<u8>, usi
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::rng::Rng;
+    use crate::rng::Rng;
     use glam::Vec3;
 
     fn frame(pixels: Vec<Vec3>) -> Frame {

@@ -24,8 +24,9 @@ use std::path::Path;
 use serde::Serialize;
 
 use crate::error::{Error, Result};
+use crate::output;
 use crate::progress::StepBar;
-use crate::render::{output, AoMode};
+use crate::render::{srgb, AoMode};
 use crate::scene::Scene;
 pub use config::{BenchConfig, Part};
 use measure::{Matrix, Measurement, View};
@@ -328,7 +329,7 @@ fn write_images(
         for k in &frames {
             let rel = format!("images/{tag}-{}.png", k.variant.name);
             let f = &k.frame;
-            output::write_png(&dir.join(&rel), f.width, f.height, &output::to_srgb8(f))?;
+            output::write_png(&dir.join(&rel), f.width, f.height, &srgb::to_srgb8(f))?;
             img.renders.push((k.variant.name.to_string(), rel));
         }
         if frames.len() > 1 {

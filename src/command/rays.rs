@@ -38,7 +38,7 @@ pub struct RaysArgs {
 const SETS: [RaySet; 4] = [RaySet::Primary, RaySet::Shadow, RaySet::Ao, RaySet::Diffuse];
 
 pub fn run(args: &RaysArgs) -> Result<()> {
-    crate::render::output::check_creatable(&args.out, "--out")?;
+    crate::output::check_creatable(&args.out, "--out")?;
     let threads = args.threads.unwrap_or_else(default_threads);
     args.files.check(std::slice::from_ref(&args.scene))?;
     let mut scene = args.files.load(&args.scene)?;

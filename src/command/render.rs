@@ -11,9 +11,10 @@ use super::args::{parse_threads, BackendArgs, SceneFileArgs, ViewArgs};
 use crate::accel::build_backend;
 use crate::accel::embree::version_or_none as embree_version;
 use crate::error::Result;
+use crate::output;
 use crate::progress::Progress;
 use crate::render::schedule::default_threads;
-use crate::render::{self, output, Schedule};
+use crate::render::{self, srgb, Schedule};
 use crate::table::ms;
 
 #[derive(Args, Debug)]
@@ -193,8 +194,8 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         say(format!("warning: {w}"));
         warnings.push(w);
     }
-    let rgb8 = output::to_srgb8(&frame);
-    let hash = output::image_hash(&rgb8);
+    let rgb8 = srgb::to_srgb8(&frame);
+    let hash = srgb::image_hash(&rgb8);
     output::write_png(&args.output, frame.width, frame.height, &rgb8)?;
 
     let threads_used = args.schedule.threads_used(threads, settings.height);

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use clap::Args;
 
 use crate::error::{Error, Result};
-use crate::render::output;
+use crate::output;
 use crate::table::{Align, Table};
 
 #[derive(Args, Debug)]

@@ -8,8 +8,8 @@ use serde::Serialize;
 use super::args::{parse_threads, BackendArgs, SceneFileArgs, ViewArgs};
 use crate::accel::{build_backend, BackendKind, BackendSpec};
 use crate::error::{Error, Result};
+use crate::output;
 use crate::rayfile::RaySets;
-use crate::render::output;
 use crate::render::schedule::default_threads;
 use crate::scene::builtin::BUILTIN_SCENES;
 use crate::table::{

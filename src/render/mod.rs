@@ -5,10 +5,9 @@
 //! [`Backend`] go in, a linear-radiance [`Frame`] and
 //! [`RenderStats`] come out, and [`output`] turns the frame into 8-bit sRGB.
 
-pub mod output;
-pub mod rng;
 pub mod schedule;
 pub mod shade;
+pub mod srgb;
 
 use std::ops::AddAssign;
 use std::str::FromStr;

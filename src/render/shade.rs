@@ -27,9 +27,9 @@ use std::time::Instant;
 
 use glam::Vec3;
 
-use super::rng::{Rng, STREAM_AO, STREAM_LIGHT};
 use super::{AoMode, Rect, RenderSettings, RenderStats, Tracer};
 use crate::geometry::{spawn_origin, triangle_unit_normal, Hit, Ray};
+use crate::rng::{Rng, STREAM_AO, STREAM_LIGHT};
 use crate::scene::light::Emitter;
 use crate::scene::Scene;
 

@@ -372,7 +372,7 @@ impl Builder {
     /// splits can.
     fn grass(&mut self, n: usize) {
         let green = self.material(Material::diffuse("grass", Vec3::new(0.2, 0.5, 0.1)));
-        let mut rng = crate::render::rng::Rng::for_pixel(0, 0x67_7261_7373, 1);
+        let mut rng = crate::rng::Rng::for_pixel(0, 0x67_7261_7373, 1);
         for _ in 0..n {
             let mut u = || rng.next_f32();
             let base = Vec3::new(1.9 * u() - 0.95, 0.0, 1.9 * u() - 0.95);
@@ -401,7 +401,7 @@ impl Builder {
         });
         let k = ((n as f64 / 2.0).sqrt().ceil() as usize).max(1);
         let cell = 100.0 / k as f32;
-        let mut rng = crate::render::rng::Rng::for_pixel(0, 0x66_6965_6c64, 3);
+        let mut rng = crate::rng::Rng::for_pixel(0, 0x66_6965_6c64, 3);
         let first = self.positions.len() as u32;
         for j in 0..=k {
             for i in 0..=k {
@@ -532,7 +532,7 @@ impl Builder {
     /// one segment (two long slivers a side) with fan caps: 48 triangles.
     fn pipes(&mut self, n: usize) {
         let steel = self.material(Material::diffuse("steel", Vec3::new(0.6, 0.62, 0.66)));
-        let mut rng = crate::render::rng::Rng::for_pixel(0, 0x7069_7065, 4);
+        let mut rng = crate::rng::Rng::for_pixel(0, 0x7069_7065, 4);
         const SIDES: usize = 12;
         for _ in 0..n.div_ceil(4 * SIDES) {
             let mut u = || rng.next_f32();
@@ -571,7 +571,7 @@ impl Builder {
     /// random centres in a 4-unit cube: they cross one another everywhere.
     fn overlap(&mut self, n: usize) {
         let paint = self.material(Material::diffuse("paint", Vec3::new(0.7, 0.4, 0.3)));
-        let mut rng = crate::render::rng::Rng::for_pixel(0, 0x6f76_6572, 5);
+        let mut rng = crate::rng::Rng::for_pixel(0, 0x6f76_6572, 5);
         for _ in 0..n {
             let mut u = || rng.next_f32();
             let centre = Vec3::new(u(), u(), u()) * 4.0 - 2.0;
@@ -594,7 +594,7 @@ impl Builder {
         let concrete = self.material(Material::diffuse("city", Vec3::new(0.6, 0.6, 0.65)));
         let ground = self.material(Material::diffuse("ground", Vec3::splat(0.4)));
         let first = self.positions.len();
-        let mut rng = crate::render::rng::Rng::for_pixel(0, 0x6369_7479, 2);
+        let mut rng = crate::rng::Rng::for_pixel(0, 0x6369_7479, 2);
         for _ in 0..n {
             let mut u = || rng.next_f32();
             let size = 0.002 * 250f32.powf(u());

@@ -227,7 +227,7 @@ pub fn intersect4_scalar(ray: &Ray, block: &Tri4) -> [Option<(f32, f32, f32)>; L
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::rng::Rng;
+    use crate::rng::Rng;
 
     fn random_block(rng: &mut Rng, lanes: usize) -> Tri4 {
         let mut p = || Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - 1.0;

@@ -41,7 +41,7 @@ pub(crate) mod test_fixtures {
     use glam::Vec3;
 
     use crate::accel::bvh::{build, BuildParams, Bvh, Triangles};
-    use crate::render::rng::Rng;
+    use crate::rng::Rng;
 
     /// The binary tree of `params`' splits ([`BuildParams::binary`]).
     pub fn binary<T: Triangles + ?Sized>(tris: &T, params: &BuildParams) -> Bvh {

@@ -296,7 +296,7 @@ mod tests {
     use super::*;
     use crate::accel::bvh::wide::WideNode;
     use crate::geometry::safe_reciprocal;
-    use crate::render::rng::Rng;
+    use crate::rng::Rng;
     use glam::Vec3;
 
     fn random_node<const N: usize>(rng: &mut Rng) -> WideNode<N> {

@@ -1700,7 +1700,7 @@ mod tests {
     use super::*;
     use crate::accel::bvh::simd::Portable;
     use crate::geometry::{Aabb, MollerTrumbore};
-    use crate::render::rng::Rng;
+    use crate::rng::Rng;
 
     /// A packet of `n` rays with one sign per axis (the frustum's case):
     /// origins and directions spread by the given amounts around a base ray,

@@ -385,12 +385,12 @@ mod tests {
 
     #[test]
     fn morton_codes_match_a_bit_by_bit_interleave() {
-        let mut rng = crate::render::rng::Rng::for_pixel(3, 1, 4);
+        let mut rng = crate::rng::Rng::for_pixel(3, 1, 4);
         let lo = Vec4::new(-1.5, 2.0, -1e3, 0.0);
         let scale = Vec4::new(300.0, 1.0, 0.25, 0.0);
         for k in 0..200_000 {
             // Inside the grid, on cell boundaries, and beyond both ends.
-            let v = |rng: &mut crate::render::rng::Rng| match k % 4 {
+            let v = |rng: &mut crate::rng::Rng| match k % 4 {
                 0 => rng.next_f32() * 4000.0 - 1000.0,
                 1 => (rng.next_f32() * 1100.0).floor(),
                 2 => -rng.next_f32() * 1e9,

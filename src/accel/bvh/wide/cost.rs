@@ -33,7 +33,7 @@ use crate::accel::bvh::leaf::{BlockTest, Tri4, LANES};
 use crate::accel::bvh::simd::Kernel;
 use crate::accel::bvh::traverse::{NoCount, Traversal};
 use crate::geometry::{Aabb, MollerTrumbore, Ray};
-use crate::render::rng::Rng;
+use crate::rng::Rng;
 
 /// Rays per timed pass of a probe tree.
 const PROBE_RAYS: usize = 4096;

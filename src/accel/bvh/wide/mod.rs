@@ -32,7 +32,7 @@ pub(crate) mod tests {
     use crate::accel::bvh::Bvh;
     use crate::geometry::Intersector;
     use crate::geometry::{Aabb, Ray};
-    use crate::render::rng::Rng;
+    use crate::rng::Rng;
     use glam::Vec3;
 
     #[test]

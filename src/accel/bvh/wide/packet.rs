@@ -236,7 +236,7 @@ mod tests {
     use crate::accel::bvh::test_fixtures::{binary, random_tris};
     use crate::accel::bvh::traverse::{NoCount, Traversal};
     use crate::geometry::{Hit, MollerTrumbore, Ray, Watertight};
-    use crate::render::rng::Rng;
+    use crate::rng::Rng;
 
     /// Packets as a stream brings them: coherent groups of eight (nearby
     /// origins, nearly parallel directions, as a pixel block), groups aimed
