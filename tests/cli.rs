@@ -793,6 +793,37 @@ fn validate_judges_the_secondary_ray_origins_of_a_flat_field() {
     }
 }
 
+/// Node boxes far from the origin are not swollen by a margin proportional to
+/// the coordinates: `far:2000` is `mesh:2000` moved to about 1e5, and its
+/// binary tree's shadow rays test 2.3x the triangles of the mesh at the origin
+/// (one ulp of margin); with the two-ulp margin of before they tested 3.4x,
+/// and the traversal took 1.9-2.3x Embree's time per ray kind on far:20000.
+#[test]
+fn boxes_far_from_the_origin_stay_tight() {
+    let shadow_triangles = |scene: &str| {
+        let out = raylab(&[
+            "stats",
+            scene,
+            "--builder",
+            "sah",
+            "--size",
+            "128x96",
+            "--reps",
+            "1",
+            "--json",
+            "-q",
+        ]);
+        assert_success(&out);
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        v[0]["shadow"]["triangles_per_ray"].as_f64().unwrap()
+    };
+    let (far, near) = (shadow_triangles("far:2000"), shadow_triangles("mesh:2000"));
+    assert!(
+        far < 2.8 * near,
+        "far {far} vs near {near} triangles per shadow ray"
+    );
+}
+
 #[test]
 fn the_cliff_finder_runs_the_libraries_part_only() {
     assert_one_line_error(
