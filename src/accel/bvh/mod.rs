@@ -21,6 +21,8 @@ pub mod params;
 pub mod prim;
 pub mod quality;
 pub mod simd;
+#[cfg(target_arch = "x86_64")]
+pub mod simd_lanes;
 pub mod simd_packet;
 pub mod traverse;
 pub mod tree;

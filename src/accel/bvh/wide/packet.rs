@@ -317,13 +317,9 @@ mod tests {
             for (k, chunk) in rays.chunks(size).enumerate() {
                 let mut hits = vec![None; chunk.len()];
                 let mut occluded = vec![true; chunk.len()];
-                if sixteen {
-                    tree.closest_packet16_with::<T>(chunk, &mut hits);
-                    tree.any_packet16_with::<T>(chunk, &mut occluded);
-                } else {
-                    tree.closest_packet_with::<T>(chunk, &mut hits);
-                    tree.any_packet_with::<T>(chunk, &mut occluded);
-                }
+                let width = if sixteen { PACKET16 } else { PACKET };
+                tree.closest_packet_with::<T>(width, chunk, &mut hits);
+                tree.any_packet_with::<T>(width, chunk, &mut occluded);
                 for (r, ray) in chunk.iter().enumerate() {
                     let want = tree.closest::<T, _>(ray, &mut NoCount);
                     assert_eq!(
@@ -380,8 +376,8 @@ mod tests {
                 tri: 0,
             }); 3];
             let mut occluded = [true; 3];
-            tree.closest_packet_with::<MollerTrumbore>(&rays, &mut hits);
-            tree.any_packet_with::<MollerTrumbore>(&rays, &mut occluded);
+            tree.closest_packet_with::<MollerTrumbore>(PACKET, &rays, &mut hits);
+            tree.any_packet_with::<MollerTrumbore>(PACKET, &rays, &mut occluded);
             assert_eq!(hits, [None; 3]);
             assert_eq!(occluded, [false; 3]);
         }
@@ -394,8 +390,8 @@ mod tests {
         ];
         let mut hits = [None; 3];
         let mut occluded = [true; 3];
-        tree.closest_packet_with::<MollerTrumbore>(&bad, &mut hits);
-        tree.any_packet_with::<MollerTrumbore>(&bad, &mut occluded);
+        tree.closest_packet_with::<MollerTrumbore>(PACKET, &bad, &mut hits);
+        tree.any_packet_with::<MollerTrumbore>(PACKET, &bad, &mut occluded);
         assert_eq!(hits, [None; 3]);
         assert_eq!(occluded, [false; 3]);
     }
