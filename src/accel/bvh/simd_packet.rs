@@ -897,6 +897,7 @@ mod tests {
 
     use super::*;
     use crate::accel::bvh::simd::{Avx512, Portable};
+    use crate::accel::bvh::simd_lanes::Lanes;
     use crate::geometry::{Aabb, MollerTrumbore};
     use crate::rng::Rng;
 
@@ -1129,5 +1130,173 @@ mod tests {
             assert_eq!(bits_of(&got_tmax), bits_of(&want_tmax), "AVX-512 case {k}");
             assert_eq!(bits_of(&got_cut), bits_of(&want_cut), "AVX-512 case {k}");
         }
+    }
+
+    /// Triangles for the kernels to disagree on if they could: small random
+    /// ones, a degenerate one (collinear), a sliver, a large one, and
+    /// copies of one another (ties at the same t, told apart by index).
+    fn adversarial_tris(rng: &mut Rng) -> Vec<[Vec3; 3]> {
+        let mut v = |s: f32| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * s;
+        let c = v(4.0) - Vec3::splat(2.0);
+        let small = [c + v(1.0), c + v(1.0), c + v(1.0)];
+        let (a, b) = (v(4.0) - Vec3::splat(2.0), v(4.0) - Vec3::splat(2.0));
+        let collinear = [a, b, a + (b - a) * 0.25];
+        let sliver = [a, b, (a + b) * 0.5 + Vec3::splat(1e-6)];
+        let large = [
+            Vec3::new(-1e4, -1e4, c.z),
+            Vec3::new(1e4, -1e4, c.z + 1.0),
+            Vec3::new(0.0, 1e4, c.z),
+        ];
+        vec![
+            small,
+            collinear,
+            sliver,
+            large,
+            small,
+            [c + v(1.0), c, c + v(1.0)],
+        ]
+    }
+
+    /// Sixteen rays against `tris`: aimed at a vertex, an edge's midpoint or
+    /// the centre (the aim at t = 1, and some segments ending exactly
+    /// there), along an edge's line (in the triangle's plane),
+    /// axis-parallel with zero and negative-zero components, huge and tiny
+    /// coordinates, random, and invalid ones.
+    fn adversarial_rays(rng: &mut Rng, tris: &[[Vec3; 3]]) -> Vec<Ray> {
+        (0..PACKET16)
+            .map(|r| {
+                let mut f = || rng.next_f32();
+                let tri = tris[(f() * tris.len() as f32) as usize % tris.len()];
+                let centre = (tri[0] + tri[1] + tri[2]) / 3.0;
+                let o = Vec3::new(f(), f(), f()) * 8.0 - Vec3::splat(4.0);
+                let toward = |aim: Vec3| Ray::new(o, aim - o);
+                let mut ray = match (f() * 10.0) as usize {
+                    0 => toward(tri[r % 3]),
+                    1 => toward((tri[r % 3] + tri[(r + 1) % 3]) * 0.5),
+                    2 => toward(centre),
+                    3 => Ray::new(tri[0] * 2.0 - tri[1], tri[1] - tri[0]),
+                    4 => {
+                        let axes = [
+                            Vec3::X,
+                            -Vec3::Y,
+                            Vec3::new(0.0, -0.0, 1.0),
+                            Vec3::new(-0.0, 0.0, -1.0),
+                        ];
+                        let d = axes[r % 4];
+                        Ray::new(centre - d * 3.0, d)
+                    }
+                    5 => Ray::new(o * 1e18, centre - o * 1e18),
+                    6 => Ray::new(o, (centre - o) * 1e-30),
+                    7 => [
+                        Ray::new(o, Vec3::ZERO),
+                        Ray::new(Vec3::splat(f32::NAN), Vec3::X),
+                        Ray::new(o, Vec3::new(f32::INFINITY, 0.0, 1.0)),
+                        Ray::segment(o, Vec3::X, 2.0, 1.0),
+                    ][r % 4],
+                    _ => Ray::new(o, Vec3::new(f(), f(), f()) * 2.0 - Vec3::ONE),
+                };
+                match (f() * 4.0) as usize {
+                    0 => ray.tmax = 1.0,
+                    1 => ray.tmax = f() * 3.0,
+                    2 => ray.tmin = f() * 0.5,
+                    _ => {}
+                }
+                ray
+            })
+            .collect()
+    }
+
+    /// Everything the SIMD kernel `k` answers about each ray of `rays`, as
+    /// bits, a record per ray: its validity; per block and triangle lane
+    /// the triangle test (hit, t, u, v); the closest-hit merge of the
+    /// blocks in turn (rays changed, hits, tightened limits); the any-hit
+    /// test; the node test (per child, with and without entry bounds).
+    fn records<L: Lanes<R>, const R: usize>(
+        k: SimdPacket<L>,
+        rays: &[Ray],
+        blocks: &[Tri4],
+        node: &WideNode<8>,
+    ) -> Vec<Vec<u32>> {
+        let l = k.0;
+        let (p, valid) = k.prepare(rays);
+        let mut rec: Vec<Vec<u32>> = (0..rays.len()).map(|r| vec![valid >> r & 1]).collect();
+        let mut tmax: [f32; R] = std::array::from_fn(|r| rays.get(r).map_or(0.0, |r| r.tmax));
+        let mut cut: [f32; R] = tmax.map(|t| t * (1.0 + CULL_SLACK));
+        let mut hits = PacketHits::<R>::none();
+        let all = (1u32 << rays.len()) - 1;
+        for block in blocks {
+            for i in 0..4 {
+                let (ok, t, u, v) = k.triangle(block, i, &p, l.load(&tmax));
+                let (ok, t, u, v) = (l.bits(ok), l.store(t), l.store(u), l.store(v));
+                for (r, rec) in rec.iter_mut().enumerate() {
+                    let hit = ok >> r & 1;
+                    rec.push(hit);
+                    if hit == 1 {
+                        rec.extend([t[r].to_bits(), u[r].to_bits(), v[r].to_bits()]);
+                    }
+                }
+            }
+            let changed = k.leaf_closest(block, 0xF, &p, valid, &tmax, &mut hits);
+            k.tighten(&hits, changed, &mut tmax, &mut cut);
+            let any = k.leaf_any(block, 0xF, &p, valid);
+            let reach = k.reach(1.0, &cut);
+            for (r, rec) in rec.iter_mut().enumerate() {
+                let h = hits.lanes(r);
+                rec.extend([changed >> r & 1, any >> r & 1, reach >> r & 1]);
+                rec.extend([h.t.to_bits(), h.u.to_bits(), h.v.to_bits(), h.tri]);
+                rec.extend([tmax[r].to_bits(), cut[r].to_bits()]);
+            }
+        }
+        let near = k.node::<true>(node, &p, valid & all, &cut);
+        let far = k.node::<false>(node, &p, valid & all, &cut);
+        for (r, rec) in rec.iter_mut().enumerate() {
+            rec.extend((0..8).map(|c| (near.rays[c] >> r & 1) | (far.rays[c] >> r & 1) << 1));
+        }
+        rec
+    }
+
+    /// The AVX2 kernel (rays 0-7 and 8-15 as two packets) and the AVX-512
+    /// kernel (all sixteen in one) answer every ray the same bit for bit:
+    /// triangle tests, closest-hit merges with ties between copies of a
+    /// triangle (indices on both sides of 2^31: the unsigned compare),
+    /// tightened limits, any-hit tests and node tests, on random and
+    /// adversarial rays, triangles and boxes.
+    #[test]
+    fn avx2_and_avx512_kernels_agree_bit_for_bit() {
+        let (Some(avx2), Some(avx512)) = (Avx2::detect(), Avx512::detect()) else {
+            eprintln!("no AVX-512 on this CPU: the AVX2 and AVX-512 kernels are not compared");
+            return;
+        };
+        let mut rng = Rng::for_pixel(13, 8, 21);
+        let mut hits = 0;
+        for k in 0..3_000 {
+            let tris = adversarial_tris(&mut rng);
+            let rays = if k % 4 == 3 {
+                coherent(&mut rng, PACKET16, 1e-3, 0.05)
+            } else {
+                adversarial_rays(&mut rng, &tris)
+            };
+            // The same triangles in a second block with other indices (the
+            // copies tie), some of them above 2^31.
+            let ids = [5, 9, 0x8000_0003, 1];
+            let ids2 = [0x8000_0001, 3, 7, 0xFFFF_FFF0];
+            let blocks = [
+                Tri4::new(&tris[..4], &ids),
+                Tri4::new(&[tris[4], tris[0], tris[5], tris[3]], &ids2),
+                Tri4::new(&tris[1..3], &ids[..2]),
+            ];
+            let node = node_around(&mut rng, &rays);
+            let mut two = records(SimdPacket(avx2), &rays[..PACKET], &blocks, &node);
+            two.extend(records(SimdPacket(avx2), &rays[PACKET..], &blocks, &node));
+            let one = records(SimdPacket(avx512), &rays, &blocks, &node);
+            for r in 0..PACKET16 {
+                assert_eq!(two[r], one[r], "packet {k}, ray {r}: {:?}", rays[r]);
+            }
+            // Validity, per block 4 lanes and 9 merged values, 8 children:
+            // the rest is t, u, v of triangle hits.
+            let base = 1 + blocks.len() * (4 + 9) + 8;
+            hits += one.iter().map(|rec| (rec.len() - base) / 3).sum::<usize>();
+        }
+        assert!(hits > 5_000, "only {hits} triangle hits");
     }
 }
