@@ -6,7 +6,7 @@
 //!   triangle test), lane by lane; the portable path.
 //! - [`SimdPacket`]: the rays in the lanes of SIMD registers, one child box
 //!   or one triangle at a time (Moller-Trumbore), written once over
-//!   [`Lanes`]: eight rays in AVX2 registers (`SimdPacket<Avx2>`, `--query
+//!   [`Lanes`](super::simd_lanes::Lanes): eight rays in AVX2 registers (`SimdPacket<Avx2>`, `--query
 //!   packet8`) or sixteen in AVX-512 registers (`SimdPacket<Avx512>`,
 //!   `--query packet16`, where the CPU has AVX-512F). Every lane runs the
 //!   single-ray kernels' operations in the same order (the slab test of
@@ -24,7 +24,7 @@
 //! children are skipped (84% on cornell-water's primary rays).
 //!
 //! No `unsafe` here: the intrinsics are [`super::simd_lanes`]'s, behind the
-//! [`Avx2`] and [`Avx512`] proofs.
+//! [`Avx2`](super::simd::Avx2) and [`Avx512`](super::simd::Avx512) proofs.
 
 use std::marker::PhantomData;
 
@@ -51,7 +51,7 @@ pub const PACKET: usize = 8;
 pub const PACKET16: usize = 16;
 
 /// The margin (relative to the determinant) by which every lane's `u` must
-/// lie outside [0, 1] for [`Avx2Packet`]'s triangle test to stop before its
+/// lie outside [0, 1] for [`SimdPacket`]'s triangle test to stop before its
 /// division: far above the division's rounding (2^-23), so a lane it stops
 /// is one the full test rejects.
 const U_MARGIN: f32 = 1.0 / (1 << 20) as f32;
@@ -479,7 +479,7 @@ impl<K: NodeKernel<8>, T: BlockTest, const R: usize> PacketKernel<R> for PerRay<
     }
 }
 
-/// The rays of a packet in the lanes of SIMD registers ([`Lanes`]: eight in
+/// The rays of a packet in the lanes of SIMD registers ([`Lanes`](super::simd_lanes::Lanes): eight in
 /// AVX2, sixteen in AVX-512), Moller-Trumbore at the leaves.
 #[derive(Clone, Copy, Debug)]
 pub struct SimdPacket<L>(pub L);

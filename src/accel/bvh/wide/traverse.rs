@@ -1,8 +1,10 @@
 //! Closest-hit and any-hit traversal of the wide trees, generic over the node
-//! kernel ([`super::super::simd`]) and the block triangle test, and the AVX2
-//! entry points: the generic traversal compiled with AVX2 enabled. Their two
-//! `unsafe` calls are the only ones here, proved by an [`Avx2`] value (made
-//! only by `Avx2::detect`, which checks the CPU).
+//! kernel ([`super::super::simd`]) and the block triangle test; the AVX2
+//! entry points (the generic traversal compiled with AVX2 enabled); and the
+//! one dispatch of the packet queries, [`WideBvh::packet_query`], with its
+//! AVX2 and AVX-512 entry points. Their four `unsafe` calls are the only
+//! ones here, each proved by an [`Avx2`] or [`Avx512`] value (made only by
+//! their `detect`, which checks the CPU).
 
 use arrayvec::ArrayVec;
 
