@@ -107,29 +107,18 @@ impl Backend for BvhBackend {
 }
 
 /// Closest hits of a stream in packets of `n` rays ([`PACKET`] or
-/// [`PACKET16`], as `with_query` admits) with triangle test `T`. Each loop
-/// chunks by a constant, so the packet functions see at most that many rays.
+/// [`PACKET16`], as `with_query` admits) with triangle test `T`.
 fn closest_in_packets<T: BlockTest>(t: &Bvh8, n: usize, rays: &[Ray], hits: &mut [Option<Hit>]) {
-    if n == PACKET16 {
-        for (rays, hits) in rays.chunks(PACKET16).zip(hits.chunks_mut(PACKET16)) {
-            t.closest_packet16_with::<T>(rays, hits);
-        }
-    } else {
-        for (rays, hits) in rays.chunks(PACKET).zip(hits.chunks_mut(PACKET)) {
-            t.closest_packet_with::<T>(rays, hits);
-        }
+    debug_assert!(n == PACKET || n == PACKET16);
+    for (rays, hits) in rays.chunks(n).zip(hits.chunks_mut(n)) {
+        t.closest_packet_with::<T>(n, rays, hits);
     }
 }
 
 /// Occlusion of a stream in packets of `n` rays, as [`closest_in_packets`].
 fn any_in_packets<T: BlockTest>(t: &Bvh8, n: usize, rays: &[Ray], occluded: &mut [bool]) {
-    if n == PACKET16 {
-        for (rays, out) in rays.chunks(PACKET16).zip(occluded.chunks_mut(PACKET16)) {
-            t.any_packet16_with::<T>(rays, out);
-        }
-    } else {
-        for (rays, out) in rays.chunks(PACKET).zip(occluded.chunks_mut(PACKET)) {
-            t.any_packet_with::<T>(rays, out);
-        }
+    debug_assert!(n == PACKET || n == PACKET16);
+    for (rays, out) in rays.chunks(n).zip(occluded.chunks_mut(n)) {
+        t.any_packet_with::<T>(n, rays, out);
     }
 }

@@ -177,8 +177,8 @@ pub fn intersect4(ray4: &Ray4, tmin: f32, tmax: f32, block: &Tri4) -> Hits4 {
 /// A ray/triangle test applied to a whole block: SIMD for Moller-Trumbore,
 /// lane by lane for the watertight test.
 pub trait BlockTest: TriangleTest {
-    /// Whether this is Moller-Trumbore, which the AVX2 packet kernel
-    /// computes for eight rays at once (`simd_packet::Avx2Packet`).
+    /// Whether this is Moller-Trumbore, which the SIMD packet kernel
+    /// computes for 8 or 16 rays at once (`simd_packet::SimdPacket`).
     const IS_MOLLER_TRUMBORE: bool = false;
 
     /// The hits of `ray` (broadcast as `ray4`) on the lanes of `block` within

@@ -9,7 +9,8 @@
 //!   four triangles), [`tree`] (whichever of them is traversed);
 //! - [`traverse`] (the binary traversal and the [`Traversal`] interface),
 //!   [`simd`] (the wide trees' node kernels), [`simd_packet`] (the packet
-//!   kernels of the 8-wide tree's packet traversal);
+//!   kernels of the 8-wide tree's packet traversal, written once over the
+//!   AVX2 and AVX-512 lanes of `simd_lanes`);
 //! - [`backend`]: the tree as a render backend; [`quality`]: the metrics that
 //!   explain a tree's speed.
 
@@ -21,6 +22,8 @@ pub mod params;
 pub mod prim;
 pub mod quality;
 pub mod simd;
+#[cfg(target_arch = "x86_64")]
+pub mod simd_lanes;
 pub mod simd_packet;
 pub mod traverse;
 pub mod tree;

@@ -184,7 +184,8 @@ impl Avx2 {
 
 /// Proof that this CPU runs AVX-512F besides AVX2 (and BMI1, POPCNT): only
 /// [`Avx512::detect`] makes one. The 16-ray packet kernel
-/// (`simd_packet::Avx512Packet`) relies on it.
+/// (`simd_packet::SimdPacket<Avx512>`, its lanes in `simd_lanes`) relies on
+/// it.
 #[derive(Clone, Copy, Debug)]
 pub struct Avx512 {
     pub avx2: Avx2,

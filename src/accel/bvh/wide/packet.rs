@@ -231,7 +231,7 @@ mod tests {
     use super::super::Bvh8;
     use crate::accel::bvh::leaf::BlockTest;
     use crate::accel::bvh::params::BuildParams;
-    use crate::accel::bvh::simd::Kernel;
+    use crate::accel::bvh::simd::{Avx512, Kernel};
     use crate::accel::bvh::simd_packet::{PACKET, PACKET16};
     use crate::accel::bvh::test_fixtures::{binary, random_tris};
     use crate::accel::bvh::traverse::{NoCount, Traversal};
@@ -317,13 +317,9 @@ mod tests {
             for (k, chunk) in rays.chunks(size).enumerate() {
                 let mut hits = vec![None; chunk.len()];
                 let mut occluded = vec![true; chunk.len()];
-                if sixteen {
-                    tree.closest_packet16_with::<T>(chunk, &mut hits);
-                    tree.any_packet16_with::<T>(chunk, &mut occluded);
-                } else {
-                    tree.closest_packet_with::<T>(chunk, &mut hits);
-                    tree.any_packet_with::<T>(chunk, &mut occluded);
-                }
+                let width = if sixteen { PACKET16 } else { PACKET };
+                tree.closest_packet_with::<T>(width, chunk, &mut hits);
+                tree.any_packet_with::<T>(width, chunk, &mut occluded);
                 for (r, ray) in chunk.iter().enumerate() {
                     let want = tree.closest::<T, _>(ray, &mut NoCount);
                     assert_eq!(
@@ -338,6 +334,49 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    /// The AVX-512 traversal (`--query packet16`) answers every ray as the
+    /// AVX2 one (`packet8`, the same rays as two packets) bit for bit, on
+    /// the test stream (coherent, vertex-aimed, incoherent, axis-parallel,
+    /// short and invalid rays), closest hit and any hit, both triangle
+    /// tests, packets of every size.
+    #[test]
+    fn avx2_and_avx512_packets_agree_bit_for_bit() {
+        let (Kernel::Avx2(k), Some(_)) = (Kernel::detect(), Avx512::detect()) else {
+            eprintln!("no AVX-512 on this CPU: packet16 and packet8 are not compared");
+            return;
+        };
+        let tris = random_tris(2000, 8);
+        let rays = stream(&tris, 4000, 11);
+        let tree =
+            Bvh8::collapse_with(&binary(&tris, &BuildParams::sah()), Kernel::Avx2(k)).unwrap();
+        fn both<T: BlockTest>(tree: &Bvh8, rays: &[Ray], size: usize) {
+            for (n, chunk) in rays.chunks(size).enumerate() {
+                let mut hits16 = vec![None; chunk.len()];
+                let mut occluded16 = vec![false; chunk.len()];
+                tree.closest_packet_with::<T>(PACKET16, chunk, &mut hits16);
+                tree.any_packet_with::<T>(PACKET16, chunk, &mut occluded16);
+                let (mut hits8, mut occluded8) = (vec![], vec![]);
+                for half in chunk.chunks(PACKET) {
+                    let mut h = vec![None; half.len()];
+                    let mut o = vec![false; half.len()];
+                    tree.closest_packet_with::<T>(PACKET, half, &mut h);
+                    tree.any_packet_with::<T>(PACKET, half, &mut o);
+                    hits8.extend(h);
+                    occluded8.extend(o);
+                }
+                for r in 0..chunk.len() {
+                    let label = format!("packet of {size}, #{n} ray {r}: {:?}", chunk[r]);
+                    assert_eq!(bits(hits16[r]), bits(hits8[r]), "{label}");
+                    assert_eq!(occluded16[r], occluded8[r], "{label}");
+                }
+            }
+        }
+        for size in [1, 5, 9, 16] {
+            both::<MollerTrumbore>(&tree, &rays, size);
+            both::<Watertight>(&tree, &rays, size);
         }
     }
 
@@ -380,8 +419,8 @@ mod tests {
                 tri: 0,
             }); 3];
             let mut occluded = [true; 3];
-            tree.closest_packet_with::<MollerTrumbore>(&rays, &mut hits);
-            tree.any_packet_with::<MollerTrumbore>(&rays, &mut occluded);
+            tree.closest_packet_with::<MollerTrumbore>(PACKET, &rays, &mut hits);
+            tree.any_packet_with::<MollerTrumbore>(PACKET, &rays, &mut occluded);
             assert_eq!(hits, [None; 3]);
             assert_eq!(occluded, [false; 3]);
         }
@@ -394,8 +433,8 @@ mod tests {
         ];
         let mut hits = [None; 3];
         let mut occluded = [true; 3];
-        tree.closest_packet_with::<MollerTrumbore>(&bad, &mut hits);
-        tree.any_packet_with::<MollerTrumbore>(&bad, &mut occluded);
+        tree.closest_packet_with::<MollerTrumbore>(PACKET, &bad, &mut hits);
+        tree.any_packet_with::<MollerTrumbore>(PACKET, &bad, &mut occluded);
         assert_eq!(hits, [None; 3]);
         assert_eq!(occluded, [false; 3]);
     }

@@ -1,17 +1,21 @@
 //! Closest-hit and any-hit traversal of the wide trees, generic over the node
-//! kernel ([`super::super::simd`]) and the block triangle test, and the AVX2
-//! entry points: the generic traversal compiled with AVX2 enabled. Their two
-//! `unsafe` calls are the only ones here, proved by an [`Avx2`] value (made
-//! only by `Avx2::detect`, which checks the CPU).
+//! kernel ([`super::super::simd`]) and the block triangle test; the AVX2
+//! entry points (the generic traversal compiled with AVX2 enabled); and the
+//! one dispatch of the packet queries, [`WideBvh::packet_query`], with its
+//! AVX2 and AVX-512 entry points. Their four `unsafe` calls are the only
+//! ones here, each proved by an [`Avx2`] or [`Avx512`] value (made only by
+//! their `detect`, which checks the CPU).
 
 use arrayvec::ArrayVec;
 
 use super::super::leaf::{BlockTest, Ray4, LANES};
 use super::super::params::{CULL_SLACK, DEEP_STACK, SLAB_SLACK, STACK};
 use super::super::simd::{prefetch, Avx2, Avx512, Kernel, NodeKernel, Portable, WideRay};
-use super::super::simd_packet::{bits, PerRay, PACKET, PACKET16};
 #[cfg(target_arch = "x86_64")]
-use super::super::simd_packet::{Avx2Packet, Avx512Packet};
+use super::super::simd_lanes::Lanes;
+#[cfg(target_arch = "x86_64")]
+use super::super::simd_packet::SimdPacket;
+use super::super::simd_packet::{bits, PacketKernel, PerRay, PACKET, PACKET16};
 use super::super::traverse::{Counter, Traversal};
 use super::node::{for_leaf_blocks, leaf_slots, WideBvh, LEAF};
 use crate::geometry::{safe_reciprocal, Hit, Ray};
@@ -273,207 +277,183 @@ impl Traversal for WideBvh<8> {
     }
 }
 
-impl WideBvh<8> {
-    /// The closest hits of a packet of up to [`PACKET`](super::super::simd_packet::PACKET) rays (see
-    /// `super::packet`): with AVX2 and Moller-Trumbore the rays in AVX lanes,
-    /// else each ray with the tree's single-ray kernels.
-    pub fn closest_packet_with<T: BlockTest>(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
-        match (self.kernel, self.stack_need <= STACK) {
-            (Kernel::Avx2(k), true) => k.closest_packet::<T, STACK>(self, rays, hits),
-            (Kernel::Avx2(k), false) => k.closest_packet::<T, DEEP_STACK>(self, rays, hits),
-            (Kernel::Portable, true) => self.closest_packet::<Portable, T, _, PACKET, STACK>(
-                Portable,
-                PerRay::<_, T>::new(Portable),
-                rays,
-                hits,
-            ),
-            (Kernel::Portable, false) => self.closest_packet::<Portable, T, _, PACKET, DEEP_STACK>(
-                Portable,
-                PerRay::<_, T>::new(Portable),
-                rays,
-                hits,
-            ),
-        }
-    }
+/// A packet query: what [`WideBvh::packet_query`] runs on a packet, the
+/// closest hits ([`Closest`]) or occlusion ([`Any`]).
+pub trait PacketQuery {
+    /// Per ray of the packet, the answer.
+    type Out: ?Sized;
+    /// The query's traversal of `bvh` with packet tests `P` (for the last
+    /// rays of an entry the single-ray node kernel `K` and triangle test
+    /// `T`) and stacks of `S` entries.
+    fn run<K: NodeKernel<8>, T: BlockTest, P: PacketKernel<R>, const R: usize, const S: usize>(
+        bvh: &WideBvh<8>,
+        kernel: K,
+        packet: P,
+        rays: &[Ray],
+        out: &mut Self::Out,
+    );
+}
 
-    /// Whether each ray of a packet of up to [`PACKET`](super::super::simd_packet::PACKET) is occluded, as
-    /// [`Self::closest_packet_with`] chooses its kernels.
-    pub fn any_packet_with<T: BlockTest>(&self, rays: &[Ray], occluded: &mut [bool]) {
-        match (self.kernel, self.stack_need <= STACK) {
-            (Kernel::Avx2(k), true) => k.any_packet::<T, STACK>(self, rays, occluded),
-            (Kernel::Avx2(k), false) => k.any_packet::<T, DEEP_STACK>(self, rays, occluded),
-            (Kernel::Portable, true) => self.any_packet::<Portable, T, _, PACKET, STACK>(
-                Portable,
-                PerRay::<_, T>::new(Portable),
-                rays,
-                occluded,
-            ),
-            (Kernel::Portable, false) => self.any_packet::<Portable, T, _, PACKET, DEEP_STACK>(
-                Portable,
-                PerRay::<_, T>::new(Portable),
-                rays,
-                occluded,
-            ),
-        }
+/// The closest hit of each ray of a packet ([`WideBvh::closest_packet`]).
+pub enum Closest {}
+
+/// Whether each ray of a packet is occluded ([`WideBvh::any_packet`]).
+pub enum Any {}
+
+impl PacketQuery for Closest {
+    type Out = [Option<Hit>];
+    #[inline(always)]
+    fn run<K: NodeKernel<8>, T: BlockTest, P: PacketKernel<R>, const R: usize, const S: usize>(
+        bvh: &WideBvh<8>,
+        kernel: K,
+        packet: P,
+        rays: &[Ray],
+        hits: &mut [Option<Hit>],
+    ) {
+        bvh.closest_packet::<K, T, P, R, S>(kernel, packet, rays, hits)
+    }
+}
+
+impl PacketQuery for Any {
+    type Out = [bool];
+    #[inline(always)]
+    fn run<K: NodeKernel<8>, T: BlockTest, P: PacketKernel<R>, const R: usize, const S: usize>(
+        bvh: &WideBvh<8>,
+        kernel: K,
+        packet: P,
+        rays: &[Ray],
+        occluded: &mut [bool],
+    ) {
+        bvh.any_packet::<K, T, P, R, S>(kernel, packet, rays, occluded)
     }
 }
 
 impl WideBvh<8> {
-    /// The closest hits of a packet of up to [`PACKET16`] rays: with
-    /// AVX-512 and Moller-Trumbore the rays in AVX-512 lanes
-    /// ([`Avx512Packet`]), with AVX-512 and the watertight test each ray with
-    /// the AVX2 single-ray kernels; without AVX-512 each ray with the
-    /// portable single-ray kernels (correct, not fast).
-    pub fn closest_packet16_with<T: BlockTest>(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
-        let avx512 = Avx512::detect().filter(|_| matches!(self.kernel, Kernel::Avx2(_)));
-        match (avx512, self.stack_need <= STACK) {
-            (Some(k), true) => k.closest_packet::<T, STACK>(self, rays, hits),
-            (Some(k), false) => k.closest_packet::<T, DEEP_STACK>(self, rays, hits),
-            (None, true) => self.closest_packet::<Portable, T, _, PACKET16, STACK>(
-                Portable,
-                PerRay::<_, T>::new(Portable),
-                rays,
-                hits,
-            ),
-            (None, false) => self.closest_packet::<Portable, T, _, PACKET16, DEEP_STACK>(
-                Portable,
-                PerRay::<_, T>::new(Portable),
-                rays,
-                hits,
-            ),
+    /// Query `Q` (closest hits or occlusion) of a packet of up to `width`
+    /// rays ([`PACKET`] or [`PACKET16`]; see `super::packet`) with triangle
+    /// test `T`, into `out` (as long as `rays`). The one place the packet
+    /// kernels are chosen:
+    ///
+    /// - 8 rays and AVX2: the rays in AVX2 lanes ([`SimdPacket`]`<Avx2>`)
+    ///   with Moller-Trumbore, each ray with the AVX2 single-ray kernels
+    ///   with the watertight test;
+    /// - 16 rays and AVX-512F: the same in AVX-512 lanes
+    ///   (`SimdPacket<Avx512>`), the same kernel body;
+    /// - else each ray with the portable single-ray kernels (16 rays without
+    ///   AVX-512: correct, not fast).
+    pub fn packet_query<Q: PacketQuery, T: BlockTest>(
+        &self,
+        width: usize,
+        rays: &[Ray],
+        out: &mut Q::Out,
+    ) {
+        debug_assert!(width == PACKET || width == PACKET16);
+        debug_assert!(rays.len() <= width);
+        #[cfg(target_arch = "x86_64")]
+        if let Kernel::Avx2(avx2) = self.kernel {
+            if width == PACKET {
+                // SAFETY: an `Avx2` is made only by `Avx2::detect`, which
+                // checked that the CPU has AVX2, BMI1 and POPCNT.
+                return unsafe { packet_avx2::<Q, T>(avx2, self, rays, out) };
+            }
+            if let Some(avx512) = Avx512::detect() {
+                // SAFETY: an `Avx512` is made only by `Avx512::detect`,
+                // which checked AVX-512F besides AVX2, BMI1 and POPCNT.
+                return unsafe { packet_avx512::<Q, T>(avx512, self, rays, out) };
+            }
+        }
+        let per_ray = PerRay::<_, T>::new(Portable);
+        if width == PACKET16 {
+            self.packet_stack::<Q, Portable, T, _, PACKET16>(Portable, per_ray, rays, out)
+        } else {
+            self.packet_stack::<Q, Portable, T, _, PACKET>(Portable, per_ray, rays, out)
         }
     }
 
-    /// Whether each ray of a packet of up to [`PACKET16`] is occluded, with
-    /// the kernels [`Self::closest_packet16_with`] chooses.
-    pub fn any_packet16_with<T: BlockTest>(&self, rays: &[Ray], occluded: &mut [bool]) {
-        let avx512 = Avx512::detect().filter(|_| matches!(self.kernel, Kernel::Avx2(_)));
-        match (avx512, self.stack_need <= STACK) {
-            (Some(k), true) => k.any_packet::<T, STACK>(self, rays, occluded),
-            (Some(k), false) => k.any_packet::<T, DEEP_STACK>(self, rays, occluded),
-            (None, true) => self.any_packet::<Portable, T, _, PACKET16, STACK>(
-                Portable,
-                PerRay::<_, T>::new(Portable),
-                rays,
-                occluded,
-            ),
-            (None, false) => self.any_packet::<Portable, T, _, PACKET16, DEEP_STACK>(
-                Portable,
-                PerRay::<_, T>::new(Portable),
-                rays,
-                occluded,
-            ),
+    /// The closest hits of a packet of up to `width` rays ([`PACKET`] or
+    /// [`PACKET16`]), as [`Self::packet_query`] chooses its kernels.
+    pub fn closest_packet_with<T: BlockTest>(
+        &self,
+        width: usize,
+        rays: &[Ray],
+        hits: &mut [Option<Hit>],
+    ) {
+        self.packet_query::<Closest, T>(width, rays, hits)
+    }
+
+    /// Whether each ray of a packet of up to `width` rays is occluded, as
+    /// [`Self::packet_query`] chooses its kernels.
+    pub fn any_packet_with<T: BlockTest>(&self, width: usize, rays: &[Ray], occluded: &mut [bool]) {
+        self.packet_query::<Any, T>(width, rays, occluded)
+    }
+
+    /// Query `Q` with stacks as deep as the tree needs.
+    #[inline(always)]
+    fn packet_stack<
+        Q: PacketQuery,
+        K: NodeKernel<8>,
+        T: BlockTest,
+        P: PacketKernel<R>,
+        const R: usize,
+    >(
+        &self,
+        kernel: K,
+        packet: P,
+        rays: &[Ray],
+        out: &mut Q::Out,
+    ) {
+        if self.stack_need <= STACK {
+            Q::run::<K, T, P, R, STACK>(self, kernel, packet, rays, out)
+        } else {
+            Q::run::<K, T, P, R, DEEP_STACK>(self, kernel, packet, rays, out)
+        }
+    }
+
+    /// Query `Q` with the rays in the lanes `lanes` (Moller-Trumbore), or
+    /// each ray with the AVX2 single-ray kernels (the watertight test).
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn packet_simd<Q: PacketQuery, T: BlockTest, L: Lanes<R>, const R: usize>(
+        &self,
+        lanes: L,
+        rays: &[Ray],
+        out: &mut Q::Out,
+    ) {
+        let single = lanes.avx2();
+        if T::IS_MOLLER_TRUMBORE {
+            self.packet_stack::<Q, Avx2, T, _, R>(single, SimdPacket(lanes), rays, out)
+        } else {
+            self.packet_stack::<Q, Avx2, T, _, R>(single, PerRay::<_, T>::new(single), rays, out)
         }
     }
 }
 
-/// The packet queries of one instruction set: `$isa`'s `closest_packet` and
-/// `any_packet` call functions compiled with `$features` enabled, into which
-/// the generic packet traversal and the `$packet` kernels (`R` = `$rays`
-/// rays) are inlined; with the watertight test, each ray runs the AVX2
-/// single-ray kernels (`$single` of the proof) inside the same traversal.
-macro_rules! packet_entries {
-    ($isa:ident, $features:literal, $closest:ident, $any:ident, $packet:ident, $rays:ident, $single:expr) => {
-        impl $isa {
-            #[inline(always)]
-            pub fn closest_packet<T: BlockTest, const S: usize>(
-                self,
-                bvh: &WideBvh<8>,
-                rays: &[Ray],
-                hits: &mut [Option<Hit>],
-            ) {
-                #[cfg(target_arch = "x86_64")]
-                {
-                    // SAFETY: `self` is made only by its `detect`, which
-                    // checked that the CPU has every feature in `$features`.
-                    unsafe { $closest::<T, S>(self, bvh, rays, hits) }
-                }
-                #[cfg(not(target_arch = "x86_64"))]
-                bvh.closest_packet::<Portable, T, _, $rays, S>(
-                    Portable,
-                    PerRay::<_, T>::new(Portable),
-                    rays,
-                    hits,
-                )
-            }
-
-            #[inline(always)]
-            pub fn any_packet<T: BlockTest, const S: usize>(
-                self,
-                bvh: &WideBvh<8>,
-                rays: &[Ray],
-                occluded: &mut [bool],
-            ) {
-                #[cfg(target_arch = "x86_64")]
-                {
-                    // SAFETY: as in `closest_packet`.
-                    unsafe { $any::<T, S>(self, bvh, rays, occluded) }
-                }
-                #[cfg(not(target_arch = "x86_64"))]
-                bvh.any_packet::<Portable, T, _, $rays, S>(
-                    Portable,
-                    PerRay::<_, T>::new(Portable),
-                    rays,
-                    occluded,
-                )
-            }
-        }
-
-        #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = $features)]
-        fn $closest<T: BlockTest, const S: usize>(
-            isa: $isa,
-            bvh: &WideBvh<8>,
-            rays: &[Ray],
-            hits: &mut [Option<Hit>],
-        ) {
-            let single: Avx2 = $single(isa);
-            if T::IS_MOLLER_TRUMBORE {
-                bvh.closest_packet::<Avx2, T, _, $rays, S>(single, $packet(isa), rays, hits)
-            } else {
-                let per_ray = PerRay::<_, T>::new(single);
-                bvh.closest_packet::<Avx2, T, _, $rays, S>(single, per_ray, rays, hits)
-            }
-        }
-
-        #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = $features)]
-        fn $any<T: BlockTest, const S: usize>(
-            isa: $isa,
-            bvh: &WideBvh<8>,
-            rays: &[Ray],
-            occluded: &mut [bool],
-        ) {
-            let single: Avx2 = $single(isa);
-            if T::IS_MOLLER_TRUMBORE {
-                bvh.any_packet::<Avx2, T, _, $rays, S>(single, $packet(isa), rays, occluded)
-            } else {
-                let per_ray = PerRay::<_, T>::new(single);
-                bvh.any_packet::<Avx2, T, _, $rays, S>(single, per_ray, rays, occluded)
-            }
-        }
-    };
+/// [`WideBvh::packet_query`] of 8 rays compiled with AVX2 enabled: the
+/// generic traversal and kernels are `#[inline(always)]`, so they are
+/// compiled into this function with every intrinsic inlined.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,popcnt")]
+fn packet_avx2<Q: PacketQuery, T: BlockTest>(
+    avx2: Avx2,
+    bvh: &WideBvh<8>,
+    rays: &[Ray],
+    out: &mut Q::Out,
+) {
+    bvh.packet_simd::<Q, T, _, PACKET>(avx2, rays, out)
 }
 
-// 8 rays in AVX2 lanes; 16 rays in AVX-512 lanes.
-packet_entries!(
-    Avx2,
-    "avx2,bmi1,popcnt",
-    closest_packet_avx2,
-    any_packet_avx2,
-    Avx2Packet,
-    PACKET,
-    |k: Avx2| k
-);
-packet_entries!(
-    Avx512,
-    "avx512f,avx2,bmi1,popcnt",
-    closest_packet_avx512,
-    any_packet_avx512,
-    Avx512Packet,
-    PACKET16,
-    |k: Avx512| k.avx2
-);
+/// [`WideBvh::packet_query`] of 16 rays compiled with AVX-512F enabled, as
+/// [`packet_avx2`].
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,bmi1,popcnt")]
+fn packet_avx512<Q: PacketQuery, T: BlockTest>(
+    avx512: Avx512,
+    bvh: &WideBvh<8>,
+    rays: &[Ray],
+    out: &mut Q::Out,
+) {
+    bvh.packet_simd::<Q, T, _, PACKET16>(avx512, rays, out)
+}
 
 /// The wide trees' queries compiled with AVX2 enabled: the generic traversal
 /// is `#[inline(always)]`, so it is compiled into these functions and every
