@@ -21,6 +21,7 @@ pub mod geometry;
 pub mod os;
 pub mod output;
 pub mod progress;
+pub mod names;
 pub mod rayfile;
 pub mod render;
 pub mod rng;

@@ -34,18 +34,6 @@ pub enum BackendKind {
 }
 
 impl BackendKind {
-    /// The name `--backend` takes.
-    pub fn name(self) -> &'static str {
-        match self {
-            BackendKind::Naive => "naive",
-            BackendKind::Bvh => "bvh",
-            BackendKind::Embree => "embree",
-            BackendKind::Tinybvh => "tinybvh",
-            BackendKind::Obvhs => "obvhs",
-            BackendKind::BvhCrate => "bvh-crate",
-        }
-    }
-
     /// Every kind, in `--backend`'s order.
     pub const ALL: [BackendKind; 6] = [
         BackendKind::Naive,

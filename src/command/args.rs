@@ -393,7 +393,7 @@ fn library_spec(
             format!(
                 "--backend {} has no {} layout (it has: {have})",
                 kind.name(),
-                layout.map_or(String::new(), |l| format!("{l:?}").to_lowercase())
+                layout.map_or("", LibraryLayout::name)
             ),
         )
     };
