@@ -2,13 +2,27 @@
 //! what `--builder`, `--intersector` and the rest accept is what reports
 //! print, with no second list to keep in step.
 
-use std::sync::OnceLock;
+use std::collections::HashSet;
+use std::sync::{Mutex, OnceLock};
 
 use clap::ValueEnum;
 
-/// `value`'s name as its flag takes it. The names are made once per type
-/// (`cache`, one per enum) and kept for the life of the process, so they
-/// can be `&'static`.
+/// `name` as a `&'static str`: each distinct name is kept once for the life
+/// of the process (names made from a few enums and specs: a bounded set).
+pub fn intern(name: &str) -> &'static str {
+    static NAMES: Mutex<Option<HashSet<&'static str>>> = Mutex::new(None);
+    let mut names = NAMES.lock().unwrap_or_else(|e| e.into_inner());
+    let names = names.get_or_insert_with(HashSet::new);
+    if let Some(&kept) = names.get(name) {
+        return kept;
+    }
+    let kept: &'static str = Box::leak(name.to_string().into_boxed_str());
+    names.insert(kept);
+    kept
+}
+
+/// `value`'s name as its flag takes it, made once per type (`cache`, one
+/// per enum).
 pub fn value_name<T: ValueEnum + PartialEq>(
     cache: &'static OnceLock<Vec<&'static str>>,
     value: &T,
@@ -20,7 +34,7 @@ pub fn value_name<T: ValueEnum + PartialEq>(
                 let name = v
                     .to_possible_value()
                     .expect("no variant of a named enum is skipped");
-                &*Box::leak(name.get_name().to_string().into_boxed_str())
+                intern(name.get_name())
             })
             .collect()
     });
