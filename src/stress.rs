@@ -431,9 +431,8 @@ pub fn parse_stress_backends(s: &str) -> Result<Vec<BackendSpec>> {
             "all" => default_stress_specs().into_iter().for_each(&mut push),
             "libraries" => library_specs().for_each(&mut push),
             name => {
-                let spec = crate::accel::parse_backend(name).map_err(|e| {
-                    Error::usage("--backends", format!("{e}; or all, libraries"))
-                })?;
+                let spec = crate::accel::parse_backend(name)
+                    .map_err(|e| Error::usage("--backends", format!("{e}; or all, libraries")))?;
                 match spec {
                     BackendSpec::Embree { .. } if !crate::accel::embree::AVAILABLE => {
                         return Err(crate::accel::embree::unavailable())
@@ -788,10 +787,7 @@ pub fn degenerate_cases() -> Vec<DegenerateCase> {
 /// rays, judged against naive and against the exact reference. A library
 /// that refuses a case (tinybvh's BVH8_CPU conversion on `identical`, which
 /// once crashed the process) gets a "not built" row.
-pub fn degenerate_suite(
-    rays_per_case: usize,
-    specs: &[BackendSpec],
-) -> Result<Vec<DegenerateRow>> {
+pub fn degenerate_suite(rays_per_case: usize, specs: &[BackendSpec]) -> Result<Vec<DegenerateRow>> {
     let mut rows = Vec::new();
     for DegenerateCase {
         name,

@@ -138,10 +138,18 @@ fn user_meshes_must_be_closed_and_backends_can_be_chosen() {
     };
     assert_eq!(names("bvh,naive"), ["bvh8-sah", "naive"]);
     let all = names("all");
-    for name in ["naive-watertight", "bvh-median", "bvh8-sah", "bvh8-sah-watertight"] {
+    for name in [
+        "naive-watertight",
+        "bvh-median",
+        "bvh8-sah",
+        "bvh8-sah-watertight",
+    ] {
         assert!(all.iter().any(|n| n == name), "{name} not in {all:?}");
     }
-    assert!(!all.iter().any(|n| n == "bvh-sah"), "the binary tree is not the default");
+    assert!(
+        !all.iter().any(|n| n == "bvh-sah"),
+        "the binary tree is not the default"
+    );
     for bad in ["warp", "bvh-sah-packet8", "", " , "] {
         let e = parse_stress_backends(bad).unwrap_err().to_string();
         assert!(e.contains("--backends") && !e.contains('\n'), "{e}");

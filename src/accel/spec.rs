@@ -4,11 +4,11 @@
 
 use std::time::{Duration, Instant};
 
+use super::bvh::BuilderKind;
 use super::bvh::{BuildParams, BvhBackend};
 use super::embree::Quality;
 use super::library::{Library, ObvhsLayout, TinybvhLayout};
 use super::naive::Naive;
-use super::bvh::BuilderKind;
 use super::query::Query;
 use super::Backend;
 use crate::error::Error;
@@ -319,7 +319,11 @@ impl BackendSpec {
         structures.push(Self::library(Library::BvhCrate, 1));
         structures
             .into_iter()
-            .flat_map(|s| s.queries().into_iter().filter_map(move |q| s.with_query(q).ok()))
+            .flat_map(|s| {
+                s.queries()
+                    .into_iter()
+                    .filter_map(move |q| s.with_query(q).ok())
+            })
             .collect()
     }
 
@@ -759,9 +763,18 @@ mod tests {
         let mut short = std::collections::HashSet::new();
         for spec in &all {
             assert_eq!(spec.name().parse(), Ok(*spec), "{}", spec.name());
-            assert_eq!(spec.short_name().parse(), Ok(*spec), "{}", spec.short_name());
+            assert_eq!(
+                spec.short_name().parse(),
+                Ok(*spec),
+                "{}",
+                spec.short_name()
+            );
             assert!(names.insert(spec.name()), "{} twice", spec.name());
-            assert!(short.insert(spec.short_name()), "{} twice", spec.short_name());
+            assert!(
+                short.insert(spec.short_name()),
+                "{} twice",
+                spec.short_name()
+            );
         }
         assert!(all.contains(&BackendSpec::DEFAULT));
         assert_eq!(BackendSpec::DEFAULT.name(), "bvh8-sah");
@@ -778,7 +791,10 @@ mod tests {
             ("obvhs-bvh2", "obvhs-bvh2-medium"),
         ] {
             let spec: BackendSpec = short.parse().unwrap();
-            assert_eq!((spec.name().as_str(), spec.short_name().as_str()), (full, short));
+            assert_eq!(
+                (spec.name().as_str(), spec.short_name().as_str()),
+                (full, short)
+            );
         }
         for bad in [
             "",
@@ -797,7 +813,10 @@ mod tests {
             "Naive",
         ] {
             let err = bad.parse::<BackendSpec>().unwrap_err();
-            assert!(err.contains(&format!("'{bad}'")) && !err.contains('\n'), "{err}");
+            assert!(
+                err.contains(&format!("'{bad}'")) && !err.contains('\n'),
+                "{err}"
+            );
         }
         let err = "bvh-sah-packet8".parse::<BackendSpec>().unwrap_err();
         assert!(err.contains("no packet8 path"), "{err}");

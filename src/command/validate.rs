@@ -271,7 +271,8 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
         let raylab_tree;
         let recorder: &dyn crate::accel::Backend = match against {
             BackendKind::Naive if spec.kind().is_library() && records => {
-                raylab_tree = build_backend(&BackendSpec::DEFAULT.with_build_threads(threads), &scene)?;
+                raylab_tree =
+                    build_backend(&BackendSpec::DEFAULT.with_build_threads(threads), &scene)?;
                 raylab_tree.as_ref()
             }
             BackendKind::Naive => tested.as_ref(),
