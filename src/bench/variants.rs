@@ -21,6 +21,7 @@ use crate::render::Schedule;
 /// One column of the study's tables: a backend and a schedule. The name and
 /// kind are made from them ([`Variant::new`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct Variant {
     /// `<backend>[-pbuild]-<schedule>`: the backend's
     /// [`BackendSpec::short_name`], `-pbuild` where it builds in parallel
@@ -35,8 +36,6 @@ pub struct Variant {
     /// Built on all bench threads where it would build on one
     /// ([`Variant::parallel_build`]).
     pub pbuild: bool,
-    /// Only [`Variant::new`] makes one.
-    made: (),
 }
 
 /// Every variant, in the order tables list them. `naive-serial` is the baseline.
@@ -122,7 +121,6 @@ impl Variant {
             backend,
             schedule,
             pbuild,
-            made: (),
         }
     }
 
