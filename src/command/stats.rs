@@ -23,9 +23,8 @@ pub struct StatsArgs {
     /// Scene files (.obj, .ply, .gltf, .glb) or built-in names [default: the
     /// four built-in Cornell boxes].
     scenes: Vec<String>,
-    /// Which builders to measure: median, lbvh, sah, sbvh, embree-low,
-    /// embree-medium, embree-high, or all (the Embree ones only when Embree
-    /// is built in).
+    /// Which builders to measure: one builder, or all (the
+    /// Embree ones only when Embree is built in).
     #[arg(long, value_name = "NAME", default_value = "all", value_parser = builder_names())]
     builder: String,
     /// Most triangles per leaf for every builder [default: each builder's own].
