@@ -259,15 +259,6 @@ pub enum Intersector {
     Watertight,
 }
 
-impl Intersector {
-    pub fn name(self) -> &'static str {
-        match self {
-            Intersector::Mt => "mt",
-            Intersector::Watertight => "watertight",
-        }
-    }
-}
-
 /// A ray/triangle test with per-ray set-up, so traversal code is generic over
 /// the method and pays for the set-up once per ray.
 pub trait TriangleTest {
@@ -446,17 +437,6 @@ impl OffsetStrategy {
         OffsetStrategy::Ulp,
         OffsetStrategy::Bounded,
     ];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            OffsetStrategy::None => "none",
-            OffsetStrategy::Fixed => "fixed",
-            OffsetStrategy::Scaled => "scaled",
-            OffsetStrategy::Tmin => "tmin",
-            OffsetStrategy::Ulp => "ulp",
-            OffsetStrategy::Bounded => "bounded",
-        }
-    }
 
     /// The origin and `tmin` of a ray leaving the hit `(t, u, v)` of `ray` on
     /// `tri`, on the side of unit normal `n`. Every strategy but

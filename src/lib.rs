@@ -18,6 +18,7 @@ pub mod console;
 pub mod error;
 pub mod exact;
 pub mod geometry;
+pub mod names;
 pub mod os;
 pub mod output;
 pub mod progress;

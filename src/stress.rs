@@ -23,6 +23,7 @@ use serde::Serialize;
 
 use crate::accel::bvh::{BuildParams, BvhBackend};
 use crate::accel::embree::Quality;
+use crate::accel::library::Library;
 use crate::accel::naive::Naive;
 use crate::accel::{build_backend, Backend, BackendSpec, Built};
 use crate::error::{Error, Result};
@@ -373,89 +374,24 @@ pub struct LeakRow {
     pub edge_ties: usize,
 }
 
-/// The backends the leak and degenerate suites compare, built over raw arrays.
-/// The backends a stress suite runs (`raylab stress --backends`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum StressBackend {
-    /// The naive scan, MT and watertight (slow on large meshes).
-    Naive,
-    /// The median-split BVH, MT and watertight.
-    BvhMedian,
-    /// The SAH BVH, MT and watertight.
-    BvhSah,
-    /// Embree, default and robust.
-    Embree,
-    /// The other libraries, each with its own test: tinybvh (BVH8_CPU and
-    /// the binary tree), obvhs (CwBvh and Bvh2), the bvh crate.
-    Libraries,
-}
-
-impl StressBackend {
-    pub const ALL: [StressBackend; 5] = [
-        StressBackend::Naive,
-        StressBackend::BvhMedian,
-        StressBackend::BvhSah,
-        StressBackend::Embree,
-        StressBackend::Libraries,
-    ];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            StressBackend::Naive => "naive",
-            StressBackend::BvhMedian => "bvh-median",
-            StressBackend::BvhSah => "bvh-sah",
-            StressBackend::Embree => "embree",
-            StressBackend::Libraries => "libraries",
-        }
-    }
-}
-
-/// Parses `--backends`: names separated by commas, or `all`.
-pub fn parse_stress_backends(s: &str) -> Result<Vec<StressBackend>> {
-    let mut out = Vec::new();
-    for p in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-        if p == "all" {
-            out.extend(StressBackend::ALL);
-            continue;
-        }
-        let b = StressBackend::ALL
-            .into_iter()
-            .find(|b| b.name() == p)
-            .ok_or_else(|| {
-                let names: Vec<&str> = StressBackend::ALL.iter().map(|b| b.name()).collect();
-                Error::usage(
-                    "--backends",
-                    format!("unknown backend '{p}' (known: all, {})", names.join(", ")),
-                )
-            })?;
-        out.push(b);
-    }
-    out.dedup();
-    if out.is_empty() {
-        return Err(Error::usage("--backends", "no backend given"));
-    }
-    Ok(out)
-}
-
-/// The specs of the backends `kinds` name, each with MT and watertight
-/// (Embree: plain and robust), all built on one thread.
-fn stress_specs(kinds: &[StressBackend]) -> Vec<BackendSpec> {
+/// The backends the leak and degenerate suites compare when `--backends`
+/// names none (`all`): the naive scan, the study's median tree and the tree
+/// a render builds ([`BackendSpec::DEFAULT`]), each with Moller-Trumbore and
+/// the watertight test; Embree plain and robust; each other library's
+/// layouts ([`Library::ALL`]); those this raylab was built with, all built
+/// on one thread.
+pub fn default_stress_specs() -> Vec<BackendSpec> {
     let mut out = Vec::new();
     for intersector in [Intersector::Mt, Intersector::Watertight] {
-        for (kind, spec) in [
-            (StressBackend::Naive, BackendSpec::naive()),
-            (
-                StressBackend::BvhMedian,
-                BackendSpec::bvh(BuildParams::median()),
-            ),
-            (StressBackend::BvhSah, BackendSpec::bvh(BuildParams::sah())),
+        for spec in [
+            BackendSpec::naive(),
+            BackendSpec::bvh(BuildParams::median()),
+            BackendSpec::DEFAULT,
         ] {
-            if kinds.contains(&kind) {
-                out.push(spec.with_intersector(intersector));
-            }
+            out.push(spec.with_intersector(intersector));
         }
     }
-    if kinds.contains(&StressBackend::Embree) && crate::accel::embree::AVAILABLE {
+    if crate::accel::embree::AVAILABLE {
         for robust in [false, true] {
             out.push(BackendSpec::Embree {
                 quality: Quality::Medium,
@@ -465,46 +401,84 @@ fn stress_specs(kinds: &[StressBackend]) -> Vec<BackendSpec> {
             });
         }
     }
-    if kinds.contains(&StressBackend::Libraries) {
-        use crate::accel::library::Library;
-        out.extend(
-            Library::ALL
-                .into_iter()
-                .filter(Library::available)
-                .map(|library| BackendSpec::library(library, 1)),
-        );
-    }
+    out.extend(library_specs());
     out
 }
 
-/// The backends `kinds` name built over raw arrays (degenerate triangles
-/// kept), with each one's ray/triangle test as reports name it (`mt`,
-/// `watertight`, or `embree` for Embree's own).
+/// Each other library's layouts this raylab was built with, on one thread.
+fn library_specs() -> impl Iterator<Item = BackendSpec> {
+    Library::ALL
+        .into_iter()
+        .filter(Library::available)
+        .map(|library| BackendSpec::library(library, 1))
+}
+
+/// Parses `--backends`: backend names as reports print them
+/// ([`crate::accel::parse_backend`]: `bvh8-sah-watertight`,
+/// `embree-medium-robust`, `tinybvh-bvh`, or a `--backend` name for its
+/// default) separated by commas, `libraries` (each other library's layouts)
+/// or `all` ([`default_stress_specs`]). A backend this raylab was built
+/// without is an error when named.
+pub fn parse_stress_backends(s: &str) -> Result<Vec<BackendSpec>> {
+    let mut out: Vec<BackendSpec> = Vec::new();
+    let mut push = |spec: BackendSpec| {
+        if !out.contains(&spec) {
+            out.push(spec);
+        }
+    };
+    for p in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        match p {
+            "all" => default_stress_specs().into_iter().for_each(&mut push),
+            "libraries" => library_specs().for_each(&mut push),
+            name => {
+                let spec = crate::accel::parse_backend(name)
+                    .map_err(|e| Error::usage("--backends", format!("{e}; or all, libraries")))?;
+                match spec {
+                    BackendSpec::Embree { .. } if !crate::accel::embree::AVAILABLE => {
+                        return Err(crate::accel::embree::unavailable())
+                    }
+                    BackendSpec::Library { library, .. } if !library.available() => {
+                        return Err(crate::accel::library::unavailable(&library))
+                    }
+                    _ => push(spec),
+                }
+            }
+        }
+    }
+    if out.is_empty() {
+        return Err(Error::usage("--backends", "no backend given"));
+    }
+    Ok(out)
+}
+
+/// `specs` built over raw arrays (degenerate triangles kept), with each
+/// one's ray/triangle test as reports name it (`mt`, `watertight`, or
+/// `embree` for Embree's own).
 fn stress_backends(
     positions: &[Vec3],
     triangles: &[[u32; 3]],
-    kinds: &[StressBackend],
+    specs: &[BackendSpec],
 ) -> Result<Vec<(Built, String)>> {
-    built_or_not(positions, triangles, kinds)
+    built_or_not(positions, triangles, specs)
         .into_iter()
         .map(|(_, built, test)| Ok((built?, test)))
         .collect()
 }
 
-/// Each backend `kinds` names, built, or why it could not be: a library
-/// refusing an input is a finding, not the end of the suite.
+/// Each of `specs`, built, or why it could not be: a library refusing an
+/// input is a finding, not the end of the suite.
 fn built_or_not(
     positions: &[Vec3],
     triangles: &[[u32; 3]],
-    kinds: &[StressBackend],
+    specs: &[BackendSpec],
 ) -> Vec<(BackendSpec, Result<Built>, String)> {
     let mesh = MeshRef {
         positions,
         triangles,
     };
-    stress_specs(kinds)
-        .into_iter()
-        .map(|spec| {
+    specs
+        .iter()
+        .map(|&spec| {
             let test = match spec {
                 BackendSpec::Naive { intersector } | BackendSpec::Bvh { intersector, .. } => {
                     intersector.name()
@@ -518,16 +492,16 @@ fn built_or_not(
         .collect()
 }
 
-/// The leak suite over `meshes` with every backend.
+/// The leak suite over `meshes` with every backend ([`default_stress_specs`]).
 pub fn leak_suite(meshes: &[TestMesh], outside: usize) -> Result<Vec<LeakRow>> {
-    leak_suite_with(meshes, outside, &StressBackend::ALL)
+    leak_suite_with(meshes, outside, &default_stress_specs())
 }
 
-/// The leak suite over `meshes` with the backends `kinds`.
+/// The leak suite over `meshes` with the backends `specs`.
 pub fn leak_suite_with(
     meshes: &[TestMesh],
     outside: usize,
-    kinds: &[StressBackend],
+    specs: &[BackendSpec],
 ) -> Result<Vec<LeakRow>> {
     let mut rows = Vec::new();
     for (k, mesh) in meshes.iter().enumerate() {
@@ -540,7 +514,7 @@ pub fn leak_suite_with(
             .triangle_vertices(),
         );
         let answers = reference.answers(&rays);
-        for (backend, intersector) in stress_backends(&mesh.positions, &mesh.triangles, kinds)? {
+        for (backend, intersector) in stress_backends(&mesh.positions, &mesh.triangles, specs)? {
             let start = Instant::now();
             let leaks = rays
                 .iter()
@@ -813,10 +787,7 @@ pub fn degenerate_cases() -> Vec<DegenerateCase> {
 /// rays, judged against naive and against the exact reference. A library
 /// that refuses a case (tinybvh's BVH8_CPU conversion on `identical`, which
 /// once crashed the process) gets a "not built" row.
-pub fn degenerate_suite(
-    rays_per_case: usize,
-    kinds: &[StressBackend],
-) -> Result<Vec<DegenerateRow>> {
+pub fn degenerate_suite(rays_per_case: usize, specs: &[BackendSpec]) -> Result<Vec<DegenerateRow>> {
     let mut rows = Vec::new();
     for DegenerateCase {
         name,
@@ -857,7 +828,7 @@ pub fn degenerate_suite(
             Naive::from_triangles(tris.clone()).with_intersector(Intersector::Watertight);
         let reference = ExactReference::new(tris.clone());
         let answers = reference.answers(&rays);
-        for (spec, built, intersector) in built_or_not(&positions, &triangles, kinds) {
+        for (spec, built, intersector) in built_or_not(&positions, &triangles, specs) {
             let backend = match built {
                 Ok(b) => b,
                 Err(e) => {

@@ -398,19 +398,6 @@ pub fn judge_spawns(scene: &Scene, spawns: &[Spawn]) -> SpawnReport {
     }
 }
 
-impl RaySet {
-    pub fn name(self) -> &'static str {
-        match self {
-            RaySet::Primary => "primary",
-            RaySet::Shadow => "shadow",
-            RaySet::Ao => "ao",
-            RaySet::Diffuse => "diffuse",
-            RaySet::Random => "random",
-            RaySet::Edges => "edges",
-        }
-    }
-}
-
 /// Ray sets, each with its rays.
 pub type SetRays = Vec<(RaySet, Vec<Ray>)>;
 

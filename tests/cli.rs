@@ -31,6 +31,40 @@ fn bad_flags_fail_with_one_line_naming_the_flag() {
     );
     assert_one_line_error(&["render", "--backend", "magic", "-o", o], "--backend");
     assert_one_line_error(&["render", "--schedule", "chaos", "-o", o], "--schedule");
+    // Backends by name: a bad one is named with the names there are.
+    let names = "naive[-watertight], bvh|bvh4|bvh8-BUILDER";
+    for (args, flag) in [
+        (&["validate", "--against", "bvh-sahh"][..], "--against"),
+        (
+            &["validate", "--against", "bvh-sah-packet8"][..],
+            "--against",
+        ),
+        (
+            &["stress", "--backends", "bvh8-sah,magic"][..],
+            "--backends",
+        ),
+        (
+            &[
+                "bench",
+                "--variants",
+                "naive-serial,magic-serial",
+                "--quick",
+            ][..],
+            "--variants",
+        ),
+    ] {
+        let bad = args[2].rsplit(',').next().unwrap();
+        let needle = if bad.contains("packet8") {
+            "no packet8 path"
+        } else {
+            names
+        };
+        assert_one_line_error_naming(args, &[flag, bad, needle]);
+    }
+    assert_one_line_error_naming(
+        &["stats", "--builder", "sahh"],
+        &["--builder", "sahh", "median, lbvh, sah, sbvh, embree-low"],
+    );
     assert!(!std::path::Path::new(o).exists());
     std::fs::remove_dir_all(&d).ok();
 }

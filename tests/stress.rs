@@ -68,7 +68,7 @@ fn default_offset_has_no_self_hits_and_finds_near_occluders() {
 
 #[test]
 fn degenerate_input_gives_no_nan_and_agrees_with_naive() {
-    let rows = degenerate_suite(1000, &StressBackend::ALL).unwrap();
+    let rows = degenerate_suite(1000, &default_stress_specs()).unwrap();
     let cases = degenerate_cases().len();
     assert_eq!(rows.len() % cases, 0);
     assert!(rows.len() / cases >= 6, "every backend on every case");
@@ -97,7 +97,7 @@ fn report_has_every_table() {
     let report = StressReport {
         leaks: leak_suite(&[cube(1)], 1).unwrap(),
         offset: offset_suite(&[0.0], 50).unwrap(),
-        degenerate: degenerate_suite(50, &[StressBackend::BvhSah]).unwrap(),
+        degenerate: degenerate_suite(50, &parse_stress_backends("bvh8-sah").unwrap()).unwrap(),
         hostile: Some(hostile_suite(20, 1).unwrap()),
     };
     let md = report.markdown();
@@ -126,13 +126,33 @@ fn user_meshes_must_be_closed_and_backends_can_be_chosen() {
     assert!(e.contains("not a closed mesh (3 edges"), "{e}");
     let mesh = file_mesh(&dir.join("closed.obj"), Default::default()).unwrap();
     assert_eq!(mesh.positions.len(), 4, "split vertices are welded");
-    let kinds = parse_stress_backends("bvh-sah").unwrap();
-    let rows = leak_suite_with(&[mesh], 2, &kinds).unwrap();
-    assert_eq!(rows.len(), 2, "bvh-sah with MT and watertight only");
-    assert!(rows.iter().all(|r| r.backend.starts_with("bvh-sah")));
-    assert!(parse_stress_backends("warp")
-        .unwrap_err()
-        .to_string()
-        .contains("--backends"));
+    // Backends by the names reports give them, each exactly that backend;
+    // a --backend name is its default (bvh: the tree a render builds).
+    let specs = parse_stress_backends("bvh-sah, bvh8-sah-watertight,bvh-sah").unwrap();
+    let rows = leak_suite_with(&[mesh], 2, &specs).unwrap();
+    let names: Vec<&str> = rows.iter().map(|r| r.backend.as_str()).collect();
+    assert_eq!(names, ["bvh-sah", "bvh8-sah-watertight"]);
+    let names = |list: &str| -> Vec<String> {
+        let specs = parse_stress_backends(list).unwrap();
+        specs.iter().map(|s| s.name()).collect()
+    };
+    assert_eq!(names("bvh,naive"), ["bvh8-sah", "naive"]);
+    let all = names("all");
+    for name in [
+        "naive-watertight",
+        "bvh-median",
+        "bvh8-sah",
+        "bvh8-sah-watertight",
+    ] {
+        assert!(all.iter().any(|n| n == name), "{name} not in {all:?}");
+    }
+    assert!(
+        !all.iter().any(|n| n == "bvh-sah"),
+        "the binary tree is not the default"
+    );
+    for bad in ["warp", "bvh-sah-packet8", "", " , "] {
+        let e = parse_stress_backends(bad).unwrap_err().to_string();
+        assert!(e.contains("--backends") && !e.contains('\n'), "{e}");
+    }
     std::fs::remove_dir_all(&dir).ok();
 }

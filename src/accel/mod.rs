@@ -12,7 +12,7 @@ pub mod query;
 pub mod spec;
 
 pub use query::Query;
-pub use spec::{build_backend, BackendKind, BackendSpec, Built};
+pub use spec::{build_backend, parse_backend, BackendKind, BackendSpec, Built};
 
 use crate::geometry::{Hit, Ray};
 

@@ -4,6 +4,7 @@
 
 use std::time::{Duration, Instant};
 
+use super::bvh::BuilderKind;
 use super::bvh::{BuildParams, BvhBackend};
 use super::embree::Quality;
 use super::library::{Library, ObvhsLayout, TinybvhLayout};
@@ -34,18 +35,6 @@ pub enum BackendKind {
 }
 
 impl BackendKind {
-    /// The name `--backend` takes.
-    pub fn name(self) -> &'static str {
-        match self {
-            BackendKind::Naive => "naive",
-            BackendKind::Bvh => "bvh",
-            BackendKind::Embree => "embree",
-            BackendKind::Tinybvh => "tinybvh",
-            BackendKind::Obvhs => "obvhs",
-            BackendKind::BvhCrate => "bvh-crate",
-        }
-    }
-
     /// Every kind, in `--backend`'s order.
     pub const ALL: [BackendKind; 6] = [
         BackendKind::Naive,
@@ -135,12 +124,18 @@ impl BackendSpec {
         }
     }
 
-    /// Each kind's default (for `bvh`: the 2-wide SAH tree; for the other
+    /// The backend a render builds when no flag says otherwise: raylab's
+    /// 8-wide SAH tree, Moller-Trumbore, built on one thread (the flags'
+    /// defaults are read from it), and what "the default bvh" means
+    /// wherever one is named by its kind (`validate --against bvh`).
+    pub const DEFAULT: BackendSpec = BackendSpec::bvh(BuildParams::sah().with_width(8));
+
+    /// Each kind's default (for `bvh`: [`Self::DEFAULT`]; for the other
     /// libraries their fastest layout at their default build), built on `threads`.
     pub const fn default_for(kind: BackendKind, threads: usize) -> Self {
         match kind {
             BackendKind::Naive => Self::naive(),
-            BackendKind::Bvh => Self::bvh(BuildParams::sah().with_threads(threads)),
+            BackendKind::Bvh => Self::DEFAULT.with_build_threads(threads),
             BackendKind::Embree => Self::embree(threads),
             BackendKind::Tinybvh => Self::library(
                 Library::Tinybvh {
@@ -232,6 +227,104 @@ impl BackendSpec {
             ),
             BackendSpec::Library { library, .. } => library.name(),
         }
+    }
+
+    /// The name with what is each kind's default left out where the name
+    /// stays unambiguous: Embree's `medium` quality, tinybvh's `bvh8`
+    /// layout, obvhs's `cwbvh` layout and `medium` preset (`embree`,
+    /// `tinybvh-hq`, `obvhs-bvh2`); raylab's own names are kept whole. The
+    /// bench's variants are named with it; it parses back to the same spec.
+    pub fn short_name(&self) -> String {
+        let query = match self.query() {
+            Query::Single => String::new(),
+            q => format!("-{q}"),
+        };
+        let quality = |q: Quality| match q {
+            Quality::Medium => String::new(),
+            q => format!("-{}", q.name()),
+        };
+        match self {
+            BackendSpec::Embree {
+                quality: q, robust, ..
+            } => format!(
+                "embree{}{}{query}",
+                quality(*q),
+                if *robust { "-robust" } else { "" }
+            ),
+            BackendSpec::Library {
+                library: Library::Tinybvh { layout, hq },
+                ..
+            } => format!(
+                "tinybvh{}{}",
+                match layout {
+                    TinybvhLayout::Bvh8 => "",
+                    TinybvhLayout::Bvh => "-bvh",
+                },
+                if *hq { "-hq" } else { "" }
+            ),
+            BackendSpec::Library {
+                library: Library::Obvhs { layout, quality: q },
+                ..
+            } => format!(
+                "obvhs{}{}",
+                match layout {
+                    ObvhsLayout::CwBvh => "",
+                    ObvhsLayout::Bvh2 => "-bvh2",
+                },
+                quality(*q)
+            ),
+            _ => self.name(),
+        }
+    }
+
+    /// Every backend a name can say, built on one thread: each test for
+    /// raylab's own, each builder, width and reinsertion for its BVH, each
+    /// quality and mode of Embree, each library's layouts and builds; each
+    /// with every query path it has ([`Self::queries`]).
+    pub fn all() -> Vec<BackendSpec> {
+        let mut structures = Vec::new();
+        for intersector in [Intersector::Mt, Intersector::Watertight] {
+            structures.push(Self::naive().with_intersector(intersector));
+            for width in [2, 4, 8] {
+                for builder in BuilderKind::ALL {
+                    for optimize in [false, true] {
+                        let params = BuildParams::for_builder(builder)
+                            .with_width(width)
+                            .with_optimize(optimize);
+                        structures.push(Self::bvh(params).with_intersector(intersector));
+                    }
+                }
+            }
+        }
+        for quality in [Quality::Low, Quality::Medium, Quality::High] {
+            for robust in [false, true] {
+                structures.push(BackendSpec::Embree {
+                    quality,
+                    robust,
+                    threads: 1,
+                    query: Query::Single,
+                });
+            }
+        }
+        for layout in [TinybvhLayout::Bvh8, TinybvhLayout::Bvh] {
+            for hq in [false, true] {
+                structures.push(Self::library(Library::Tinybvh { layout, hq }, 1));
+            }
+        }
+        for layout in [ObvhsLayout::CwBvh, ObvhsLayout::Bvh2] {
+            for quality in [Quality::Low, Quality::Medium, Quality::High] {
+                structures.push(Self::library(Library::Obvhs { layout, quality }, 1));
+            }
+        }
+        structures.push(Self::library(Library::BvhCrate, 1));
+        structures
+            .into_iter()
+            .flat_map(|s| {
+                s.queries()
+                    .into_iter()
+                    .filter_map(move |q| s.with_query(q).ok())
+            })
+            .collect()
     }
 
     /// How streams are traced (the naive scan: one ray at a time).
@@ -365,6 +458,140 @@ impl BackendSpec {
     }
 }
 
+/// What a backend's name may be ([`BackendSpec`]'s `FromStr`), in one line
+/// for the errors of the flags that take one.
+pub fn name_grammar() -> String {
+    let builders: Vec<&str> = BuilderKind::ALL.map(BuilderKind::name).to_vec();
+    format!(
+        "naive[-watertight], bvh|bvh4|bvh8-BUILDER[-opt][-watertight][-packet8|-packet16] (BUILDER: {}), embree[-low|-medium|-high][-robust][-packet4|-packet8|-packet16|-stream], tinybvh[-bvh8|-bvh][-hq], obvhs[-cwbvh|-bvh2][-low|-medium|-high], bvh-crate; e.g. {}",
+        builders.join(", "),
+        BackendSpec::DEFAULT.name()
+    )
+}
+
+/// A backend named on a command line (`validate --against`, `stress
+/// --backends`): its name as reports print it ([`BackendSpec`]'s
+/// `FromStr`), or a `--backend` name for that kind's default
+/// ([`BackendSpec::default_for`]; `bvh` is [`BackendSpec::DEFAULT`]), built
+/// on one thread.
+pub fn parse_backend(s: &str) -> Result<BackendSpec, String> {
+    use clap::ValueEnum;
+    match BackendKind::from_str(s.trim(), false) {
+        Ok(kind) => Ok(BackendSpec::default_for(kind, 1)),
+        Err(_) => s.parse().map_err(|e: String| {
+            let kinds: Vec<&str> = BackendKind::ALL.map(BackendKind::name).to_vec();
+            format!("{e}, or a --backend name ({})", kinds.join(", "))
+        }),
+    }
+}
+
+/// Takes `word` (one or more whole `-`-separated words) off the front of
+/// `rest`, with the `-` after it; whether it was there.
+fn eat(rest: &mut &str, word: &str) -> bool {
+    match rest.strip_prefix(word) {
+        Some("") => *rest = "",
+        Some(after) if after.starts_with('-') => *rest = &after[1..],
+        _ => return false,
+    }
+    true
+}
+
+/// The first of `values` whose name is at the front of `rest`, taken off.
+fn eat_one<T: Copy>(rest: &mut &str, values: &[T], name: impl Fn(T) -> String) -> Option<T> {
+    values.iter().copied().find(|&v| eat(rest, &name(v)))
+}
+
+fn eat_quality(rest: &mut &str) -> Option<Quality> {
+    eat_one(rest, &[Quality::Low, Quality::Medium, Quality::High], |q| {
+        q.name().to_string()
+    })
+}
+
+/// A backend by name: what [`BackendSpec::name`] and
+/// [`BackendSpec::short_name`] print parses back to the same spec, built on
+/// one thread (with each builder's own leaf size). The error says what names
+/// there are ([`name_grammar`]).
+impl std::str::FromStr for BackendSpec {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let unknown = || format!("unknown backend '{s}' (names: {})", name_grammar());
+        let mut rest = s.trim();
+        let test = |rest: &mut &str| {
+            if eat(rest, Intersector::Watertight.name()) {
+                Intersector::Watertight
+            } else {
+                Intersector::Mt
+            }
+        };
+        let spec = if eat(&mut rest, "bvh-crate") {
+            Self::library(Library::BvhCrate, 1)
+        } else if eat(&mut rest, "naive") {
+            Self::naive().with_intersector(test(&mut rest))
+        } else if let Some(width) = eat_one(&mut rest, &[2, 4, 8], |w| match w {
+            2 => "bvh".into(),
+            w => format!("bvh{w}"),
+        }) {
+            let builder =
+                eat_one(&mut rest, &BuilderKind::ALL, |b| b.name().into()).ok_or_else(unknown)?;
+            let optimize = eat(&mut rest, "opt");
+            let params = BuildParams::for_builder(builder)
+                .with_width(width)
+                .with_optimize(optimize);
+            Self::bvh(params).with_intersector(test(&mut rest))
+        } else if eat(&mut rest, "embree") {
+            let quality = eat_quality(&mut rest).unwrap_or(Quality::Medium);
+            BackendSpec::Embree {
+                quality,
+                robust: eat(&mut rest, "robust"),
+                threads: 1,
+                query: Query::Single,
+            }
+        } else if eat(&mut rest, "tinybvh") {
+            let layout = eat_one(&mut rest, &[TinybvhLayout::Bvh8, TinybvhLayout::Bvh], |l| {
+                match l {
+                    TinybvhLayout::Bvh8 => "bvh8",
+                    TinybvhLayout::Bvh => "bvh",
+                }
+                .into()
+            })
+            .unwrap_or(TinybvhLayout::Bvh8);
+            let hq = eat(&mut rest, "hq");
+            Self::library(Library::Tinybvh { layout, hq }, 1)
+        } else if eat(&mut rest, "obvhs") {
+            let layout = eat_one(&mut rest, &[ObvhsLayout::CwBvh, ObvhsLayout::Bvh2], |l| {
+                match l {
+                    ObvhsLayout::CwBvh => "cwbvh",
+                    ObvhsLayout::Bvh2 => "bvh2",
+                }
+                .into()
+            })
+            .unwrap_or(ObvhsLayout::CwBvh);
+            let quality = eat_quality(&mut rest).unwrap_or(Quality::Medium);
+            Self::library(Library::Obvhs { layout, quality }, 1)
+        } else {
+            return Err(unknown());
+        };
+        let query = match spec {
+            BackendSpec::Bvh { .. } | BackendSpec::Embree { .. } => {
+                let paths = &Query::ALL[1..];
+                eat_one(&mut rest, paths, Query::name).unwrap_or(Query::Single)
+            }
+            _ => Query::Single,
+        };
+        if !rest.is_empty() {
+            return Err(unknown());
+        }
+        spec.with_query(query).map_err(|_| {
+            let have: Vec<String> = spec.queries().iter().map(|q| q.name()).collect();
+            format!(
+                "backend '{s}': {} has no {query} path (it has: {})",
+                spec.structure_name(),
+                have.join(", ")
+            )
+        })
+    }
+}
+
 /// A backend as built: the structure, the spec it was built from, and the wall
 /// time from the triangles to a ready structure.
 pub struct Built {
@@ -490,7 +717,6 @@ fn build_library(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::accel::bvh::BuilderKind;
 
     #[test]
     fn names_derive_from_the_spec() {
@@ -528,6 +754,72 @@ mod tests {
         // Embree keeps its own test whatever is asked.
         let e = BackendSpec::embree(1);
         assert_eq!(e.with_intersector(Intersector::Watertight), e);
+    }
+
+    #[test]
+    fn every_name_parses_back_to_its_spec() {
+        let all = BackendSpec::all();
+        let mut names = std::collections::HashSet::new();
+        let mut short = std::collections::HashSet::new();
+        for spec in &all {
+            assert_eq!(spec.name().parse(), Ok(*spec), "{}", spec.name());
+            assert_eq!(
+                spec.short_name().parse(),
+                Ok(*spec),
+                "{}",
+                spec.short_name()
+            );
+            assert!(names.insert(spec.name()), "{} twice", spec.name());
+            assert!(
+                short.insert(spec.short_name()),
+                "{} twice",
+                spec.short_name()
+            );
+        }
+        assert!(all.contains(&BackendSpec::DEFAULT));
+        assert_eq!(BackendSpec::DEFAULT.name(), "bvh8-sah");
+        for kind in BackendKind::ALL {
+            let spec = BackendSpec::default_for(kind, 1);
+            assert!(all.contains(&spec), "{}", spec.name());
+        }
+        for (short, full) in [
+            ("embree", "embree-medium"),
+            ("embree-high-packet8", "embree-high-packet8"),
+            ("tinybvh", "tinybvh-bvh8"),
+            ("tinybvh-hq", "tinybvh-bvh8-hq"),
+            ("obvhs", "obvhs-cwbvh-medium"),
+            ("obvhs-bvh2", "obvhs-bvh2-medium"),
+        ] {
+            let spec: BackendSpec = short.parse().unwrap();
+            assert_eq!(
+                (spec.name().as_str(), spec.short_name().as_str()),
+                (full, short)
+            );
+        }
+        for bad in [
+            "",
+            "bvh",
+            "bvh2-sah",
+            "bvh16-sah",
+            "bvh-sah-opt-opt",
+            "bvh-sah-watertight-opt",
+            "embree-medium-medium",
+            "bvh-sah-packet8",
+            "bvh8-sah-single",
+            "naive-packet8",
+            "tinybvh-packet8",
+            "bvh-crate-hq",
+            "obvhs-high-bvh2",
+            "Naive",
+        ] {
+            let err = bad.parse::<BackendSpec>().unwrap_err();
+            assert!(
+                err.contains(&format!("'{bad}'")) && !err.contains('\n'),
+                "{err}"
+            );
+        }
+        let err = "bvh-sah-packet8".parse::<BackendSpec>().unwrap_err();
+        assert!(err.contains("no packet8 path"), "{err}");
     }
 
     #[test]

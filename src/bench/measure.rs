@@ -492,7 +492,10 @@ pub fn expected_ms(
     let levels = n.log2().max(0.0) + 1.0;
     let ns_per_ray = match variant.kind {
         BackendKind::Naive => 2.7 * n + 50.0,
-        BackendKind::Bvh if variant.builder == crate::accel::bvh::BuilderKind::Median => {
+        BackendKind::Bvh
+            if matches!(variant.backend, crate::accel::BackendSpec::Bvh { params, .. }
+                if params.builder == crate::accel::bvh::BuilderKind::Median) =>
+        {
             30.0 * levels + 50.0
         }
         BackendKind::Bvh => 12.0 * levels + 50.0,

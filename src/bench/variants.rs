@@ -1,159 +1,90 @@
-//! The bench's variants: each a (backend, builder, schedule) triple with a stable
-//! name, as the study combined its optimisations.
+//! The bench's variants: each a backend ([`BackendSpec`]) and a schedule,
+//! named from them (`bvh8-sah-packet8-tiles`), as the study combined its
+//! optimisations.
 //!
 //! Build threads: the study built its BVH serially and, as a separate
-//! optimisation, in parallel; the `bvh-median-*` variants keep that distinction
-//! (`-pbuild` builds on all bench threads). The SAH and Embree variants build on
-//! all bench threads whenever they render in parallel, as a modern renderer would.
+//! optimisation, in parallel; its median tree keeps that distinction
+//! (`-pbuild` builds on all bench threads). Every other backend builds on
+//! all bench threads whenever it renders in parallel, as a modern renderer
+//! would.
 
-use crate::accel::bvh::{BuildParams, BuilderKind};
-use crate::accel::{BackendKind, BackendSpec, Query};
-use crate::error::{Error, Result};
-use crate::render::Schedule;
-
-/// One column of the study's tables.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Variant {
-    pub name: &'static str,
-    pub kind: BackendKind,
-    /// For `bvh` variants.
-    pub builder: BuilderKind,
-    pub schedule: Schedule,
-    /// Build on all bench threads (else on one).
-    pub parallel_build: bool,
-    /// Children per node traversed: 2 (the binary tree), 4 or 8 (SIMD nodes).
-    pub width: usize,
-    /// How the renderer's streams are traced: single rays, or packets.
-    pub query: Query,
-    /// A rung of the build-quality ladder instead of `builder` (raylab's
-    /// pipeline of that rung; Embree's build quality), or `None`: `builder`,
-    /// and Embree MEDIUM.
-    pub rung: Option<Quality>,
-}
-
-const fn v(
-    name: &'static str,
-    kind: BackendKind,
-    builder: BuilderKind,
-    schedule: Schedule,
-    parallel_build: bool,
-) -> Variant {
-    Variant {
-        name,
-        kind,
-        builder,
-        schedule,
-        parallel_build,
-        width: 2,
-        query: Query::Single,
-        rung: None,
-    }
-}
-
-const fn wide(v: Variant, width: usize) -> Variant {
-    Variant { width, ..v }
-}
-
-/// The variant tracing its streams in packets of 8 rays (raylab's own 8-ray
-/// packets for the 8-wide tree, rtcIntersect8/rtcOccluded8 for Embree).
-const fn packets(v: Variant) -> Variant {
-    Variant {
-        query: Query::Packet(8),
-        ..v
-    }
-}
-
-/// The variant tracing its streams in packets of 16 rays (raylab's own, in
-/// AVX-512 lanes where the CPU has AVX-512F; rtcIntersect16/rtcOccluded16
-/// for Embree).
-const fn packets16(v: Variant) -> Variant {
-    Variant {
-        query: Query::Packet(16),
-        ..v
-    }
-}
-
-/// The variant built at `rung` of the quality ladder.
-const fn rung(v: Variant, rung: Quality) -> Variant {
-    Variant {
-        rung: Some(rung),
-        ..v
-    }
-}
+use std::sync::LazyLock;
 
 use crate::accel::bvh::params::Quality;
+use crate::accel::bvh::{BuildParams, BuilderKind};
 use crate::accel::library::{Library, ObvhsLayout, TinybvhLayout};
-use BackendKind::{Bvh, BvhCrate, Embree, Naive, Obvhs, Tinybvh};
-use BuilderKind::{Median, Sah};
-use Schedule::{Rayon, Rows, Serial, Tiles};
+use crate::accel::{BackendKind, BackendSpec, Query};
+use crate::error::{Error, Result};
+use crate::geometry::Intersector;
+use crate::render::Schedule;
+
+/// One column of the study's tables: a backend and a schedule. The name and
+/// kind are made from them ([`Variant::new`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
+pub struct Variant {
+    /// `<backend>[-pbuild]-<schedule>`: the backend's
+    /// [`BackendSpec::short_name`], `-pbuild` where it builds in parallel
+    /// though that is not the default, and the schedule.
+    pub name: &'static str,
+    /// The backend's kind.
+    pub kind: BackendKind,
+    /// The backend, built on one thread ([`Variant::spec`] gives it the
+    /// bench's threads).
+    pub backend: BackendSpec,
+    pub schedule: Schedule,
+    /// Built on all bench threads where it would build on one
+    /// ([`Variant::parallel_build`]).
+    pub pbuild: bool,
+}
 
 /// Every variant, in the order tables list them. `naive-serial` is the baseline.
-pub const VARIANTS: [Variant; 37] = [
-    v("naive-serial", Naive, Sah, Serial, false),
-    v("naive-rows", Naive, Sah, Rows, false),
-    v("naive-tiles", Naive, Sah, Tiles, false),
-    v("bvh-median-serial", Bvh, Median, Serial, false),
-    v("bvh-median-rows", Bvh, Median, Rows, false),
-    v("bvh-median-tiles", Bvh, Median, Tiles, false),
-    v("bvh-median-pbuild-serial", Bvh, Median, Serial, true),
-    v("bvh-median-pbuild-rows", Bvh, Median, Rows, true),
-    v("bvh-median-pbuild-tiles", Bvh, Median, Tiles, true),
-    v("bvh-sah-serial", Bvh, Sah, Serial, false),
-    v("bvh-sah-tiles", Bvh, Sah, Tiles, true),
-    v("bvh-sah-rayon", Bvh, Sah, Rayon, true),
-    wide(v("bvh4-sah-serial", Bvh, Sah, Serial, false), 4),
-    wide(v("bvh4-sah-tiles", Bvh, Sah, Tiles, true), 4),
-    wide(v("bvh4-sah-rayon", Bvh, Sah, Rayon, true), 4),
-    wide(v("bvh8-sah-serial", Bvh, Sah, Serial, false), 8),
-    wide(v("bvh8-sah-tiles", Bvh, Sah, Tiles, true), 8),
-    wide(v("bvh8-sah-rayon", Bvh, Sah, Rayon, true), 8),
-    packets(wide(
-        v("bvh8-sah-packet8-serial", Bvh, Sah, Serial, false),
-        8,
-    )),
-    packets(wide(v("bvh8-sah-packet8-tiles", Bvh, Sah, Tiles, true), 8)),
-    packets16(wide(v("bvh8-sah-packet16-tiles", Bvh, Sah, Tiles, true), 8)),
-    rung(
-        packets(wide(
-            v("bvh8-lbvh-packet8-serial", Bvh, Sah, Serial, false),
-            8,
-        )),
-        Quality::Low,
-    ),
-    rung(
-        packets(wide(
-            v("bvh8-sbvh-opt-packet8-serial", Bvh, Sah, Serial, false),
-            8,
-        )),
-        Quality::High,
-    ),
-    v("embree-serial", Embree, Sah, Serial, false),
-    v("embree-tiles", Embree, Sah, Tiles, true),
-    v("embree-rayon", Embree, Sah, Rayon, true),
-    packets(v("embree-packet8-serial", Embree, Sah, Serial, false)),
-    packets(v("embree-packet8-tiles", Embree, Sah, Tiles, true)),
-    packets16(v("embree-packet16-tiles", Embree, Sah, Tiles, true)),
-    rung(
-        packets(v("embree-low-packet8-serial", Embree, Sah, Serial, false)),
-        Quality::Low,
-    ),
-    rung(
-        packets(v("embree-high-packet8-serial", Embree, Sah, Serial, false)),
-        Quality::High,
-    ),
+pub static VARIANTS: LazyLock<Vec<Variant>> = LazyLock::new(|| {
+    use Schedule::{Rayon, Rows, Serial, Tiles};
+    let v = Variant::new;
+    let median = BackendSpec::bvh(BuildParams::median());
+    let sah = |width| BackendSpec::bvh(BuildParams::sah().with_width(width));
+    let rung = |q| BackendSpec::bvh(BuildParams::for_quality(q).with_width(8));
+    let embree = |q| BackendSpec::embree_at(q, 1);
+    let packets = |spec: BackendSpec, n| spec.with_query(Query::Packet(n)).expect("its path");
+    let mut out = Vec::new();
+    for schedule in [Serial, Rows, Tiles] {
+        out.push(v(BackendSpec::naive(), schedule, false));
+    }
+    for pbuild in [false, true] {
+        for schedule in [Serial, Rows, Tiles] {
+            out.push(v(median, schedule, pbuild));
+        }
+    }
+    for width in [2, 4, 8] {
+        for schedule in [Serial, Tiles, Rayon] {
+            out.push(v(sah(width), schedule, false));
+        }
+    }
+    out.extend([
+        v(packets(sah(8), 8), Serial, false),
+        v(packets(sah(8), 8), Tiles, false),
+        v(packets(sah(8), 16), Tiles, false),
+        v(packets(rung(Quality::Low), 8), Serial, false),
+        v(packets(rung(Quality::High), 8), Serial, false),
+    ]);
+    for schedule in [Serial, Tiles, Rayon] {
+        out.push(v(embree(Quality::Medium), schedule, false));
+    }
+    out.extend([
+        v(packets(embree(Quality::Medium), 8), Serial, false),
+        v(packets(embree(Quality::Medium), 8), Tiles, false),
+        v(packets(embree(Quality::Medium), 16), Tiles, false),
+        v(packets(embree(Quality::Low), 8), Serial, false),
+        v(packets(embree(Quality::High), 8), Serial, false),
+    ]);
     // The other libraries, each with its own builder and kernels, one ray at
-    // a time (they have no packet path). `width` picks the layout: tinybvh's
-    // BVH8_CPU (8) or binary tree (2), obvhs's CwBvh (8) or Bvh2 (2).
-    wide(v("tinybvh-serial", Tinybvh, Sah, Serial, false), 8),
-    rung(
-        wide(v("tinybvh-hq-serial", Tinybvh, Sah, Serial, false), 8),
-        Quality::High,
-    ),
-    v("tinybvh-bvh-serial", Tinybvh, Sah, Serial, false),
-    wide(v("obvhs-serial", Obvhs, Sah, Serial, false), 8),
-    v("obvhs-bvh2-serial", Obvhs, Sah, Serial, false),
-    v("bvh-crate-serial", BvhCrate, Sah, Serial, false),
-];
+    // a time (they have no packet path).
+    for library in Library::ALL {
+        out.push(v(BackendSpec::library(library, 1), Serial, false));
+    }
+    out
+});
 
 /// The study's own combinations (naive, median BVH, rows, tiles, parallel build).
 pub const PAPER: [&str; 9] = [
@@ -172,119 +103,167 @@ pub const PAPER: [&str; 9] = [
 pub const BASELINE: &str = "naive-serial";
 
 impl Variant {
-    /// The variant called `name`.
-    pub fn named(name: &str) -> Option<Variant> {
-        VARIANTS.iter().copied().find(|v| v.name == name)
+    /// `backend` (its build threads are the bench's) under `schedule`, built
+    /// in parallel where that is the default or `pbuild` asks.
+    pub fn new(backend: BackendSpec, schedule: Schedule, pbuild: bool) -> Variant {
+        let backend = backend.with_build_threads(1);
+        let builds_in_parallel = backend.with_build_threads(2).build_threads() > 1;
+        let pbuild = pbuild && builds_in_parallel && !Self::parallel_by_default(&backend, schedule);
+        let name = format!(
+            "{}{}-{}",
+            backend.short_name(),
+            if pbuild { "-pbuild" } else { "" },
+            schedule.name()
+        );
+        Variant {
+            name: crate::names::intern(&name),
+            kind: backend.kind(),
+            backend,
+            schedule,
+            pbuild,
+        }
     }
 
+    /// Whether a backend builds on all bench threads without `-pbuild`:
+    /// when it renders in parallel, except the study's median tree.
+    fn parallel_by_default(backend: &BackendSpec, schedule: Schedule) -> bool {
+        let studys_tree = matches!(backend, BackendSpec::Bvh { params, .. } if params.builder == BuilderKind::Median);
+        schedule != Schedule::Serial && !studys_tree
+    }
+
+    /// Whether it builds on all bench threads (else on one).
+    pub fn parallel_build(&self) -> bool {
+        self.pbuild || Self::parallel_by_default(&self.backend, self.schedule)
+    }
+
+    /// The variant called `name`: `<backend>[-pbuild]-<schedule>`, the
+    /// backend by any name [`crate::accel::parse_backend`] takes; the error
+    /// says what is wrong with it.
+    pub fn parse(name: &str) -> std::result::Result<Variant, String> {
+        let (rest, schedule) = name
+            .trim()
+            .rsplit_once('-')
+            .and_then(|(rest, s)| Some((rest, Schedule::ALL.into_iter().find(|x| x.name() == s)?)))
+            .ok_or_else(|| {
+                let schedules: Vec<&str> = Schedule::ALL.map(Schedule::name).to_vec();
+                format!(
+                    "'{name}' does not end in a schedule (-{})",
+                    schedules.join(", -")
+                )
+            })?;
+        let (rest, pbuild) = match rest.strip_suffix("-pbuild") {
+            Some(rest) => (rest, true),
+            None => (rest, false),
+        };
+        let backend = crate::accel::parse_backend(rest)?;
+        Ok(Variant::new(backend, schedule, pbuild))
+    }
+
+    /// The variant called `name`, if it is one ([`Variant::parse`]).
+    pub fn named(name: &str) -> Option<Variant> {
+        Self::parse(name).ok()
+    }
+
+    /// The threads its build runs on with `threads` bench threads.
     pub fn build_threads(&self, threads: usize) -> usize {
-        if self.parallel_build {
-            threads
-        } else {
-            1
-        }
+        self.spec(threads).build_threads()
     }
 
     /// How to build this variant's backend with `threads` bench threads.
     pub fn spec(&self, threads: usize) -> BackendSpec {
-        let threads = self.build_threads(threads);
-        let spec = match self.kind {
-            Naive => BackendSpec::naive(),
-            Bvh => BackendSpec::bvh(
-                self.rung
-                    .map_or(
-                        BuildParams::for_builder(self.builder),
-                        BuildParams::for_quality,
-                    )
-                    .with_threads(threads)
-                    .with_width(self.width),
-            ),
-            Embree => BackendSpec::embree_at(self.rung.unwrap_or(Quality::Medium), threads),
-            Tinybvh | Obvhs | BvhCrate => BackendSpec::library(self.library(), threads),
-        };
-        // Every variant's query path is one its backend has (a test checks).
-        spec.with_query(self.query).unwrap_or(spec)
-    }
-
-    /// The library and layout of a `tinybvh`, `obvhs` or `bvh-crate` variant.
-    fn library(&self) -> Library {
-        match self.kind {
-            Tinybvh => Library::Tinybvh {
-                layout: if self.width == 8 {
-                    TinybvhLayout::Bvh8
-                } else {
-                    TinybvhLayout::Bvh
-                },
-                hq: self.rung == Some(Quality::High),
-            },
-            Obvhs => Library::Obvhs {
-                layout: if self.width == 8 {
-                    ObvhsLayout::CwBvh
-                } else {
-                    ObvhsLayout::Bvh2
-                },
-                quality: self.rung.unwrap_or(Quality::Medium),
-            },
-            _ => Library::BvhCrate,
-        }
+        let threads = if self.parallel_build() { threads } else { 1 };
+        self.backend.with_build_threads(threads)
     }
 
     /// Whether this raylab was built with the variant's backend.
     pub fn available(&self) -> bool {
-        match self.kind {
-            Embree => crate::accel::embree::AVAILABLE,
-            Tinybvh | Obvhs | BvhCrate => self.library().available(),
-            Naive | Bvh => true,
+        match self.backend {
+            BackendSpec::Embree { .. } => crate::accel::embree::AVAILABLE,
+            BackendSpec::Library { library, .. } => library.available(),
+            _ => true,
+        }
+    }
+
+    /// The error for a variant this raylab was built without.
+    fn unavailable(&self) -> Error {
+        match self.backend {
+            BackendSpec::Library { library, .. } => crate::accel::library::unavailable(&library),
+            _ => crate::accel::embree::unavailable(),
         }
     }
 
     /// A one-line description for reports.
     pub fn describe(&self) -> String {
-        let builder = match self.rung {
-            Some(Quality::Low) => "LBVH (--quality low)",
-            Some(Quality::High) => "SBVH with reinsertion (--quality high)",
-            _ => self.builder.name(),
-        };
-        let embree = self.rung.map_or("MEDIUM", |q| match q {
-            Quality::Low => "LOW",
-            Quality::Medium => "MEDIUM",
-            Quality::High => "HIGH",
-        });
-        let backend = match self.kind {
-            Naive => "all triangles per ray".to_string(),
-            Bvh if self.width > 2 => {
-                format!("{builder} BVH with {}-wide SIMD nodes", self.width)
-            }
-            Bvh => format!("{builder} BVH"),
-            Embree => match self.query {
-                Query::Packet(n) => format!("Embree {embree}, rtcIntersect{n}/rtcOccluded{n}"),
-                _ => format!("Embree {embree}, rtcIntersect1/rtcOccluded1"),
-            },
-            Tinybvh => format!(
-                "tinybvh {} ({}), its own kernels",
-                if self.rung == Some(Quality::High) {
-                    "BuildHQ"
-                } else {
-                    "Build"
-                },
-                if self.width == 8 {
-                    "BVH8_CPU"
-                } else {
-                    "binary BVH"
+        let backend = match self.backend {
+            BackendSpec::Naive { .. } => "all triangles per ray".to_string(),
+            BackendSpec::Bvh { params, .. } => {
+                let builder = match (params.builder, params.optimize) {
+                    (BuilderKind::Lbvh, _) => "LBVH (--quality low)".to_string(),
+                    (BuilderKind::Sbvh, true) => "SBVH with reinsertion (--quality high)".into(),
+                    (b, true) => format!("{} with reinsertion", b.name()),
+                    (b, false) => b.name().to_string(),
+                };
+                match params.width {
+                    2 => format!("{builder} BVH"),
+                    w => format!("{builder} BVH with {w}-wide SIMD nodes"),
                 }
-            ),
-            Obvhs => format!(
-                "obvhs PLOC medium_build, {}",
-                if self.width == 8 { "CwBvh" } else { "Bvh2" }
-            ),
-            BvhCrate => "bvh crate SAH, closest hit by its nearest-first iterator".into(),
+            }
+            BackendSpec::Embree {
+                quality, robust, ..
+            } => {
+                let n = match self.backend.query() {
+                    Query::Packet(n) => n.to_string(),
+                    Query::Stream => "1M".into(),
+                    Query::Single => "1".into(),
+                };
+                format!(
+                    "Embree {}{}, rtcIntersect{n}/rtcOccluded{n}",
+                    quality.name().to_uppercase(),
+                    if robust { " robust" } else { "" }
+                )
+            }
+            BackendSpec::Library { library, .. } => match library {
+                Library::Tinybvh { layout, hq } => format!(
+                    "tinybvh {} ({}), its own kernels",
+                    if hq { "BuildHQ" } else { "Build" },
+                    match layout {
+                        TinybvhLayout::Bvh8 => "BVH8_CPU",
+                        TinybvhLayout::Bvh => "binary BVH",
+                    }
+                ),
+                Library::Obvhs { layout, quality } => format!(
+                    "obvhs PLOC {}, {}",
+                    match quality {
+                        Quality::Low => "fast_build",
+                        Quality::Medium => "medium_build",
+                        Quality::High => "slow_build",
+                    },
+                    match layout {
+                        ObvhsLayout::CwBvh => "CwBvh",
+                        ObvhsLayout::Bvh2 => "Bvh2",
+                    }
+                ),
+                Library::BvhCrate => {
+                    "bvh crate SAH, closest hit by its nearest-first iterator".into()
+                }
+            },
         };
-        let backend = match (self.kind, self.query) {
-            (Bvh, Query::Packet(n)) => format!("{backend}, {n}-ray packets"),
+        let backend = match self.backend {
+            BackendSpec::Naive {
+                intersector: Intersector::Watertight,
+            }
+            | BackendSpec::Bvh {
+                intersector: Intersector::Watertight,
+                ..
+            } => format!("{backend}, watertight test"),
             _ => backend,
         };
-        let build = match (self.kind, self.parallel_build) {
-            (Naive, _) => String::new(),
+        let backend = match (self.backend, self.backend.query()) {
+            (BackendSpec::Bvh { .. }, Query::Packet(n)) => format!("{backend}, {n}-ray packets"),
+            _ => backend,
+        };
+        let build = match (self.kind, self.parallel_build()) {
+            (BackendKind::Naive, _) => String::new(),
             (_, true) => ", parallel build".into(),
             (_, false) => ", serial build".into(),
         };
@@ -292,9 +271,11 @@ impl Variant {
     }
 }
 
-/// Parses `--variants`: `all`, `paper`, or a comma-separated list of names (the
-/// two sets may appear in the list too). Embree variants are left out of `all`
-/// in builds without Embree, and are an error when named.
+/// Parses `--variants`: `all`, `paper`, or a comma-separated list of
+/// variants (the two sets may appear in the list too): the names of
+/// [`VARIANTS`], or any backend's name with `-pbuild` and a schedule
+/// ([`Variant::parse`]). Embree variants are left out of `all` in builds
+/// without Embree, and are an error when named.
 pub fn parse_variants(list: &str) -> Result<Vec<Variant>> {
     let mut out: Vec<Variant> = Vec::new();
     let mut push = |v: Variant| {
@@ -313,21 +294,18 @@ pub fn parse_variants(list: &str) -> Result<Vec<Variant>> {
                 .filter_map(|n| Variant::named(n))
                 .for_each(&mut push),
             name => {
-                let v = Variant::named(name).ok_or_else(|| {
+                let v = Variant::parse(name).map_err(|e| {
                     let names: Vec<&str> = VARIANTS.iter().map(|v| v.name).collect();
                     Error::usage(
                         "--variants",
                         format!(
-                            "unknown variant '{name}' (known: all, paper, {})",
+                            "unknown variant '{name}': {e} (variants: all, paper, {}; or any backend's name, -pbuild, and a schedule)",
                             names.join(", ")
                         ),
                     )
                 })?;
                 if !v.available() {
-                    return Err(match v.kind {
-                        Embree => crate::accel::embree::unavailable(),
-                        _ => crate::accel::library::unavailable(&v.library()),
-                    });
+                    return Err(v.unavailable());
                 }
                 push(v);
             }
@@ -336,8 +314,9 @@ pub fn parse_variants(list: &str) -> Result<Vec<Variant>> {
     if out.is_empty() {
         return Err(Error::usage("--variants", "no variant given"));
     }
-    // The baseline first, so a table's first column is what the others divide.
-    out.sort_by_key(|v| VARIANTS.iter().position(|w| w == v));
+    // The baseline first, so a table's first column is what the others
+    // divide; variants of no list keep their order after the listed ones.
+    out.sort_by_key(|v| VARIANTS.iter().position(|w| w == v).unwrap_or(usize::MAX));
     Ok(out)
 }
 
@@ -366,6 +345,70 @@ mod tests {
     }
 
     #[test]
+    fn names_are_made_from_backend_and_schedule_and_stay_as_they_were() {
+        // bench.json and the recorded results name variants so: a change
+        // here renames columns.
+        let names: Vec<&str> = VARIANTS.iter().map(|v| v.name).collect();
+        assert_eq!(
+            names.join(" "),
+            "naive-serial naive-rows naive-tiles bvh-median-serial bvh-median-rows \
+             bvh-median-tiles bvh-median-pbuild-serial bvh-median-pbuild-rows \
+             bvh-median-pbuild-tiles bvh-sah-serial bvh-sah-tiles bvh-sah-rayon \
+             bvh4-sah-serial bvh4-sah-tiles bvh4-sah-rayon bvh8-sah-serial bvh8-sah-tiles \
+             bvh8-sah-rayon bvh8-sah-packet8-serial bvh8-sah-packet8-tiles \
+             bvh8-sah-packet16-tiles bvh8-lbvh-packet8-serial bvh8-sbvh-opt-packet8-serial \
+             embree-serial embree-tiles embree-rayon embree-packet8-serial \
+             embree-packet8-tiles embree-packet16-tiles embree-low-packet8-serial \
+             embree-high-packet8-serial tinybvh-serial tinybvh-hq-serial \
+             tinybvh-bvh-serial obvhs-serial obvhs-bvh2-serial bvh-crate-serial"
+        );
+        // Each parses back to itself, and by its backend's full name too.
+        for v in VARIANTS.iter() {
+            assert_eq!(Variant::parse(v.name), Ok(*v), "{}", v.name);
+            let full = format!(
+                "{}{}-{}",
+                v.backend.name(),
+                if v.pbuild { "-pbuild" } else { "" },
+                v.schedule.name()
+            );
+            assert_eq!(Variant::parse(&full), Ok(*v), "{full}");
+        }
+        // Any backend and schedule make a variant; -pbuild only where it
+        // changes the build.
+        let v = Variant::parse("bvh8-sah-watertight-packet16-rayon").unwrap();
+        assert_eq!(v.spec(4).name(), "bvh8-sah-watertight-packet16");
+        assert_eq!(v.build_threads(4), 4);
+        assert_eq!(
+            Variant::parse("bvh-sah-pbuild-serial")
+                .unwrap()
+                .build_threads(4),
+            4
+        );
+        assert_eq!(
+            Variant::parse("bvh-sah-pbuild-tiles").unwrap().name,
+            "bvh-sah-tiles"
+        );
+        assert_eq!(
+            Variant::parse("naive-pbuild-rows").unwrap().name,
+            "naive-rows"
+        );
+        assert_eq!(Variant::parse("bvh-tiles").unwrap().name, "bvh8-sah-tiles");
+        for bad in [
+            "bvh8-sah",
+            "bvh8-sah-chaos",
+            "warp-serial",
+            "-serial",
+            "bvh-sah-packet8-tiles",
+        ] {
+            let err = parse_variants(bad).unwrap_err().to_string();
+            assert!(
+                err.contains("--variants") && err.contains(bad) && !err.contains('\n'),
+                "{err}"
+            );
+        }
+    }
+
+    #[test]
     fn build_threads_follow_the_variant() {
         let v = Variant::named("bvh-median-tiles").unwrap();
         assert_eq!(v.spec(8).build_threads(), 1);
@@ -379,8 +422,8 @@ mod tests {
         let v = Variant::named("embree-tiles").unwrap();
         assert_eq!(v.spec(8), BackendSpec::embree(8));
         // Each variant's query path is its backend's.
-        for v in VARIANTS {
-            assert_eq!(v.spec(2).query(), v.query, "{}", v.name);
+        for v in VARIANTS.iter() {
+            assert_eq!(v.spec(2).query(), v.backend.query(), "{}", v.name);
         }
         assert_eq!(
             Variant::named("bvh8-sah-packet8-tiles")

@@ -222,13 +222,24 @@ impl SceneFileArgs {
     }
 }
 
+/// The default backend's tree and test ([`BackendSpec::DEFAULT`]), which
+/// the BVH flags' defaults are read from.
+const DEFAULT_BVH: (BuildParams, Intersector) = match BackendSpec::DEFAULT {
+    BackendSpec::Bvh {
+        params,
+        intersector,
+        ..
+    } => (params, intersector),
+    _ => panic!("the default backend is raylab's BVH"),
+};
+
 /// How a BVH is built (used with `--backend bvh`).
 #[derive(Args, Debug, Clone)]
 pub struct BvhArgs {
     /// BVH builder: median (the study's), lbvh (Morton codes, the fastest
     /// build), sah (binned SAH), sbvh (spatial splits, the best trees), or
     /// Embree's builders in raylab's layout (embree-low, -medium, -high).
-    #[arg(long, value_enum, default_value_t = BuilderKind::Sah)]
+    #[arg(long, value_enum, default_value_t = DEFAULT_BVH.0.builder)]
     pub builder: BuilderKind,
     /// Reinsertion optimisation of the BVH after the build (Bittner et al.
     /// 2013): the nodes with the largest boxes move to where they lower the
@@ -242,12 +253,12 @@ pub struct BvhArgs {
     #[arg(long, value_name = "N", value_parser = parse_threads)]
     pub build_threads: Option<usize>,
     /// Ray/triangle test of the naive and bvh backends.
-    #[arg(long, value_enum, default_value_t = Intersector::Mt)]
+    #[arg(long, value_enum, default_value_t = DEFAULT_BVH.1)]
     pub intersector: Intersector,
     /// Children per BVH node traversed: 8 (8-wide nodes tested with AVX2 where
     /// the CPU has it; the fastest), 4 (4-wide nodes tested with SSE), or 2 (the
     /// binary tree). Wide trees are built directly (Embree's builders: collapsed).
-    #[arg(long, value_name = "N", default_value_t = 8, value_parser = parse_bvh_width)]
+    #[arg(long, value_name = "N", default_value_t = DEFAULT_BVH.0.width, value_parser = parse_bvh_width)]
     pub bvh_width: usize,
 }
 
@@ -291,7 +302,7 @@ pub struct EmbreeArgs {
 pub struct BackendArgs {
     /// Acceleration structure [default: bvh, raylab's fastest; naive is the
     /// study's O(N) baseline, hours on a large model].
-    #[arg(long, value_enum, default_value_t = BackendKind::Bvh)]
+    #[arg(long, value_enum, default_value_t = BackendSpec::DEFAULT.kind())]
     pub backend: BackendKind,
     #[command(flatten)]
     pub bvh: BvhArgs,
@@ -393,7 +404,7 @@ fn library_spec(
             format!(
                 "--backend {} has no {} layout (it has: {have})",
                 kind.name(),
-                layout.map_or(String::new(), |l| format!("{l:?}").to_lowercase())
+                layout.map_or("", LibraryLayout::name)
             ),
         )
     };
@@ -574,4 +585,28 @@ pub fn check_backend_flags(m: &clap::ArgMatches, backend: BackendKind) -> Result
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Flags {
+        #[command(flatten)]
+        backend: BackendArgs,
+    }
+
+    #[test]
+    fn no_flags_build_the_default_backend() {
+        let flags = Flags::try_parse_from(["raylab"]).unwrap();
+        let spec = flags.backend.spec(3).unwrap();
+        assert_eq!(
+            spec,
+            BackendSpec::DEFAULT
+                .with_build_threads(3)
+                .with_fastest_query()
+        );
+    }
 }

@@ -20,10 +20,14 @@ pub struct StressArgs {
     /// in any format raylab reads; an open mesh is refused.
     #[arg(long, value_name = "FILE")]
     mesh: Vec<PathBuf>,
-    /// Backends of the leak and degenerate suites, separated by commas: all, naive, bvh-median,
-    /// bvh-sah, embree (each with both intersectors or both Embree modes),
-    /// libraries (tinybvh, obvhs and the bvh crate, each layout). The
-    /// naive scan tests every triangle per ray: minutes on a mesh of 10^4.
+    /// Backends of the leak and degenerate suites, separated by commas: their
+    /// names as reports print them (naive-watertight, bvh-median, bvh8-sah,
+    /// embree-medium-robust, tinybvh-bvh, ...; see docs/reference.md), a
+    /// --backend name for its default (bvh: bvh8-sah), libraries (every
+    /// layout of tinybvh, obvhs and the bvh crate), or all: naive,
+    /// bvh-median and bvh8-sah each with mt and watertight, Embree plain
+    /// and robust, and the libraries. The naive scan tests every triangle
+    /// per ray: minutes on a mesh of 10^4.
     #[arg(long, value_name = "LIST", default_value = "all")]
     backends: String,
     #[command(flatten)]
@@ -43,7 +47,7 @@ pub fn run(args: &StressArgs) -> Result<()> {
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
         output::check_writable(&dir.join("probe.png"))?;
     }
-    let kinds = parse_stress_backends(&args.backends)?;
+    let specs = parse_stress_backends(&args.backends)?;
     if args.files.allow_outside_refs && args.mesh.is_empty() {
         return Err(Error::usage(
             "--allow-outside-refs",
@@ -62,7 +66,7 @@ pub fn run(args: &StressArgs) -> Result<()> {
         crate::console::say("stress: leaks ...");
         let mut meshes = leak_meshes(q);
         meshes.extend(user_meshes);
-        report.leaks = leak_suite_with(&meshes, if q { 2 } else { 4 }, &kinds)?;
+        report.leaks = leak_suite_with(&meshes, if q { 2 } else { 4 }, &specs)?;
     }
     if want("offset") {
         crate::console::say("stress: offset ...");
@@ -75,7 +79,7 @@ pub fn run(args: &StressArgs) -> Result<()> {
     }
     if want("degenerate") {
         crate::console::say("stress: degenerate ...");
-        report.degenerate = degenerate_suite(if q { 2000 } else { 20_000 }, &kinds)?;
+        report.degenerate = degenerate_suite(if q { 2000 } else { 20_000 }, &specs)?;
     }
     if want("hostile") {
         crate::console::say("stress: hostile ...");

@@ -25,11 +25,14 @@ pub struct ValidateArgs {
     scenes: Vec<String>,
     #[command(flatten)]
     pub accel: BackendArgs,
-    /// The reference: a backend (built with its defaults), or `exact` (every
-    /// ray decided in exact arithmetic where double precision allows: each
-    /// answer right, wrong or undecidable).
-    #[arg(long, value_enum, default_value_t = if crate::accel::embree::AVAILABLE { Against::Embree } else { Against::Naive })]
-    against: Against,
+    /// The reference: `exact` (every ray decided in exact arithmetic where
+    /// double precision allows: each answer right, wrong or undecidable), a
+    /// backend by the name reports give it (bvh8-sah-watertight,
+    /// embree-high-robust, tinybvh-bvh, ...), or a --backend name for
+    /// that backend's default (bvh: bvh8-sah, the tree a render builds;
+    /// embree: embree-medium). Without Embree built in, the default is naive.
+    #[arg(long, value_name = "BACKEND", default_value = Reference::default_name(), value_parser = parse_against)]
+    against: Reference,
     /// Ray sets to compare: primary, shadow, ao, diffuse, random, all (those
     /// five) or edges (aimed at vertices and edges: best judged with
     /// `--against exact`, since two f32 tests disagree there by design); or
@@ -62,33 +65,35 @@ pub struct ValidateArgs {
     quiet: bool,
 }
 
-/// `--against`: a backend kind, or the exact reference.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Against {
+/// `--against`: the exact reference, or a backend.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Reference {
     /// The exact reference (`src/exact.rs`).
     Exact,
-    Naive,
-    Bvh,
-    Embree,
-    Tinybvh,
-    Obvhs,
-    #[value(name = "bvh-crate")]
-    BvhCrate,
+    /// A backend (its build threads set when it is built).
+    Backend(BackendSpec),
 }
 
-impl Against {
-    /// The backend kind, or `None` for the exact reference.
-    fn backend(self) -> Option<BackendKind> {
-        Some(match self {
-            Against::Exact => return None,
-            Against::Naive => BackendKind::Naive,
-            Against::Bvh => BackendKind::Bvh,
-            Against::Embree => BackendKind::Embree,
-            Against::Tinybvh => BackendKind::Tinybvh,
-            Against::Obvhs => BackendKind::Obvhs,
-            Against::BvhCrate => BackendKind::BvhCrate,
-        })
+impl Reference {
+    /// The default: Embree where it is built in, else the naive scan.
+    fn default_name() -> &'static str {
+        if crate::accel::embree::AVAILABLE {
+            BackendKind::Embree.name()
+        } else {
+            BackendKind::Naive.name()
+        }
     }
+}
+
+/// Parses `--against`: `exact`, or a backend ([`crate::accel::parse_backend`]:
+/// its name as reports print it, or a `--backend` name for its default).
+pub fn parse_against(s: &str) -> std::result::Result<Reference, String> {
+    if s.trim() == "exact" {
+        return Ok(Reference::Exact);
+    }
+    crate::accel::parse_backend(s)
+        .map(Reference::Backend)
+        .map_err(|e| format!("{e}, or exact"))
 }
 
 /// One scene judged against the exact reference.
@@ -243,11 +248,12 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
     let file_rays = file_rays(args, &names)?;
     let count = args.count as usize;
     let spec = args.accel.spec(threads)?;
-    let Some(against) = args.against.backend() else {
-        return run_exact(args, &names, &sets, file_rays, spec, threads);
+    let reference_spec = match args.against {
+        Reference::Exact => return run_exact(args, &names, &sets, file_rays, spec, threads),
+        // The reference on `threads`.
+        Reference::Backend(reference) => reference.with_build_threads(threads),
     };
-    // The reference with its defaults (Embree MEDIUM, SAH BVH, MT) on `threads`.
-    let reference_spec = BackendSpec::default_for(against, threads);
+    let against = reference_spec.kind();
     let mut reports = Vec::new();
     for name in &names {
         let mut scene = args.files.load(name)?;
@@ -266,7 +272,7 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
         let recorder: &dyn crate::accel::Backend = match against {
             BackendKind::Naive if spec.kind().is_library() && records => {
                 raylab_tree =
-                    build_backend(&BackendSpec::default_for(BackendKind::Bvh, threads), &scene)?;
+                    build_backend(&BackendSpec::DEFAULT.with_build_threads(threads), &scene)?;
                 raylab_tree.as_ref()
             }
             BackendKind::Naive => tested.as_ref(),
@@ -414,7 +420,7 @@ fn run_exact(
                 // The rays of raylab's render (its tree is the naive scan's
                 // hits bit for bit), so every backend is judged on the same rays.
                 let recorder =
-                    build_backend(&BackendSpec::default_for(BackendKind::Bvh, threads), &scene)?;
+                    build_backend(&BackendSpec::DEFAULT.with_build_threads(threads), &scene)?;
                 ray_sets(&scene, recorder.as_ref(), &settings, sets, count, false)?
             }
         };

@@ -38,15 +38,6 @@ impl Schedule {
         Schedule::Rayon,
     ];
 
-    pub fn name(self) -> &'static str {
-        match self {
-            Schedule::Serial => "serial",
-            Schedule::Rows => "rows",
-            Schedule::Tiles => "tiles",
-            Schedule::Rayon => "rayon",
-        }
-    }
-
     /// Threads that run the kernel: 1 for serial, one per row for rows, else `threads`.
     pub fn threads_used(self, threads: usize, height: u32) -> usize {
         match self {

@@ -42,18 +42,6 @@ impl BuilderKind {
         BuilderKind::EmbreeHigh,
     ];
 
-    pub fn name(self) -> &'static str {
-        match self {
-            BuilderKind::Median => "median",
-            BuilderKind::Sah => "sah",
-            BuilderKind::Lbvh => "lbvh",
-            BuilderKind::Sbvh => "sbvh",
-            BuilderKind::EmbreeLow => "embree-low",
-            BuilderKind::EmbreeMedium => "embree-medium",
-            BuilderKind::EmbreeHigh => "embree-high",
-        }
-    }
-
     /// Embree's build quality for the `embree-*` builders.
     pub fn embree_quality(self) -> Option<crate::accel::embree::Quality> {
         use crate::accel::embree::Quality;

@@ -25,16 +25,6 @@ pub enum Quality {
     High,
 }
 
-impl Quality {
-    pub fn name(self) -> &'static str {
-        match self {
-            Quality::Low => "low",
-            Quality::Medium => "medium",
-            Quality::High => "high",
-        }
-    }
-}
-
 /// Whether this build of raylab links Embree.
 pub const AVAILABLE: bool = cfg!(feature = "embree");
 
