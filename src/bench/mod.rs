@@ -13,10 +13,12 @@
 
 pub mod charts;
 pub mod config;
+pub mod family;
 pub mod html;
 pub mod measure;
 pub mod metrics;
 pub mod parts;
+pub mod summary;
 pub mod variants;
 
 use std::path::Path;
@@ -39,8 +41,9 @@ use parts::scaling::ScalingPoint;
 use parts::trace::TracePoint;
 use parts::validate::ValidationRow;
 use parts::{
-    ao_error, builders, growth, ladder, leaks, libraries, scaling, tables, trace, validate,
+    ao_error, builders, cliffs, growth, ladder, leaks, libraries, scaling, tables, trace, validate,
 };
+use summary::Summary;
 
 /// The machine a bench ran on.
 #[derive(Clone, Debug, Serialize)]
@@ -53,7 +56,8 @@ pub struct Machine {
     pub embree_version: String,
     /// Packet widths Embree traces natively here (its other widths it emulates).
     pub embree_native_packets: Vec<usize>,
-    /// raylab's node kernel on this CPU (`avx2` or `portable`).
+    /// raylab's SIMD kernels on this CPU, by query path
+    /// ([`crate::accel::bvh::simd::Kernel::in_use`]).
     pub simd: String,
     pub raylab_version: String,
 }
@@ -84,7 +88,7 @@ impl Machine {
             os,
             embree_version: crate::accel::embree::version_or_none(),
             embree_native_packets: crate::accel::embree::native_packets_or_none(),
-            simd: crate::accel::bvh::simd::Kernel::detect().name().to_string(),
+            simd: crate::accel::bvh::simd::Kernel::in_use(),
             raylab_version: env!("CARGO_PKG_VERSION").to_string(),
         }
     }
@@ -105,7 +109,13 @@ pub struct SceneImages {
 /// Everything a bench run measured; `bench.json` is this.
 #[derive(Clone, Debug, Serialize)]
 pub struct BenchReport {
+    /// The command line that asked for the run.
+    pub command: String,
+    /// The day it ran (UTC, `YYYY-MM-DD`).
+    pub date: String,
     pub machine: Machine,
+    /// The answer the report leads with (see [`summary`]).
+    pub summary: Summary,
     pub size: (u32, u32),
     pub reps: usize,
     pub quick: bool,
@@ -258,8 +268,12 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
     bar.finish();
 
     let images = write_images(&cfg.out, scenes, &kept)?;
+    let summary = Summary::of(&libraries, &trace, &validation, &measurements);
     let mut report = BenchReport {
+        command: cfg.command.clone(),
+        date: summary::today(),
         machine: Machine::detect(cfg.threads),
+        summary,
         size: cfg.size,
         reps: cfg.reps,
         quick: cfg.quick,
@@ -381,15 +395,34 @@ fn write_charts(dir: &Path, r: &BenchReport) -> Result<Vec<String>> {
     if !r.leaks.is_empty() {
         files.extend(leaks::charts(dir, &r.leaks)?);
     }
+    // A chart drawn twice over is a part's bug (the trace part once drew
+    // each of its two charts 528 times): refused, not written into the page.
+    if let Some(twice) = html::first_duplicate(files.iter().map(String::as_str)) {
+        return Err(Error::Other(format!(
+            "bench: chart {twice} was drawn more than once"
+        )));
+    }
     Ok(files.into_iter().map(|f| format!("charts/{f}")).collect())
 }
 
-/// The Markdown of the whole report: the study's tables, then one table per
-/// extra experiment.
+/// The Markdown of the whole report: a header naming the machine, the
+/// summary (the answer), then the parts' tables ([`parts_markdown`]).
 pub fn markdown(r: &BenchReport) -> String {
+    format!(
+        "{}{}{}",
+        header_markdown(r),
+        r.summary.markdown(),
+        parts_markdown(r)
+    )
+}
+
+/// The report's heading and the machine, settings, date and command.
+fn header_markdown(r: &BenchReport) -> String {
     let m = &r.machine;
-    let mut out = format!(
-        "## raylab bench\n\nMachine: {} ({} hardware threads{}), {} bench threads; {}; raylab's kernels {}; Embree {}{}. Image {}x{}, {} rep(s) {} (slow variants capped at {} s per cell), views {}.\n\n",
+    format!(
+        "## raylab bench\n\n{}: `{}`\n\nMachine: {} ({} hardware threads{}), {} bench threads; {}; raylab's kernels {}; Embree {}{}. Image {}x{}, {} rep(s) {} (slow variants capped at {} s per cell), views {}.\n\n",
+        r.date,
+        r.command,
         m.cpu,
         m.hardware_threads,
         m.physical_cores.map_or(String::new(), |c| format!(", {c} cores")),
@@ -410,7 +443,12 @@ pub fn markdown(r: &BenchReport) -> String {
         if r.quick { "without warm-up (--quick)" } else { "after a warm-up" },
         r.max_variant_s,
         r.views.join(" ")
-    );
+    )
+}
+
+/// The study's tables, then one table per extra experiment.
+fn parts_markdown(r: &BenchReport) -> String {
+    let mut out = String::new();
     if !r.measurements.is_empty() {
         out.push_str(&tables::markdown(&r.measurements));
         let ao = r
@@ -450,6 +488,9 @@ pub fn markdown(r: &BenchReport) -> String {
         out.push_str(&builders::markdown(&r.builders));
     }
     if !r.libraries.is_empty() {
+        // The cliff table leads the part (it reads the part's points; the
+        // part does not know of it).
+        out.push_str(&cliffs::markdown(&r.libraries));
         out.push_str(&libraries::markdown(&r.libraries));
     }
     if !r.ladder.is_empty() {
@@ -468,14 +509,25 @@ fn write_files(dir: &Path, r: &BenchReport) -> Result<()> {
     let write = |name: &str, text: &str| output::write_text(&dir.join(name), text);
     let md = markdown(r);
     write("bench.md", &md)?;
+    write(
+        "summary.md",
+        &r.summary.page(&r.date, &r.machine, &r.command),
+    )?;
     write("bench.csv", &tables::csv(&r.measurements))?;
     let json = serde_json::to_string_pretty(r)?;
     write("bench.json", &json)?;
-    write("index.html", &report_html(r, &md))?;
+    let page = report_html(r);
+    // Each image once: the page's own check fails on duplicates too.
+    if let Some(twice) = html::first_duplicate(html::image_sources(&page)) {
+        return Err(Error::Other(format!(
+            "bench: index.html would show {twice} more than once"
+        )));
+    }
+    write("index.html", &page)?;
     Ok(())
 }
 
-fn report_html(r: &BenchReport, md: &str) -> String {
+fn report_html(r: &BenchReport) -> String {
     use html::{escape, figure, markdown_to_html, Section};
     let m = &r.machine;
     let meta = vec![
@@ -492,6 +544,9 @@ fn report_html(r: &BenchReport, md: &str) -> String {
         ("system".to_string(), m.os.clone()),
         ("Embree".to_string(), m.embree_version.clone()),
         ("raylab".to_string(), m.raylab_version.clone()),
+        ("kernels".to_string(), m.simd.clone()),
+        ("date".to_string(), r.date.clone()),
+        ("command".to_string(), r.command.clone()),
         (
             "settings".to_string(),
             format!(
@@ -514,7 +569,13 @@ fn report_html(r: &BenchReport, md: &str) -> String {
             .map(|c| figure(c, Some(&c.replace(".png", ".svg")), caption))
             .collect()
     };
-    let mut sections = Vec::new();
+    // The answer first.
+    let mut sections = vec![Section {
+        id: "summary".into(),
+        title: "Summary".into(),
+        // (The section's own title stands for the Markdown's.)
+        body: markdown_to_html(r.summary.markdown().trim_start_matches("### Summary\n\n")),
+    }];
     if !r.measurements.is_empty() {
         let variants: String = r
             .variants
@@ -580,7 +641,7 @@ fn report_html(r: &BenchReport, md: &str) -> String {
     sections.push(Section {
         id: "tables".into(),
         title: "Tables".into(),
-        body: markdown_to_html(md),
+        body: markdown_to_html(&parts_markdown(r)),
     });
     html::page("raylab bench", &meta, &sections)
 }

@@ -22,6 +22,7 @@ use crate::bench::charts::{
     FONT, SIDE_LEGEND,
 };
 use crate::bench::config::BenchConfig;
+use crate::bench::family::Family;
 use crate::bench::measure::Stat;
 use crate::error::Result;
 use crate::exact::{judge_answers, ExactAnswer, ExactReference, ExactReport};
@@ -60,8 +61,8 @@ pub struct LibraryPoint {
     pub scene: String,
     pub triangles: usize,
     pub backend: String,
-    /// `raylab`, `embree` or `library`.
-    pub family: String,
+    /// Whose it is (`raylab`, `embree`, or the library's name).
+    pub family: Family,
     /// Median build ms on one thread (after an untimed build).
     pub build_ms: Stat,
     /// Mrays/s on one thread per kind, in [`KINDS`] order, on the query
@@ -242,7 +243,7 @@ fn not_built(scene: &Scene, spec: &BackendSpec, why: String) -> LibraryPoint {
         scene: scene.name.clone(),
         triangles: scene.triangle_count(),
         backend: spec.structure_name(),
-        family: "library".into(),
+        family: Family::of(spec),
         build_ms: Stat::of(&[]),
         mrays: vec![f64::NAN; KINDS.len()],
         paths: vec![String::new(); KINDS.len()],
@@ -367,13 +368,6 @@ fn judged(
         .map(|(_, m)| *m)
         .collect();
     let ns_per_ray = measured.iter().map(|m| 1e3 / m).sum::<f64>() / measured.len().max(1) as f64;
-    let family = if built.spec.is_embree() {
-        "embree"
-    } else if built.spec.is_library() {
-        "library"
-    } else {
-        "raylab"
-    };
     let limits = match built.spec {
         BackendSpec::Library { library, .. } => {
             library.limits().iter().map(|s| s.to_string()).collect()
@@ -384,7 +378,7 @@ fn judged(
         scene: scene.name.clone(),
         triangles: scene.triangle_count(),
         backend: built.spec.structure_name(),
-        family: family.to_string(),
+        family: Family::of(&built.spec),
         build_ms,
         mrays,
         paths,
@@ -472,8 +466,7 @@ pub fn markdown(points: &[LibraryPoint]) -> String {
         .map(|(b, l)| format!("- `{b}`: {}\n", l.join("; ")))
         .collect();
     format!(
-        "{}### Every CPU BVH side by side\n\nOne thread, each backend on its fastest query path per ray kind (raylab's 8-wide trees and Embree are timed on single rays and on packets of 8 and 16, interleaved, and the fastest counts; the path is listed), the same recorded rays (one render's primary, shadow and AO rays and a diffuse bounce per primary hit: at most 50000 consecutive rays of each from the middle of the render's stream, so that packets hold neighbouring rays). Wrong: answers (closest hit for primary and diffuse, any hit for shadow and AO) that the exact reference says are false misses, false hits, the wrong triangle or a t beyond its bound; undecidable: double precision could not say. Edge rays: as many rays aimed exactly at the scene's vertices and at points on its edges, from 1e-4 to 0.5 of the scene's size away (`validate --rays edges`), each asked for its closest hit and for any hit; they are timed but kept out of the time per ray in the chart.\n\n{}\nWhat the other libraries lack, and what raylab does instead:\n\n{limits}",
-        super::cliffs::markdown(points),
+        "### Every CPU BVH side by side\n\nOne thread, each backend on its fastest query path per ray kind (raylab's 8-wide trees and Embree are timed on single rays and on packets of 8 and 16, interleaved, and the fastest counts; the path is listed), the same recorded rays (one render's primary, shadow and AO rays and a diffuse bounce per primary hit: at most 50000 consecutive rays of each from the middle of the render's stream, so that packets hold neighbouring rays). Wrong: answers (closest hit for primary and diffuse, any hit for shadow and AO) that the exact reference says are false misses, false hits, the wrong triangle or a t beyond its bound; undecidable: double precision could not say. Edge rays: as many rays aimed exactly at the scene's vertices and at points on its edges, from 1e-4 to 0.5 of the scene's size away (`validate --rays edges`), each asked for its closest hit and for any hit; they are timed but kept out of the time per ray in the chart.\n\n{}\nWhat the other libraries lack, and what raylab does instead:\n\n{limits}",
         t.markdown()
     )
 }
@@ -559,12 +552,20 @@ where
                 let ci = backends.iter().position(|b| *b == p.backend).unwrap_or(0);
                 let c = color(ci);
                 let at = (p.ns_per_ray.max(1e-3), y(p));
-                if p.family == "raylab" {
-                    chart.draw_series(std::iter::once(Circle::new(at, 6, c.filled())))?;
-                } else if p.family == "embree" {
-                    chart.draw_series(std::iter::once(TriangleMarker::new(at, 7, c.filled())))?;
-                } else {
-                    chart.draw_series(std::iter::once(Cross::new(at, 6, c.stroke_width(2))))?;
+                match p.family {
+                    Family::Raylab => {
+                        chart.draw_series(std::iter::once(Circle::new(at, 6, c.filled())))?;
+                    }
+                    Family::Embree => {
+                        chart.draw_series(std::iter::once(TriangleMarker::new(
+                            at,
+                            7,
+                            c.filled(),
+                        )))?;
+                    }
+                    _ => {
+                        chart.draw_series(std::iter::once(Cross::new(at, 6, c.stroke_width(2))))?;
+                    }
                 }
             }
         }

@@ -22,11 +22,14 @@ use serde::Serialize;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use crate::bench::charts::{draw_bars, log_label, log_range, save_chart, short, Bars, DrawResult};
+use crate::bench::charts::{
+    best_per_family, draw_bars, log_label, log_range, save_chart, short, Bars, DrawResult,
+};
 
 use super::ChartSection;
 use crate::accel::{build_backend, Backend, BackendKind, BackendSpec, Built};
 use crate::bench::config::BenchConfig;
+use crate::bench::family::Family;
 use crate::bench::measure::Stat;
 use crate::error::{Error, Result};
 use crate::geometry::Ray;
@@ -49,7 +52,7 @@ const CHUNK: usize = 512;
 pub const SECTION: ChartSection = ChartSection {
     title: "Query throughput",
     stem: "trace-",
-    caption: "Rays traced per second per backend, scene and ray kind, on one thread count per chart (log scale; the same recorded rays for every backend, no shading).",
+    caption: "Rays traced per second per scene and ray kind, on one thread count per chart (log scale; the same recorded rays for every backend, no shading): the fastest backend and query path of each family (raylab, Embree, each library); the table below has every one.",
 };
 
 /// The thread counts measured: one, and all bench threads.
@@ -121,10 +124,9 @@ pub struct TracePoint {
     pub structure: String,
     /// The query path: `single`, `packet8`, `stream`.
     pub query: String,
-    /// Embree's (the reference the own backends' times are divided by).
-    pub embree: bool,
-    /// Another library's (neither raylab's own nor Embree).
-    pub library: bool,
+    /// Whose it is: raylab's own, Embree (the reference the own backends'
+    /// times are divided by), or another library.
+    pub family: Family,
     /// `primary` or `diffuse` (closest hit), `shadow` or `ao` (any hit).
     pub kind: String,
     pub threads: usize,
@@ -486,8 +488,7 @@ pub fn trace_backends(
                     backend: b.name(),
                     structure: b.spec.structure_name(),
                     query: b.spec.query().name(),
-                    embree: b.spec.is_embree(),
-                    library: b.spec.is_library(),
+                    family: Family::of(&b.spec),
                     kind: kind.name().to_string(),
                     threads,
                     rays: rays.len(),
@@ -509,7 +510,7 @@ fn build_markdown(points: &[TracePoint]) -> String {
     let mut counts: Vec<usize> = points.iter().map(|p| p.threads).collect();
     counts.sort_unstable();
     counts.dedup();
-    let has_embree = points.iter().any(|p| p.embree);
+    let has_embree = points.iter().any(|p| p.family == Family::Embree);
     let mut table = Table::new([("scene", Left), ("backend", Left)]);
     for t in &counts {
         table.column(format!("build ms, {t} thr"), Right);
@@ -539,9 +540,11 @@ fn build_markdown(points: &[TracePoint]) -> String {
                 _ => "-".to_string(),
             });
             if has_embree {
-                let embree = build(&|q| q.embree);
+                let embree = build(&|q| q.family == Family::Embree);
                 row.push(match (own, embree) {
-                    (Some(o), Some(e)) if !p.embree && o.is_finite() && e > 0.0 => {
+                    (Some(o), Some(e))
+                        if p.family != Family::Embree && o.is_finite() && e > 0.0 =>
+                    {
                         format!("{:.2}", o / e)
                     }
                     _ => String::new(),
@@ -570,7 +573,7 @@ pub fn markdown(points: &[TracePoint]) -> String {
             backends.push(&p.backend);
         }
     }
-    let has_embree = points.iter().any(|p| p.embree);
+    let has_embree = points.iter().any(|p| p.family == Family::Embree);
     let mut table = Table::new([
         ("scene", Left),
         ("triangles", Right),
@@ -580,7 +583,7 @@ pub fn markdown(points: &[TracePoint]) -> String {
     for b in &backends {
         table.column(*b, Right);
     }
-    let has_library = points.iter().any(|p| p.library);
+    let has_library = points.iter().any(|p| p.family.is_library());
     if has_embree || has_library {
         table.column("best own", Right);
     }
@@ -626,7 +629,7 @@ pub fn markdown(points: &[TracePoint]) -> String {
                 .filter(|p| which(p))
                 .max_by(|a, b| a.mrays.median.total_cmp(&b.mrays.median))
         };
-        let own = fastest(&|p| !p.embree && !p.library);
+        let own = fastest(&|p| p.family == Family::Raylab);
         if has_embree || has_library {
             row.push(own.map_or(String::new(), |o| o.backend.clone()));
         }
@@ -634,9 +637,9 @@ pub fn markdown(points: &[TracePoint]) -> String {
         for (has, which) in [
             (
                 has_embree,
-                &(|p: &TracePoint| p.embree) as &dyn Fn(&TracePoint) -> bool,
+                &(|p: &TracePoint| p.family == Family::Embree) as &dyn Fn(&TracePoint) -> bool,
             ),
-            (has_library, &|p: &TracePoint| p.library),
+            (has_library, &|p: &TracePoint| p.family.is_library()),
         ] {
             if !has {
                 continue;
@@ -660,7 +663,10 @@ pub fn markdown(points: &[TracePoint]) -> String {
 
 /// The part's charts: one per thread count.
 pub fn charts(dir: &Path, points: &[TracePoint]) -> Result<Vec<String>> {
+    // Each thread count once: the points alternate between them (per
+    // backend), and `dedup` alone drew each chart 528 times over.
     let mut counts: Vec<usize> = points.iter().map(|p| p.threads).collect();
+    counts.sort_unstable();
     counts.dedup();
     counts
         .into_iter()
@@ -685,29 +691,23 @@ where
 {
     let here: Vec<&TracePoint> = d.points.iter().filter(|p| p.threads == d.threads).collect();
     let mut groups: Vec<(String, String)> = Vec::new();
-    let mut backends: Vec<String> = Vec::new();
     for p in &here {
         if !groups.iter().any(|(s, k)| *s == p.scene && *k == p.kind) {
             groups.push((p.scene.clone(), p.kind.clone()));
         }
-        if !backends.contains(&p.backend) {
-            backends.push(p.backend.clone());
-        }
     }
-    let series = backends
-        .into_iter()
-        .map(|backend| {
-            let values = groups
-                .iter()
-                .map(|(scene, kind)| {
-                    here.iter()
-                        .find(|p| p.backend == backend && p.scene == *scene && p.kind == *kind)
-                        .map(|p| p.mrays.median)
-                })
-                .collect();
-            (backend, values)
-        })
-        .collect();
+    // The fastest backend and path of each family per cell (the table has each).
+    let series = best_per_family(
+        &here,
+        groups.len(),
+        |p| p.family,
+        |p| p.backend.as_str(),
+        |p, g| {
+            let (scene, kind) = &groups[g];
+            (p.scene == *scene && p.kind == *kind).then_some(p.mrays.median)
+        },
+        "paths",
+    );
     draw_bars(
         root,
         &Bars {
