@@ -19,6 +19,7 @@ pub mod measure;
 pub mod metrics;
 pub mod parts;
 pub mod summary;
+pub mod timing;
 pub mod variants;
 
 use std::path::Path;

@@ -12,7 +12,6 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::Serialize;
 
-use super::trace::{min_run_s, passes_for, trace};
 use super::ChartSection;
 use crate::accel::bvh::BuildParams;
 use crate::accel::library::Library;
@@ -24,6 +23,7 @@ use crate::bench::charts::{
 use crate::bench::config::BenchConfig;
 use crate::bench::family::Family;
 use crate::bench::measure::Stat;
+use crate::bench::timing::{min_run_s, passes_for, trace};
 use crate::error::Result;
 use crate::exact::{judge_answers, ExactAnswer, ExactReference, ExactReport};
 use crate::geometry::{Intersector, Ray};
