@@ -4,9 +4,10 @@
 //!
 //! The parts (`--parts`) live in [`parts`], one file each: `tables` (the
 //! variant matrix, measured by [`measure`]), `trace` (query throughput without
-//! shading), `scaling`, `growth`, `ao-error`, `builders`, `leaks` and
-//! `validate`. This file runs them in order and writes the report; images for
-//! it come from the matrix's own renders.
+//! shading), `scaling`, `growth`, `ao-error`, `builders`, `ladder`,
+//! `libraries`, `leaks` and `validate`. This file runs the matrix, then the
+//! others in a loop over [`parts::PartReport`]'s list, and writes the report,
+//! led by its [`summary`]; images for it come from the matrix's own renders.
 //!
 //! How the matrix measures and what each part does: `docs/design.md`, "The
 //! bench"; results of full runs: `docs/results.md`.
@@ -33,17 +34,7 @@ use crate::render::{srgb, AoMode};
 use crate::scene::Scene;
 pub use config::{BenchConfig, Part};
 use measure::{Matrix, Measurement, View};
-use parts::ao_error::AoErrorPoint;
-use parts::builders::BuilderPoint;
-use parts::growth::GrowthPoint;
-use parts::ladder::LadderPoint;
-use parts::libraries::LibraryPoint;
-use parts::scaling::ScalingPoint;
-use parts::trace::TracePoint;
-use parts::validate::ValidationRow;
-use parts::{
-    ao_error, builders, cliffs, growth, ladder, leaks, libraries, scaling, tables, trace, validate,
-};
+use parts::{tables, Reports};
 use summary::Summary;
 
 /// The machine a bench ran on.
@@ -126,15 +117,10 @@ pub struct BenchReport {
     pub variants: Vec<(String, String)>,
     pub baseline: String,
     pub measurements: Vec<Measurement>,
-    pub trace: Vec<TracePoint>,
-    pub scaling: Vec<ScalingPoint>,
-    pub growth: Vec<GrowthPoint>,
-    pub ao_error: Vec<AoErrorPoint>,
-    pub builders: Vec<BuilderPoint>,
-    pub ladder: Vec<LadderPoint>,
-    pub libraries: Vec<LibraryPoint>,
-    pub leaks: Vec<crate::stress::LeakRow>,
-    pub validation: Vec<ValidationRow>,
+    /// The other parts' points, each under its key (`trace`, `scaling`,
+    /// ..., `validation`).
+    #[serde(flatten)]
+    pub parts: Reports,
     pub images: Vec<SceneImages>,
     /// PNG charts written (relative to the report folder).
     pub charts: Vec<String>,
@@ -216,22 +202,11 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
     // Progress units are expected milliseconds; each step of the other parts
     // counts as `step` of them.
     let step: u64 = if cfg.quick { 100 } else { 3000 };
-    let steps_of = |part: Part, steps: fn(&BenchConfig, &[Scene]) -> u64| {
-        if cfg.wants(part) {
-            steps(cfg, scenes)
-        } else {
-            0
-        }
-    };
-    let steps = steps_of(Part::Trace, trace::steps)
-        + steps_of(Part::Scaling, scaling::steps)
-        + steps_of(Part::Growth, growth::steps)
-        + steps_of(Part::AoError, ao_error::steps)
-        + steps_of(Part::Builders, builders::steps)
-        + steps_of(Part::Ladder, ladder::steps)
-        + steps_of(Part::Libraries, libraries::steps)
-        + steps_of(Part::Leaks, leaks::steps)
-        + steps_of(Part::Validate, validate::steps);
+    let steps: u64 = Part::ALL
+        .into_iter()
+        .filter(|p| cfg.wants(*p))
+        .map(|p| parts::steps(p, cfg, scenes))
+        .sum();
     let mut units = steps * step;
     if cfg.wants(Part::Tables) {
         units += matrix.planned_units();
@@ -243,33 +218,21 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
     } else {
         (Vec::new(), Vec::new())
     };
-    /// A part's points when it is wanted, else none.
-    fn run_part<P>(
-        cfg: &BenchConfig,
-        part: Part,
-        scenes: &[Scene],
-        bar: &StepBar,
-        run: fn(&BenchConfig, &[Scene], &StepBar) -> Result<Vec<P>>,
-    ) -> Result<Vec<P>> {
-        if cfg.wants(part) {
-            run(cfg, scenes, bar)
-        } else {
-            Ok(Vec::new())
-        }
+    // The other parts, in order.
+    let mut reports = Vec::new();
+    for part in Part::ALL.into_iter().filter(|p| cfg.wants(*p)) {
+        reports.extend(parts::run(part, cfg, scenes, &bar)?);
     }
-    let trace = run_part(cfg, Part::Trace, scenes, &bar, trace::run)?;
-    let scaling = run_part(cfg, Part::Scaling, scenes, &bar, scaling::run)?;
-    let growth = run_part(cfg, Part::Growth, scenes, &bar, growth::run)?;
-    let ao_error = run_part(cfg, Part::AoError, scenes, &bar, ao_error::run)?;
-    let builders = run_part(cfg, Part::Builders, scenes, &bar, builders::run)?;
-    let ladder = run_part(cfg, Part::Ladder, scenes, &bar, ladder::run)?;
-    let libraries = run_part(cfg, Part::Libraries, scenes, &bar, libraries::run)?;
-    let leaks = run_part(cfg, Part::Leaks, scenes, &bar, leaks::run)?;
-    let validation = run_part(cfg, Part::Validate, scenes, &bar, validate::run)?;
+    let reports = Reports(reports);
     bar.finish();
 
     let images = write_images(&cfg.out, scenes, &kept)?;
-    let summary = Summary::of(&libraries, &trace, &validation, &measurements);
+    let summary = Summary::of(
+        reports.libraries(),
+        reports.trace(),
+        reports.validation(),
+        &measurements,
+    );
     let mut report = BenchReport {
         command: cfg.command.clone(),
         date: summary::today(),
@@ -288,15 +251,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
             .collect(),
         baseline: tables::baseline_name(&measurements).to_string(),
         measurements,
-        trace,
-        scaling,
-        growth,
-        ao_error,
-        builders,
-        ladder,
-        libraries,
-        leaks,
-        validation,
+        parts: reports,
         images,
         charts: Vec::new(),
         elapsed_s: 0.0,
@@ -372,29 +327,8 @@ fn write_charts(dir: &Path, r: &BenchReport) -> Result<Vec<String>> {
     if !r.measurements.is_empty() {
         files.extend(tables::charts(dir, &r.measurements, &r.ao_modes)?);
     }
-    if !r.trace.is_empty() {
-        files.extend(trace::charts(dir, &r.trace)?);
-    }
-    if !r.scaling.is_empty() {
-        files.extend(scaling::charts(dir, &r.scaling)?);
-    }
-    if !r.growth.is_empty() {
-        files.extend(growth::charts(dir, &r.growth)?);
-    }
-    if !r.ao_error.is_empty() {
-        files.extend(ao_error::charts(dir, &r.ao_error)?);
-    }
-    if !r.builders.is_empty() {
-        files.extend(builders::charts(dir, &r.builders)?);
-    }
-    if !r.libraries.is_empty() {
-        files.extend(libraries::charts(dir, &r.libraries)?);
-    }
-    if !r.ladder.is_empty() {
-        files.extend(ladder::charts(dir, &r.ladder)?);
-    }
-    if !r.leaks.is_empty() {
-        files.extend(leaks::charts(dir, &r.leaks)?);
+    for report in r.parts.0.iter().filter(|p| !p.is_empty()) {
+        files.extend(report.charts(dir)?);
     }
     // A chart drawn twice over is a part's bug (the trace part once drew
     // each of its two charts 528 times): refused, not written into the page.
@@ -473,35 +407,8 @@ fn parts_markdown(r: &BenchReport) -> String {
             ));
         }
     }
-    if !r.trace.is_empty() {
-        out.push_str(&trace::markdown(&r.trace));
-    }
-    if !r.scaling.is_empty() {
-        out.push_str(&scaling::markdown(&r.scaling));
-    }
-    if !r.growth.is_empty() {
-        out.push_str(&growth::markdown(&r.growth));
-    }
-    if !r.ao_error.is_empty() {
-        out.push_str(&ao_error::markdown(&r.ao_error));
-    }
-    if !r.builders.is_empty() {
-        out.push_str(&builders::markdown(&r.builders));
-    }
-    if !r.libraries.is_empty() {
-        // The cliff table leads the part (it reads the part's points; the
-        // part does not know of it).
-        out.push_str(&cliffs::markdown(&r.libraries));
-        out.push_str(&libraries::markdown(&r.libraries));
-    }
-    if !r.ladder.is_empty() {
-        out.push_str(&ladder::markdown(&r.ladder));
-    }
-    if !r.leaks.is_empty() {
-        out.push_str(&leaks::markdown(&r.leaks));
-    }
-    if !r.validation.is_empty() {
-        out.push_str(&validate::markdown(&r.validation));
+    for report in r.parts.0.iter().filter(|p| !p.is_empty()) {
+        out.push_str(&report.markdown());
     }
     out
 }

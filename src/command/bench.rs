@@ -299,7 +299,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             m.variant, m.scene, m.view
         )));
     }
-    if let Some(v) = report.validation.iter().find(|v| v.genuine > 0) {
+    if let Some(v) = report.parts.validation().iter().find(|v| v.genuine > 0) {
         return Err(Error::Other(format!(
             "bench: {} disagrees with {} on {} rays of {}",
             v.tested, v.reference, v.genuine, v.scene
