@@ -190,6 +190,27 @@ pub(super) fn family_color(family: Family) -> RGBAColor {
     RGBColor(r, g, b).to_rgba()
 }
 
+/// The `i`-th of `n` shades of a family's colour (darker to lighter), so
+/// that backends of one family look alike and stay apart.
+pub(super) fn family_shade(family: Family, i: usize, n: usize) -> RGBAColor {
+    let RGBAColor(r, g, b, a) = family_color(family);
+    if n <= 1 {
+        return RGBAColor(r, g, b, a);
+    }
+    // From 30% darker to 45% lighter.
+    let t = i as f64 / (n - 1) as f64 * 0.75 - 0.3;
+    let mix = |c: u8| {
+        let c = c as f64;
+        (if t < 0.0 {
+            c * (1.0 + t)
+        } else {
+            c + (255.0 - c) * t
+        })
+        .round() as u8
+    };
+    RGBAColor(mix(r), mix(g), mix(b), a)
+}
+
 /// One series per family of `items` (in [`Family::ALL`]'s order), each
 /// group's value the best (largest) of that family's items there, and the
 /// legend naming how many items each family's best is of (`raylab (best

@@ -31,7 +31,7 @@ pub struct Entry {
 #[derive(Clone, Debug, Serialize)]
 pub struct SummaryRow {
     pub scene: String,
-    pub kind: String,
+    pub kind: RaySet,
     pub fastest: Entry,
     pub raylab: Option<Entry>,
     pub embree: Option<Entry>,
@@ -143,7 +143,7 @@ impl Summary {
             for r in &self.rows {
                 t.row([
                     r.scene.clone(),
-                    r.kind.clone(),
+                    r.kind.name().to_string(),
                     r.fastest.backend.clone(),
                     format!("{:.1}", r.fastest.mrays),
                     name(&r.raylab),
@@ -239,7 +239,7 @@ impl Summary {
 
 /// (scene, ray kind, entry) of every backend, path and kind of the
 /// libraries part: its best path per kind, the edge rays left out.
-fn library_entries(points: &[LibraryPoint]) -> Vec<(String, String, Entry)> {
+fn library_entries(points: &[LibraryPoint]) -> Vec<(String, RaySet, Entry)> {
     let mut out = Vec::new();
     for p in points.iter().filter(|p| p.failed.is_none()) {
         for (k, kind) in KINDS.iter().enumerate() {
@@ -255,7 +255,7 @@ fn library_entries(points: &[LibraryPoint]) -> Vec<(String, String, Entry)> {
             };
             out.push((
                 p.scene.clone(),
-                kind.name().to_string(),
+                *kind,
                 Entry {
                     backend,
                     family: p.family,
@@ -268,14 +268,14 @@ fn library_entries(points: &[LibraryPoint]) -> Vec<(String, String, Entry)> {
 }
 
 /// The same from the trace part's one-thread runs (every path its own entry).
-fn trace_entries(points: &[TracePoint]) -> Vec<(String, String, Entry)> {
+fn trace_entries(points: &[TracePoint]) -> Vec<(String, RaySet, Entry)> {
     points
         .iter()
         .filter(|p| p.threads == 1 && p.mrays.median.is_finite())
         .map(|p| {
             (
                 p.scene.clone(),
-                p.kind.clone(),
+                p.kind,
                 Entry {
                     backend: p.backend.clone(),
                     family: p.family,
@@ -286,11 +286,11 @@ fn trace_entries(points: &[TracePoint]) -> Vec<(String, String, Entry)> {
         .collect()
 }
 
-fn rows(entries: &[(String, String, Entry)]) -> Vec<SummaryRow> {
-    let mut cells: Vec<(&str, &str)> = Vec::new();
+fn rows(entries: &[(String, RaySet, Entry)]) -> Vec<SummaryRow> {
+    let mut cells: Vec<(&str, RaySet)> = Vec::new();
     for (scene, kind, _) in entries {
-        if !cells.contains(&(scene.as_str(), kind.as_str())) {
-            cells.push((scene, kind));
+        if !cells.contains(&(scene.as_str(), *kind)) {
+            cells.push((scene, *kind));
         }
     }
     let mut out = Vec::new();
@@ -298,7 +298,7 @@ fn rows(entries: &[(String, String, Entry)]) -> Vec<SummaryRow> {
         let best = |which: &dyn Fn(Family) -> bool| {
             entries
                 .iter()
-                .filter(|(s, k, e)| s == scene && k == kind && which(e.family))
+                .filter(|(s, k, e)| s == scene && *k == kind && which(e.family))
                 .map(|(_, _, e)| e)
                 .max_by(|a, b| a.mrays.total_cmp(&b.mrays))
                 .cloned()
@@ -315,7 +315,7 @@ fn rows(entries: &[(String, String, Entry)]) -> Vec<SummaryRow> {
         };
         out.push(SummaryRow {
             scene: scene.to_string(),
-            kind: kind.to_string(),
+            kind,
             raylab_over_embree: over(&embree),
             raylab_over_library: over(&library),
             fastest,
@@ -379,7 +379,10 @@ fn problems(s: &Summary, libraries: &[LibraryPoint], measurements: &[Measurement
             (ratio > 1.0).then(|| {
                 format!(
                     "{} {}: {} takes {ratio:.2}x the time of {}",
-                    r.scene, r.kind, raylab.backend, other.backend
+                    r.scene,
+                    r.kind.name(),
+                    raylab.backend,
+                    other.backend
                 )
             })
         })
@@ -554,7 +557,7 @@ mod tests {
         assert_eq!(s.source, "libraries");
         assert_eq!(s.rows.len(), 4);
         let primary = &s.rows[0];
-        assert_eq!(primary.kind, "primary");
+        assert_eq!(primary.kind, RaySet::Primary);
         assert_eq!(primary.fastest.backend, "embree-medium packet8");
         assert_eq!(primary.raylab.as_ref().unwrap().backend, "bvh8-sah packet8");
         assert_eq!(primary.raylab_over_embree, Some(25.0 / 20.0));

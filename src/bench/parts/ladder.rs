@@ -318,7 +318,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lad
 fn add_trace(p: &mut LadderPoint, traced: &[TracePoint], threads: usize) {
     let mut rays = [0usize; 4];
     for t in traced.iter().filter(|t| t.backend == p.backend) {
-        let Some(k) = KINDS.iter().position(|k| k.name() == t.kind) else {
+        let Some(k) = KINDS.iter().position(|k| *k == t.kind) else {
             continue;
         };
         rays[k] = t.rays;
@@ -555,7 +555,7 @@ mod tests {
             structure: backend.into(),
             query: "packet16".into(),
             family: crate::bench::family::Family::Raylab,
-            kind: kind.name().into(),
+            kind,
             threads,
             rays,
             mrays: Stat::of(&[mrays]),

@@ -17,8 +17,8 @@ use crate::accel::bvh::BuildParams;
 use crate::accel::library::Library;
 use crate::accel::{build_backend, BackendSpec, Built, Query};
 use crate::bench::charts::{
-    color, distinct, log_axis, log_label, log_range, save_chart, side_legend, DrawResult, Swatch,
-    FONT, SIDE_LEGEND,
+    distinct, family_shade, log_axis, log_label, log_range, save_chart, side_legend, DrawResult,
+    Swatch, FONT, SIDE_LEGEND,
 };
 use crate::bench::config::BenchConfig;
 use crate::bench::family::Family;
@@ -39,7 +39,7 @@ use crate::validate::{edge_rays, recorded_rays, RaySet};
 pub const SECTION: ChartSection = ChartSection {
     title: "Every CPU BVH: speed against accuracy",
     stem: "libraries",
-    caption: "Time per ray (one thread, mean over the render's ray kinds) against wrong answers per million against the exact reference, per scene: top row on the render's rays, bottom row on rays aimed at the scene's vertices and edges. A backend with none sits on the bottom line (dot: raylab, triangle: Embree, cross: another library). Lower left is better.",
+    caption: "Time per ray (one thread, mean over the render's ray kinds) against wrong answers per million against the exact reference, per scene: top row on the render's rays, bottom row on rays aimed at the scene's vertices and edges. A backend with none sits on the bottom line (dot: raylab, triangle: Embree, cross: another library; colour: the family, a shade per backend). Lower left is better.",
 };
 
 /// The ray kinds: a render's, its diffuse bounces, random rays (only from a
@@ -507,6 +507,21 @@ where
         .take(MAX_SCENES)
         .collect();
     let backends = distinct(pts.iter().map(|p| p.backend.as_str()));
+    // Each backend in a shade of its family's colour.
+    let family_of = |b: &str| {
+        pts.iter()
+            .find(|p| p.backend == b)
+            .map_or(Family::Raylab, |p| p.family)
+    };
+    let colors: Vec<RGBAColor> = backends
+        .iter()
+        .map(|b| {
+            let f = family_of(b);
+            let kin: Vec<&&str> = backends.iter().filter(|o| family_of(o) == f).collect();
+            let i = kin.iter().position(|o| **o == *b).unwrap_or(0);
+            family_shade(f, i, kin.len())
+        })
+        .collect();
     let areas = panels.split_evenly((2, scenes.len().max(1)));
     // Top row: the render's rays; bottom row: the edge and vertex rays.
     type WrongOf = fn(&LibraryPoint) -> f64;
@@ -550,7 +565,7 @@ where
                 .draw()?;
             for p in &here {
                 let ci = backends.iter().position(|b| *b == p.backend).unwrap_or(0);
-                let c = color(ci);
+                let c = colors[ci];
                 let at = (p.ns_per_ray.max(1e-3), y(p));
                 match p.family {
                     Family::Raylab => {
@@ -573,7 +588,7 @@ where
     let entries: Vec<(String, RGBAColor)> = backends
         .iter()
         .enumerate()
-        .map(|(i, b)| (b.to_string(), color(i)))
+        .map(|(i, b)| (b.to_string(), colors[i]))
         .collect();
     side_legend(&side, &entries, Swatch::Dot)?;
     root.present()?;

@@ -120,7 +120,7 @@ pub struct TracePoint {
     /// times are divided by), or another library.
     pub family: Family,
     /// `primary` or `diffuse` (closest hit), `shadow` or `ao` (any hit).
-    pub kind: String,
+    pub kind: RaySet,
     pub threads: usize,
     pub rays: usize,
     /// Millions of rays per second of wall time, over the measured runs.
@@ -341,7 +341,7 @@ pub fn trace_backends(
                     structure: b.spec.structure_name(),
                     query: b.spec.query().name(),
                     family: Family::of(&b.spec),
-                    kind: kind.name().to_string(),
+                    kind,
                     threads,
                     rays: rays.len(),
                     mrays: Stat::of(&rates[bi][ti]),
@@ -447,9 +447,9 @@ pub fn markdown(points: &[TracePoint]) -> String {
         table.column("best library", Right);
         table.column("own/library time", Right);
     }
-    let mut rows: Vec<(&str, &str, usize)> = Vec::new();
+    let mut rows: Vec<(&str, RaySet, usize)> = Vec::new();
     for p in points {
-        let key = (p.scene.as_str(), p.kind.as_str(), p.threads);
+        let key = (p.scene.as_str(), p.kind, p.threads);
         if !rows.contains(&key) {
             rows.push(key);
         }
@@ -463,7 +463,7 @@ pub fn markdown(points: &[TracePoint]) -> String {
         let mut row = vec![
             scene.to_string(),
             first.triangles.to_string(),
-            format!("{kind} ({})", first.rays),
+            format!("{} ({})", kind.name(), first.rays),
             threads.to_string(),
         ];
         for b in &backends {
@@ -542,10 +542,10 @@ where
     DB::ErrorType: 'static,
 {
     let here: Vec<&TracePoint> = d.points.iter().filter(|p| p.threads == d.threads).collect();
-    let mut groups: Vec<(String, String)> = Vec::new();
+    let mut groups: Vec<(String, RaySet)> = Vec::new();
     for p in &here {
         if !groups.iter().any(|(s, k)| *s == p.scene && *k == p.kind) {
-            groups.push((p.scene.clone(), p.kind.clone()));
+            groups.push((p.scene.clone(), p.kind));
         }
     }
     // The fastest backend and path of each family per cell (the table has each).
@@ -571,7 +571,7 @@ where
             y_desc: "Mrays/s (log)",
             groups: groups
                 .iter()
-                .map(|(scene, kind)| (short(scene), kind.clone()))
+                .map(|(scene, kind)| (short(scene), kind.name().to_string()))
                 .collect(),
             series,
             y: log_range(here.iter().map(|p| p.mrays.median)),
