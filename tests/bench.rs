@@ -317,8 +317,31 @@ fn quick_bench_draws_charts_and_images() {
         None,
         "an image is shown more than once"
     );
+    // The report leads with its answer; summary.md is dated, with the
+    // machine and the command.
+    let md = std::fs::read_to_string(dir.join("bench.md")).unwrap();
+    let summary_at = md.find("### Summary").expect("bench.md has a summary");
+    assert!(summary_at < md.find("### AO off").unwrap(), "summary first");
+    assert!(md.contains("### What was wrong"), "{md}");
+    assert!(html.find("id=\"summary\"").unwrap() < html.find("id=\"speedups\"").unwrap());
+    let summary = std::fs::read_to_string(dir.join("summary.md")).unwrap();
+    assert!(
+        summary.starts_with("## Where things stand\n\n20"),
+        "{summary}"
+    );
+    assert!(
+        summary.contains("Command: `raylab bench --quick -q --out "),
+        "{summary}"
+    );
+    assert!(summary.contains("| cornell-water | primary |"), "{summary}");
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("bench.json")).unwrap()).unwrap();
+    assert!(json["command"]
+        .as_str()
+        .unwrap()
+        .starts_with("raylab bench --quick"));
+    assert_eq!(json["date"].as_str().unwrap().len(), 10);
+    assert_eq!(json["summary"]["rows"].as_array().unwrap().len(), 4 * 4);
     let listed: Vec<&str> = json["charts"]
         .as_array()
         .unwrap()

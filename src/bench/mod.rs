@@ -419,7 +419,7 @@ fn write_files(dir: &Path, r: &BenchReport) -> Result<()> {
     write("bench.md", &md)?;
     write(
         "summary.md",
-        &r.summary.page(&r.date, &r.machine, &r.command),
+        &r.summary.page(&r.date, &r.machine, &r.command, r.quick),
     )?;
     write("bench.csv", &tables::csv(&r.measurements))?;
     let json = serde_json::to_string_pretty(r)?;

@@ -218,10 +218,11 @@ impl Summary {
     }
 
     /// `summary.md`: "Where things stand", dated, naming the machine and the
-    /// command, then [`Summary::markdown`].
-    pub fn page(&self, date: &str, machine: &Machine, command: &str) -> String {
+    /// command (and that `--quick` figures are a smoke test), then
+    /// [`Summary::markdown`].
+    pub fn page(&self, date: &str, machine: &Machine, command: &str, quick: bool) -> String {
         format!(
-            "## Where things stand\n\n{date}, on {} ({} hardware threads{}, {} used by the bench), {}; raylab {}, its kernels {}; Embree {}.\n\nCommand: `{command}`\n\n{}",
+            "## Where things stand\n\n{date}, on {} ({} hardware threads{}, {} used by the bench), {}; raylab {}, its kernels {}; Embree {}.\n\nCommand: `{command}`{}\n\n{}",
             machine.cpu,
             machine.hardware_threads,
             machine
@@ -232,6 +233,11 @@ impl Summary {
             machine.raylab_version,
             machine.simd,
             machine.embree_version,
+            if quick {
+                " (--quick: small images, one rep, no warm-up; the figures only show that every path runs)"
+            } else {
+                ""
+            },
             self.markdown()
         )
     }
@@ -579,12 +585,16 @@ mod tests {
             "2025-01-02",
             &crate::bench::Machine::detect(2),
             "raylab bench --quick",
+            true,
         );
         assert!(
             page.starts_with("## Where things stand\n\n2025-01-02, on "),
             "{page}"
         );
-        assert!(page.contains("Command: `raylab bench --quick`"), "{page}");
+        assert!(
+            page.contains("Command: `raylab bench --quick` (--quick: small images"),
+            "{page}"
+        );
     }
 
     #[test]
