@@ -180,7 +180,7 @@ fn quick_bench_runs_every_experiment() {
         // Builds are timed on each thread count of the trace.
         assert!(p["build_ms"].as_f64().is_some_and(|ms| ms > 0.0), "{p}");
         // raylab's own answers are the reference's bit for bit.
-        if p["embree"] == false && p["library"] == false {
+        if p["family"] == "raylab" {
             assert_eq!(p["differing"], 0, "{p}");
         }
     }
@@ -306,11 +306,67 @@ fn quick_bench_draws_charts_and_images() {
             );
         }
     }
-    // Every image the page references exists, by relative path.
-    for src in html.split("src=\"").skip(1) {
-        let src = src.split('"').next().unwrap();
+    // Every image the page references exists, by relative path, and is
+    // shown once (the two trace charts were once on the page 528 times each).
+    let srcs = raylab::bench::html::image_sources(&html);
+    for src in &srcs {
         assert!(dir.join(src).is_file(), "missing {src}");
     }
+    assert_eq!(
+        raylab::bench::html::first_duplicate(srcs.iter().copied()),
+        None,
+        "an image is shown more than once"
+    );
+    // The report leads with its answer; summary.md is dated, with the
+    // machine and the command.
+    let md = std::fs::read_to_string(dir.join("bench.md")).unwrap();
+    let summary_at = md.find("### Summary").expect("bench.md has a summary");
+    assert!(summary_at < md.find("### AO off").unwrap(), "summary first");
+    assert!(md.contains("### What was wrong"), "{md}");
+    assert!(html.find("id=\"summary\"").unwrap() < html.find("id=\"speedups\"").unwrap());
+    let summary = std::fs::read_to_string(dir.join("summary.md")).unwrap();
+    assert!(
+        summary.starts_with("## Where things stand\n\n20"),
+        "{summary}"
+    );
+    assert!(
+        summary.contains("Command: `raylab bench --quick -q --out "),
+        "{summary}"
+    );
+    assert!(summary.contains("| cornell-water | primary |"), "{summary}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("bench.json")).unwrap()).unwrap();
+    assert!(json["command"]
+        .as_str()
+        .unwrap()
+        .starts_with("raylab bench --quick"));
+    assert_eq!(json["date"].as_str().unwrap().len(), 10);
+    assert_eq!(json["summary"]["rows"].as_array().unwrap().len(), 4 * 4);
+    let listed: Vec<&str> = json["charts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c.as_str().unwrap())
+        .collect();
+    assert_eq!(
+        raylab::bench::html::first_duplicate(listed.iter().copied()),
+        None,
+        "bench.json lists a chart twice: {listed:?}"
+    );
+    // Every chart drawn is listed, and each has its PNG and SVG.
+    let drawn = std::fs::read_dir(dir.join("charts"))
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .file_name()
+                .to_string_lossy()
+                .ends_with(".png")
+        })
+        .count();
+    assert_eq!(listed.len(), drawn, "{listed:?}");
+    // A page of a few charts and renders, not a thousand.
+    assert!(srcs.len() < 60, "{} images on the page", srcs.len());
 }
 
 fn chromium() -> Option<PathBuf> {
@@ -370,6 +426,13 @@ fn report_opens_in_headless_chromium() {
             .take(300)
             .collect::<String>()
     );
+    // It counts them: as many as the page has, each once.
+    let html = std::fs::read_to_string(&page).unwrap();
+    let n = raylab::bench::html::image_sources(&html).len();
+    assert!(
+        dom.contains(&format!("{n} images loaded, each once")),
+        "the page's check did not count {n} images"
+    );
     let shot = work.join("shot.png");
     let out = run_chromium(
         &exe,
@@ -398,6 +461,61 @@ fn report_opens_in_headless_chromium() {
     assert!(
         coloured > 5000,
         "screenshot looks empty: {coloured} coloured pixels"
+    );
+    std::fs::remove_dir_all(&work).ok();
+}
+
+/// The page's check fails when an image is on the page twice, though each
+/// loads.
+#[test]
+fn the_page_check_fails_on_duplicate_images() {
+    use raylab::bench::html::{figure, page, Section};
+    let Some(exe) = chromium() else {
+        assert!(
+            std::env::var_os("RAYLAB_REQUIRE_CHROMIUM").is_none(),
+            "RAYLAB_REQUIRE_CHROMIUM is set but no Chromium is installed"
+        );
+        eprintln!("skipped: no Chromium (apt install chromium)");
+        return;
+    };
+    let work = temp_dir("duplicates");
+    image::RgbImage::from_pixel(8, 8, image::Rgb([200, 30, 30]))
+        .save(work.join("a.png"))
+        .unwrap();
+    let check = |body: String, name: &str| {
+        let file = work.join(name);
+        let html = page(
+            "T",
+            &[],
+            &[Section {
+                id: "s".into(),
+                title: "S".into(),
+                body,
+            }],
+        );
+        std::fs::write(&file, html).unwrap();
+        let dom = run_chromium(
+            &exe,
+            &work.join(format!("p-{name}")),
+            &["--dump-dom"],
+            &file,
+        );
+        String::from_utf8_lossy(&dom.stdout).to_string()
+    };
+    let once = check(figure("a.png", None, "a"), "once.html");
+    assert!(once.contains("data-images-ok=\"true\""), "{once}");
+    let twice = check(
+        format!(
+            "{}{}",
+            figure("a.png", None, "a"),
+            figure("a.png", None, "a")
+        ),
+        "twice.html",
+    );
+    assert!(twice.contains("data-images-ok=\"false\""), "{twice}");
+    assert!(
+        twice.contains("images shown more than once: a.png"),
+        "{twice}"
     );
     std::fs::remove_dir_all(&work).ok();
 }

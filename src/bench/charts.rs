@@ -13,6 +13,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
+use crate::bench::family::Family;
 use crate::error::{Error, Result};
 
 pub(super) type DrawResult = std::result::Result<(), Box<dyn std::error::Error>>;
@@ -176,6 +177,83 @@ pub(super) fn color(i: usize) -> RGBAColor {
     Palette99::pick(i).to_rgba()
 }
 
+/// A family's colour, the same on every chart: raylab blue, Embree orange,
+/// each library a hue of its own.
+pub(super) fn family_color(family: Family) -> RGBAColor {
+    let (r, g, b) = match family {
+        Family::Raylab => (31, 119, 180),
+        Family::Embree => (255, 127, 14),
+        Family::Tinybvh => (44, 160, 44),
+        Family::Obvhs => (148, 103, 189),
+        Family::BvhCrate => (140, 86, 75),
+    };
+    RGBColor(r, g, b).to_rgba()
+}
+
+/// The `i`-th of `n` shades of a family's colour (darker to lighter), so
+/// that backends of one family look alike and stay apart.
+pub(super) fn family_shade(family: Family, i: usize, n: usize) -> RGBAColor {
+    let RGBAColor(r, g, b, a) = family_color(family);
+    if n <= 1 {
+        return RGBAColor(r, g, b, a);
+    }
+    // From 30% darker to 45% lighter.
+    let t = i as f64 / (n - 1) as f64 * 0.75 - 0.3;
+    let mix = |c: u8| {
+        let c = c as f64;
+        (if t < 0.0 {
+            c * (1.0 + t)
+        } else {
+            c + (255.0 - c) * t
+        })
+        .round() as u8
+    };
+    RGBAColor(mix(r), mix(g), mix(b), a)
+}
+
+/// One series per family of `items` (in [`Family::ALL`]'s order), each
+/// group's value the best (largest) of that family's items there, and the
+/// legend naming how many items each family's best is of (`raylab (best
+/// of 30 variants)`): a bar per variant made some 45 bars per group, in
+/// colours too close to tell apart.
+pub(super) fn best_per_family<T>(
+    items: &[T],
+    groups: usize,
+    family: impl Fn(&T) -> Family,
+    item_name: impl Fn(&T) -> &str,
+    value: impl Fn(&T, usize) -> Option<f64>,
+    what: &str,
+) -> Vec<Series> {
+    Family::ALL
+        .into_iter()
+        .filter_map(|f| {
+            let mine: Vec<&T> = items.iter().filter(|i| family(i) == f).collect();
+            if mine.is_empty() {
+                return None;
+            }
+            let names = distinct(mine.iter().map(|i| item_name(i))).len();
+            let values = (0..groups)
+                .map(|g| {
+                    mine.iter()
+                        .filter_map(|i| value(i, g))
+                        .filter(|v| v.is_finite())
+                        .max_by(f64::total_cmp)
+                })
+                .collect();
+            let name = if names == 1 {
+                f.label().to_string()
+            } else {
+                format!("{} (best of {names} {what})", f.label())
+            };
+            Some(Series {
+                name,
+                color: family_color(f),
+                values,
+            })
+        })
+        .collect()
+}
+
 /// A range covering `values` on a log axis, with some room either side.
 pub(super) fn log_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
     let (lo, hi) = values
@@ -308,6 +386,14 @@ pub(super) fn short(scene: &str) -> String {
     scene.strip_prefix("cornell-").unwrap_or(scene).to_string()
 }
 
+/// One series of a [`Bars`] chart: its name and colour, and a value (or
+/// none) per group.
+pub(super) struct Series {
+    pub(super) name: String,
+    pub(super) color: RGBAColor,
+    pub(super) values: Vec<Option<f64>>,
+}
+
 /// A grouped bar chart on a log axis: one group per entry of `groups` (two
 /// label lines under it), one coloured bar per series in each group where
 /// the series has a value.
@@ -315,7 +401,7 @@ pub(super) struct Bars<'a> {
     pub(super) caption: String,
     pub(super) y_desc: &'a str,
     pub(super) groups: Vec<(String, String)>,
-    pub(super) series: Vec<(String, Vec<Option<f64>>)>,
+    pub(super) series: Vec<Series>,
     pub(super) y: std::ops::Range<f64>,
     pub(super) y_label: &'a dyn Fn(&f64) -> String,
 }
@@ -343,9 +429,10 @@ where
         .y_label_formatter(b.y_label)
         .draw()?;
     let width = 0.8 / b.series.len().max(1) as f64;
-    for (si, (_, values)) in b.series.iter().enumerate() {
-        let c = color(si);
-        let bars: Vec<Rectangle<(f64, f64)>> = values
+    for (si, s) in b.series.iter().enumerate() {
+        let c = s.color;
+        let bars: Vec<Rectangle<(f64, f64)>> = s
+            .values
             .iter()
             .enumerate()
             .filter_map(|(gi, v)| {
@@ -358,12 +445,8 @@ where
             .collect();
         chart.draw_series(bars)?;
     }
-    let entries: Vec<(String, RGBAColor)> = b
-        .series
-        .iter()
-        .enumerate()
-        .map(|(i, (name, _))| (name.clone(), color(i)))
-        .collect();
+    let entries: Vec<(String, RGBAColor)> =
+        b.series.iter().map(|s| (s.name.clone(), s.color)).collect();
     side_legend(&side, &entries, Swatch::Bar)?;
     // Under each group its second label; under each run of groups that
     // share a first label (a scene's ray kinds or views), that label once.

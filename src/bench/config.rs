@@ -99,6 +99,8 @@ pub struct BenchConfig {
     /// Rays from a ray file (`--rays`), traced by the `libraries` part
     /// instead of the first view's recorded rays.
     pub rays: Option<crate::rayfile::RaySets>,
+    /// The command line that asked for the run, as the report quotes it.
+    pub command: String,
 }
 
 impl BenchConfig {

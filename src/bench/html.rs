@@ -50,6 +50,10 @@ pub fn markdown_to_html(md: &str) -> String {
         if t.is_empty() {
             continue;
         }
+        if let Some(item) = t.strip_prefix("- ") {
+            out.push_str(&format!("<ul><li>{}</li></ul>\n", escape(item)));
+            continue;
+        }
         let level = t.chars().take_while(|c| *c == '#').count();
         if (1..=6).contains(&level) && t[level..].starts_with(' ') {
             let h = level.clamp(2, 6);
@@ -59,7 +63,8 @@ pub fn markdown_to_html(md: &str) -> String {
         }
     }
     flush(&mut table, &mut out);
-    out
+    // Consecutive items in one list.
+    out.replace("</li></ul>\n<ul><li>", "</li>\n<li>")
 }
 
 /// A section of the report: a title, an id for the contents list, and HTML.
@@ -91,11 +96,31 @@ figcaption{font-size:.85em;color:#555;max-width:1200px}.row img{width:290px;imag
 #check[data-images-ok=true]{background:#e3f5e1}#check[data-images-ok=false]{background:#fbd9d9}\
 nav li{display:inline;margin-right:1em}.meta td{text-align:left}";
 
+/// On load: every image decoded with a non-zero size, and none shown twice
+/// (a chart listed once per data point put two charts on the page 528 times
+/// each, and "1093 images loaded" passed).
 const CHECK_SCRIPT: &str = "<script>window.addEventListener('load',function(){\
 var imgs=Array.prototype.slice.call(document.images);\
+var srcs=imgs.map(function(i){return i.getAttribute('src');});\
 var bad=imgs.filter(function(i){return !(i.complete&&i.naturalWidth>0);});\
-var el=document.getElementById('check');el.setAttribute('data-images-ok',bad.length?'false':'true');\
-el.textContent=bad.length?('images that did not load: '+bad.map(function(i){return i.getAttribute('src');}).join(', ')):(imgs.length+' images loaded');});</script>";
+var dup=srcs.filter(function(s,k){return srcs.indexOf(s)!==k;});\
+var el=document.getElementById('check');el.setAttribute('data-images-ok',(bad.length||dup.length)?'false':'true');\
+el.textContent=bad.length?('images that did not load: '+bad.map(function(i){return i.getAttribute('src');}).join(', ')):\
+dup.length?('images shown more than once: '+dup.join(', ')):(imgs.length+' images loaded, each once');});</script>";
+
+/// The `src` of every `<img>` in `html`, in order.
+pub fn image_sources(html: &str) -> Vec<&str> {
+    html.split("<img src=\"")
+        .skip(1)
+        .filter_map(|s| s.split('"').next())
+        .collect()
+}
+
+/// The first of `names` given more than once, if any.
+pub fn first_duplicate<'a>(names: impl IntoIterator<Item = &'a str>) -> Option<&'a str> {
+    let mut seen = std::collections::HashSet::new();
+    names.into_iter().find(|n| !seen.insert(*n))
+}
 
 /// The whole page.
 pub fn page(title: &str, meta: &[(String, String)], sections: &[Section]) -> String {
@@ -151,6 +176,10 @@ mod tests {
         assert!(html.contains("<tr><td>1</td><td>2</td></tr>"), "{html}");
         assert!(!html.contains("---"), "{html}");
         assert!(html.contains("<p>text &amp; more</p>"), "{html}");
+        assert_eq!(
+            markdown_to_html("- a\n- b\n"),
+            "<ul><li>a</li>\n<li>b</li></ul>\n"
+        );
     }
 
     #[test]
@@ -166,5 +195,18 @@ mod tests {
         );
         assert!(p.contains("href=\"#s\"") && p.contains("<img src=\"a.png\""));
         assert!(p.contains("data-images-ok"));
+        assert_eq!(image_sources(&p), ["a.png"]);
+    }
+
+    #[test]
+    fn duplicates_are_found() {
+        assert_eq!(first_duplicate(["a", "b", "c"]), None);
+        assert_eq!(first_duplicate(["a", "b", "a", "b"]), Some("a"));
+        let twice = format!(
+            "{}{}",
+            figure("x.png", None, "x"),
+            figure("x.png", None, "x")
+        );
+        assert_eq!(first_duplicate(image_sources(&twice)), Some("x.png"));
     }
 }

@@ -14,6 +14,7 @@ use std::time::Instant;
 use glam::Vec3;
 use serde::Serialize;
 
+use super::family::Family;
 use super::variants::Variant;
 use crate::accel::{build_backend, BackendKind};
 use crate::camera::Camera;
@@ -227,6 +228,8 @@ pub struct Measurement {
     pub ao: String,
     pub variant: String,
     pub backend: String,
+    /// Whose the backend is.
+    pub family: Family,
     pub schedule: String,
     pub build_threads: usize,
     pub render_threads: usize,
@@ -453,6 +456,7 @@ impl Matrix<'_> {
                     ao: settings.ao.to_string(),
                     variant: variant.name.to_string(),
                     backend: variant.spec(self.threads).name(),
+                    family: Family::of(&variant.spec(self.threads)),
                     schedule: variant.schedule.name().to_string(),
                     build_threads: variant.build_threads(self.threads),
                     render_threads: variant.schedule.threads_used(self.threads, settings.height),

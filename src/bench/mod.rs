@@ -4,19 +4,23 @@
 //!
 //! The parts (`--parts`) live in [`parts`], one file each: `tables` (the
 //! variant matrix, measured by [`measure`]), `trace` (query throughput without
-//! shading), `scaling`, `growth`, `ao-error`, `builders`, `leaks` and
-//! `validate`. This file runs them in order and writes the report; images for
-//! it come from the matrix's own renders.
+//! shading), `scaling`, `growth`, `ao-error`, `builders`, `ladder`,
+//! `libraries`, `leaks` and `validate`. This file runs the matrix, then the
+//! others in a loop over [`parts::PartReport`]'s list, and writes the report,
+//! led by its [`summary`]; images for it come from the matrix's own renders.
 //!
 //! How the matrix measures and what each part does: `docs/design.md`, "The
 //! bench"; results of full runs: `docs/results.md`.
 
 pub mod charts;
 pub mod config;
+pub mod family;
 pub mod html;
 pub mod measure;
 pub mod metrics;
 pub mod parts;
+pub mod summary;
+pub mod timing;
 pub mod variants;
 
 use std::path::Path;
@@ -30,17 +34,8 @@ use crate::render::{srgb, AoMode};
 use crate::scene::Scene;
 pub use config::{BenchConfig, Part};
 use measure::{Matrix, Measurement, View};
-use parts::ao_error::AoErrorPoint;
-use parts::builders::BuilderPoint;
-use parts::growth::GrowthPoint;
-use parts::ladder::LadderPoint;
-use parts::libraries::LibraryPoint;
-use parts::scaling::ScalingPoint;
-use parts::trace::TracePoint;
-use parts::validate::ValidationRow;
-use parts::{
-    ao_error, builders, growth, ladder, leaks, libraries, scaling, tables, trace, validate,
-};
+use parts::{tables, Reports};
+use summary::Summary;
 
 /// The machine a bench ran on.
 #[derive(Clone, Debug, Serialize)]
@@ -53,7 +48,8 @@ pub struct Machine {
     pub embree_version: String,
     /// Packet widths Embree traces natively here (its other widths it emulates).
     pub embree_native_packets: Vec<usize>,
-    /// raylab's node kernel on this CPU (`avx2` or `portable`).
+    /// raylab's SIMD kernels on this CPU, by query path
+    /// ([`crate::accel::bvh::simd::Kernel::in_use`]).
     pub simd: String,
     pub raylab_version: String,
 }
@@ -84,7 +80,7 @@ impl Machine {
             os,
             embree_version: crate::accel::embree::version_or_none(),
             embree_native_packets: crate::accel::embree::native_packets_or_none(),
-            simd: crate::accel::bvh::simd::Kernel::detect().name().to_string(),
+            simd: crate::accel::bvh::simd::Kernel::in_use(),
             raylab_version: env!("CARGO_PKG_VERSION").to_string(),
         }
     }
@@ -105,7 +101,13 @@ pub struct SceneImages {
 /// Everything a bench run measured; `bench.json` is this.
 #[derive(Clone, Debug, Serialize)]
 pub struct BenchReport {
+    /// The command line that asked for the run.
+    pub command: String,
+    /// The day it ran (UTC, `YYYY-MM-DD`).
+    pub date: String,
     pub machine: Machine,
+    /// The answer the report leads with (see [`summary`]).
+    pub summary: Summary,
     pub size: (u32, u32),
     pub reps: usize,
     pub quick: bool,
@@ -115,15 +117,10 @@ pub struct BenchReport {
     pub variants: Vec<(String, String)>,
     pub baseline: String,
     pub measurements: Vec<Measurement>,
-    pub trace: Vec<TracePoint>,
-    pub scaling: Vec<ScalingPoint>,
-    pub growth: Vec<GrowthPoint>,
-    pub ao_error: Vec<AoErrorPoint>,
-    pub builders: Vec<BuilderPoint>,
-    pub ladder: Vec<LadderPoint>,
-    pub libraries: Vec<LibraryPoint>,
-    pub leaks: Vec<crate::stress::LeakRow>,
-    pub validation: Vec<ValidationRow>,
+    /// The other parts' points, each under its key (`trace`, `scaling`,
+    /// ..., `validation`).
+    #[serde(flatten)]
+    pub parts: Reports,
     pub images: Vec<SceneImages>,
     /// PNG charts written (relative to the report folder).
     pub charts: Vec<String>,
@@ -205,22 +202,11 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
     // Progress units are expected milliseconds; each step of the other parts
     // counts as `step` of them.
     let step: u64 = if cfg.quick { 100 } else { 3000 };
-    let steps_of = |part: Part, steps: fn(&BenchConfig, &[Scene]) -> u64| {
-        if cfg.wants(part) {
-            steps(cfg, scenes)
-        } else {
-            0
-        }
-    };
-    let steps = steps_of(Part::Trace, trace::steps)
-        + steps_of(Part::Scaling, scaling::steps)
-        + steps_of(Part::Growth, growth::steps)
-        + steps_of(Part::AoError, ao_error::steps)
-        + steps_of(Part::Builders, builders::steps)
-        + steps_of(Part::Ladder, ladder::steps)
-        + steps_of(Part::Libraries, libraries::steps)
-        + steps_of(Part::Leaks, leaks::steps)
-        + steps_of(Part::Validate, validate::steps);
+    let steps: u64 = Part::ALL
+        .into_iter()
+        .filter(|p| cfg.wants(*p))
+        .map(|p| parts::steps(p, cfg, scenes))
+        .sum();
     let mut units = steps * step;
     if cfg.wants(Part::Tables) {
         units += matrix.planned_units();
@@ -232,34 +218,26 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
     } else {
         (Vec::new(), Vec::new())
     };
-    /// A part's points when it is wanted, else none.
-    fn run_part<P>(
-        cfg: &BenchConfig,
-        part: Part,
-        scenes: &[Scene],
-        bar: &StepBar,
-        run: fn(&BenchConfig, &[Scene], &StepBar) -> Result<Vec<P>>,
-    ) -> Result<Vec<P>> {
-        if cfg.wants(part) {
-            run(cfg, scenes, bar)
-        } else {
-            Ok(Vec::new())
-        }
+    // The other parts, in order.
+    let mut reports = Vec::new();
+    for part in Part::ALL.into_iter().filter(|p| cfg.wants(*p)) {
+        reports.extend(parts::run(part, cfg, scenes, &bar)?);
     }
-    let trace = run_part(cfg, Part::Trace, scenes, &bar, trace::run)?;
-    let scaling = run_part(cfg, Part::Scaling, scenes, &bar, scaling::run)?;
-    let growth = run_part(cfg, Part::Growth, scenes, &bar, growth::run)?;
-    let ao_error = run_part(cfg, Part::AoError, scenes, &bar, ao_error::run)?;
-    let builders = run_part(cfg, Part::Builders, scenes, &bar, builders::run)?;
-    let ladder = run_part(cfg, Part::Ladder, scenes, &bar, ladder::run)?;
-    let libraries = run_part(cfg, Part::Libraries, scenes, &bar, libraries::run)?;
-    let leaks = run_part(cfg, Part::Leaks, scenes, &bar, leaks::run)?;
-    let validation = run_part(cfg, Part::Validate, scenes, &bar, validate::run)?;
+    let reports = Reports(reports);
     bar.finish();
 
     let images = write_images(&cfg.out, scenes, &kept)?;
+    let summary = Summary::of(
+        reports.libraries(),
+        reports.trace(),
+        reports.validation(),
+        &measurements,
+    );
     let mut report = BenchReport {
+        command: cfg.command.clone(),
+        date: summary::today(),
         machine: Machine::detect(cfg.threads),
+        summary,
         size: cfg.size,
         reps: cfg.reps,
         quick: cfg.quick,
@@ -273,15 +251,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
             .collect(),
         baseline: tables::baseline_name(&measurements).to_string(),
         measurements,
-        trace,
-        scaling,
-        growth,
-        ao_error,
-        builders,
-        ladder,
-        libraries,
-        leaks,
-        validation,
+        parts: reports,
         images,
         charts: Vec::new(),
         elapsed_s: 0.0,
@@ -357,39 +327,37 @@ fn write_charts(dir: &Path, r: &BenchReport) -> Result<Vec<String>> {
     if !r.measurements.is_empty() {
         files.extend(tables::charts(dir, &r.measurements, &r.ao_modes)?);
     }
-    if !r.trace.is_empty() {
-        files.extend(trace::charts(dir, &r.trace)?);
+    for report in r.parts.0.iter().filter(|p| !p.is_empty()) {
+        files.extend(report.charts(dir)?);
     }
-    if !r.scaling.is_empty() {
-        files.extend(scaling::charts(dir, &r.scaling)?);
-    }
-    if !r.growth.is_empty() {
-        files.extend(growth::charts(dir, &r.growth)?);
-    }
-    if !r.ao_error.is_empty() {
-        files.extend(ao_error::charts(dir, &r.ao_error)?);
-    }
-    if !r.builders.is_empty() {
-        files.extend(builders::charts(dir, &r.builders)?);
-    }
-    if !r.libraries.is_empty() {
-        files.extend(libraries::charts(dir, &r.libraries)?);
-    }
-    if !r.ladder.is_empty() {
-        files.extend(ladder::charts(dir, &r.ladder)?);
-    }
-    if !r.leaks.is_empty() {
-        files.extend(leaks::charts(dir, &r.leaks)?);
+    // A chart drawn twice over is a part's bug (the trace part once drew
+    // each of its two charts 528 times): refused, not written into the page.
+    if let Some(twice) = html::first_duplicate(files.iter().map(String::as_str)) {
+        return Err(Error::Other(format!(
+            "bench: chart {twice} was drawn more than once"
+        )));
     }
     Ok(files.into_iter().map(|f| format!("charts/{f}")).collect())
 }
 
-/// The Markdown of the whole report: the study's tables, then one table per
-/// extra experiment.
+/// The Markdown of the whole report: a header naming the machine, the
+/// summary (the answer), then the parts' tables ([`parts_markdown`]).
 pub fn markdown(r: &BenchReport) -> String {
+    format!(
+        "{}{}{}",
+        header_markdown(r),
+        r.summary.markdown(),
+        parts_markdown(r)
+    )
+}
+
+/// The report's heading and the machine, settings, date and command.
+fn header_markdown(r: &BenchReport) -> String {
     let m = &r.machine;
-    let mut out = format!(
-        "## raylab bench\n\nMachine: {} ({} hardware threads{}), {} bench threads; {}; raylab's kernels {}; Embree {}{}. Image {}x{}, {} rep(s) {} (slow variants capped at {} s per cell), views {}.\n\n",
+    format!(
+        "## raylab bench\n\n{}: `{}`\n\nMachine: {} ({} hardware threads{}), {} bench threads; {}; raylab's kernels {}; Embree {}{}. Image {}x{}, {} rep(s) {} (slow variants capped at {} s per cell), views {}.\n\n",
+        r.date,
+        r.command,
         m.cpu,
         m.hardware_threads,
         m.physical_cores.map_or(String::new(), |c| format!(", {c} cores")),
@@ -410,7 +378,12 @@ pub fn markdown(r: &BenchReport) -> String {
         if r.quick { "without warm-up (--quick)" } else { "after a warm-up" },
         r.max_variant_s,
         r.views.join(" ")
-    );
+    )
+}
+
+/// The study's tables, then one table per extra experiment.
+fn parts_markdown(r: &BenchReport) -> String {
+    let mut out = String::new();
     if !r.measurements.is_empty() {
         out.push_str(&tables::markdown(&r.measurements));
         let ao = r
@@ -434,32 +407,8 @@ pub fn markdown(r: &BenchReport) -> String {
             ));
         }
     }
-    if !r.trace.is_empty() {
-        out.push_str(&trace::markdown(&r.trace));
-    }
-    if !r.scaling.is_empty() {
-        out.push_str(&scaling::markdown(&r.scaling));
-    }
-    if !r.growth.is_empty() {
-        out.push_str(&growth::markdown(&r.growth));
-    }
-    if !r.ao_error.is_empty() {
-        out.push_str(&ao_error::markdown(&r.ao_error));
-    }
-    if !r.builders.is_empty() {
-        out.push_str(&builders::markdown(&r.builders));
-    }
-    if !r.libraries.is_empty() {
-        out.push_str(&libraries::markdown(&r.libraries));
-    }
-    if !r.ladder.is_empty() {
-        out.push_str(&ladder::markdown(&r.ladder));
-    }
-    if !r.leaks.is_empty() {
-        out.push_str(&leaks::markdown(&r.leaks));
-    }
-    if !r.validation.is_empty() {
-        out.push_str(&validate::markdown(&r.validation));
+    for report in r.parts.0.iter().filter(|p| !p.is_empty()) {
+        out.push_str(&report.markdown());
     }
     out
 }
@@ -468,14 +417,25 @@ fn write_files(dir: &Path, r: &BenchReport) -> Result<()> {
     let write = |name: &str, text: &str| output::write_text(&dir.join(name), text);
     let md = markdown(r);
     write("bench.md", &md)?;
+    write(
+        "summary.md",
+        &r.summary.page(&r.date, &r.machine, &r.command, r.quick),
+    )?;
     write("bench.csv", &tables::csv(&r.measurements))?;
     let json = serde_json::to_string_pretty(r)?;
     write("bench.json", &json)?;
-    write("index.html", &report_html(r, &md))?;
+    let page = report_html(r);
+    // Each image once: the page's own check fails on duplicates too.
+    if let Some(twice) = html::first_duplicate(html::image_sources(&page)) {
+        return Err(Error::Other(format!(
+            "bench: index.html would show {twice} more than once"
+        )));
+    }
+    write("index.html", &page)?;
     Ok(())
 }
 
-fn report_html(r: &BenchReport, md: &str) -> String {
+fn report_html(r: &BenchReport) -> String {
     use html::{escape, figure, markdown_to_html, Section};
     let m = &r.machine;
     let meta = vec![
@@ -492,6 +452,9 @@ fn report_html(r: &BenchReport, md: &str) -> String {
         ("system".to_string(), m.os.clone()),
         ("Embree".to_string(), m.embree_version.clone()),
         ("raylab".to_string(), m.raylab_version.clone()),
+        ("kernels".to_string(), m.simd.clone()),
+        ("date".to_string(), r.date.clone()),
+        ("command".to_string(), r.command.clone()),
         (
             "settings".to_string(),
             format!(
@@ -514,7 +477,13 @@ fn report_html(r: &BenchReport, md: &str) -> String {
             .map(|c| figure(c, Some(&c.replace(".png", ".svg")), caption))
             .collect()
     };
-    let mut sections = Vec::new();
+    // The answer first.
+    let mut sections = vec![Section {
+        id: "summary".into(),
+        title: "Summary".into(),
+        // (The section's own title stands for the Markdown's.)
+        body: markdown_to_html(r.summary.markdown().trim_start_matches("### Summary\n\n")),
+    }];
     if !r.measurements.is_empty() {
         let variants: String = r
             .variants
@@ -580,7 +549,7 @@ fn report_html(r: &BenchReport, md: &str) -> String {
     sections.push(Section {
         id: "tables".into(),
         title: "Tables".into(),
-        body: markdown_to_html(md),
+        body: markdown_to_html(&parts_markdown(r)),
     });
     html::page("raylab bench", &meta, &sections)
 }

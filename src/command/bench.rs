@@ -216,6 +216,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         force: args.force,
         quiet: args.quiet,
         rays: None,
+        command: crate::bench::summary::command_line(std::env::args()),
     };
     let mut cfg = cfg;
     // Before the scenes load and the measuring starts.
@@ -287,7 +288,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     } else {
         crate::console::out(&bench::markdown(&report))?;
         crate::console::outln(&format!(
-            "Report: {} (also bench.md, bench.csv, bench.json, charts/); {:.0} s.",
+            "Report: {} (also bench.md, summary.md, bench.csv, bench.json, charts/); {:.0} s.",
             cfg.out.join("index.html").display(),
             report.elapsed_s
         ))?;
@@ -298,7 +299,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             m.variant, m.scene, m.view
         )));
     }
-    if let Some(v) = report.validation.iter().find(|v| v.genuine > 0) {
+    if let Some(v) = report.parts.validation().iter().find(|v| v.genuine > 0) {
         return Err(Error::Other(format!(
             "bench: {} disagrees with {} on {} rays of {}",
             v.tested, v.reference, v.genuine, v.scene

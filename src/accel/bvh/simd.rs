@@ -231,6 +231,23 @@ impl Kernel {
             Kernel::Avx2(_) => "avx2",
         }
     }
+
+    /// The kernels raylab's wide trees run on this CPU, by query path: the
+    /// node kernel ([`Kernel::detect`]) for single rays and packets of 8,
+    /// AVX-512 for packets of 16 where the CPU has it ([`Avx512::detect`];
+    /// without it those rays take the portable kernels one by one). The
+    /// bench's header said `avx2` on an AVX-512 machine.
+    pub fn in_use() -> String {
+        match (Kernel::detect(), Avx512::detect()) {
+            (Kernel::Avx2(_), Some(_)) => {
+                "avx2 (single rays, packets of 8), avx-512 (packets of 16)".to_string()
+            }
+            (Kernel::Avx2(_), None) => {
+                "avx2 (single rays, packets of 8), portable (packets of 16, per ray)".to_string()
+            }
+            (Kernel::Portable, _) => "portable".to_string(),
+        }
+    }
 }
 
 /// [`Portable`]'s operations on eight lanes in one AVX register each. Always

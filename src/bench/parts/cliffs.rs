@@ -7,6 +7,7 @@
 use serde::Serialize;
 
 use super::libraries::{LibraryPoint, KINDS};
+use crate::bench::family::Family;
 use crate::table::{
     Align::{Left, Right},
     Table,
@@ -73,22 +74,23 @@ pub fn cliffs(points: &[LibraryPoint]) -> Vec<Cliff> {
     let mut out = Vec::new();
     for scene in scenes {
         for (k, kind) in KINDS.iter().enumerate().take(4) {
-            let best = |family: &dyn Fn(&str) -> bool| {
+            let best = |family: &dyn Fn(Family) -> bool| {
                 points
                     .iter()
-                    .filter(|p| p.scene == scene && p.failed.is_none() && family(&p.family))
+                    .filter(|p| p.scene == scene && p.failed.is_none() && family(p.family))
                     .filter_map(|p| {
                         let m = *p.mrays.get(k)?;
                         m.is_finite().then_some((m, p))
                     })
                     .max_by(|a, b| a.0.total_cmp(&b.0))
             };
-            let (Some((own, own_p)), Some((peer, peer_p))) =
-                (best(&|f| f == "raylab"), best(&|f| f != "raylab"))
-            else {
+            let (Some((own, own_p)), Some((peer, peer_p))) = (
+                best(&|f| f == Family::Raylab),
+                best(&|f| f != Family::Raylab),
+            ) else {
                 continue;
             };
-            let embree = best(&|f| f == "embree").map_or(f64::NAN, |(m, _)| m);
+            let embree = best(&|f| f == Family::Embree).map_or(f64::NAN, |(m, _)| m);
             let path = |p: &LibraryPoint| match p.paths.get(k) {
                 Some(path) if !path.is_empty() => format!("{} {path}", p.backend),
                 _ => p.backend.clone(),
@@ -158,12 +160,12 @@ mod tests {
     use super::*;
     use crate::bench::measure::Stat;
 
-    fn point(scene: &str, backend: &str, family: &str, mrays: [f64; 4]) -> LibraryPoint {
+    fn point(scene: &str, backend: &str, family: Family, mrays: [f64; 4]) -> LibraryPoint {
         LibraryPoint {
             scene: scene.into(),
             triangles: 1,
             backend: backend.into(),
-            family: family.into(),
+            family,
             build_ms: Stat::of(&[1.0]),
             mrays: mrays.into_iter().chain([f64::NAN, 1.0]).collect(),
             paths: vec!["single".into(); KINDS.len()],
@@ -187,25 +189,25 @@ mod tests {
             point(
                 "plane:20000",
                 "bvh8-sah",
-                "raylab",
+                Family::Raylab,
                 [20.0, 200.0, 10.0, 5.0],
             ),
             point(
                 "plane:20000",
                 "bvh8-sah-watertight",
-                "raylab",
+                Family::Raylab,
                 [5.0, 50.0, 30.0, 1.0],
             ),
             point(
                 "plane:20000",
                 "embree-medium",
-                "embree",
+                Family::Embree,
                 [25.0, 100.0, 20.0, 4.0],
             ),
             point(
                 "plane:20000",
                 "tinybvh-bvh8",
-                "library",
+                Family::Tinybvh,
                 [10.0, 300.0, 1.0, 1.0],
             ),
         ];

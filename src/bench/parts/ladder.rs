@@ -8,7 +8,7 @@
 //! measurement, rungs interleaved run by run). A render of the half-size
 //! image lasts about 50 ms here, and its per-kind times moved by 10-15%
 //! between runs, more than the rungs differ; the recorded rays are traced
-//! in runs of at least [`MIN_RUN_S`](super::trace::MIN_RUN_S), every rung in
+//! in runs of at least [`MIN_RUN_S`](crate::bench::timing::MIN_RUN_S), every rung in
 //! turn. Its chart is the Pareto front per scene: build time against the
 //! time to trace one render's rays.
 
@@ -303,7 +303,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lad
             &backends,
             &trace::thread_counts(cfg),
             trace::trace_reps(cfg),
-            trace::min_run_s(cfg),
+            crate::bench::timing::min_run_s(cfg),
             bar,
         )?;
         for p in &mut points {
@@ -318,7 +318,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene], bar: &StepBar) -> Result<Vec<Lad
 fn add_trace(p: &mut LadderPoint, traced: &[TracePoint], threads: usize) {
     let mut rays = [0usize; 4];
     for t in traced.iter().filter(|t| t.backend == p.backend) {
-        let Some(k) = KINDS.iter().position(|k| k.name() == t.kind) else {
+        let Some(k) = KINDS.iter().position(|k| *k == t.kind) else {
             continue;
         };
         rays[k] = t.rays;
@@ -554,9 +554,8 @@ mod tests {
             backend: backend.into(),
             structure: backend.into(),
             query: "packet16".into(),
-            embree: false,
-            library: false,
-            kind: kind.name().into(),
+            family: crate::bench::family::Family::Raylab,
+            kind,
             threads,
             rays,
             mrays: Stat::of(&[mrays]),

@@ -12,17 +12,18 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::Serialize;
 
-use super::trace::{min_run_s, passes_for, trace};
 use super::ChartSection;
 use crate::accel::bvh::BuildParams;
 use crate::accel::library::Library;
 use crate::accel::{build_backend, BackendSpec, Built, Query};
 use crate::bench::charts::{
-    color, distinct, log_axis, log_label, log_range, save_chart, side_legend, DrawResult, Swatch,
-    FONT, SIDE_LEGEND,
+    distinct, family_shade, log_axis, log_label, log_range, save_chart, side_legend, DrawResult,
+    Swatch, FONT, SIDE_LEGEND,
 };
 use crate::bench::config::BenchConfig;
+use crate::bench::family::Family;
 use crate::bench::measure::Stat;
+use crate::bench::timing::{min_run_s, passes_for, trace};
 use crate::error::Result;
 use crate::exact::{judge_answers, ExactAnswer, ExactReference, ExactReport};
 use crate::geometry::{Intersector, Ray};
@@ -38,7 +39,7 @@ use crate::validate::{edge_rays, recorded_rays, RaySet};
 pub const SECTION: ChartSection = ChartSection {
     title: "Every CPU BVH: speed against accuracy",
     stem: "libraries",
-    caption: "Time per ray (one thread, mean over the render's ray kinds) against wrong answers per million against the exact reference, per scene: top row on the render's rays, bottom row on rays aimed at the scene's vertices and edges. A backend with none sits on the bottom line (dot: raylab, triangle: Embree, cross: another library). Lower left is better.",
+    caption: "Time per ray (one thread, mean over the render's ray kinds) against wrong answers per million against the exact reference, per scene: top row on the render's rays, bottom row on rays aimed at the scene's vertices and edges. A backend with none sits on the bottom line (dot: raylab, triangle: Embree, cross: another library; colour: the family, a shade per backend). Lower left is better.",
 };
 
 /// The ray kinds: a render's, its diffuse bounces, random rays (only from a
@@ -60,8 +61,8 @@ pub struct LibraryPoint {
     pub scene: String,
     pub triangles: usize,
     pub backend: String,
-    /// `raylab`, `embree` or `library`.
-    pub family: String,
+    /// Whose it is (`raylab`, `embree`, or the library's name).
+    pub family: Family,
     /// Median build ms on one thread (after an untimed build).
     pub build_ms: Stat,
     /// Mrays/s on one thread per kind, in [`KINDS`] order, on the query
@@ -242,7 +243,7 @@ fn not_built(scene: &Scene, spec: &BackendSpec, why: String) -> LibraryPoint {
         scene: scene.name.clone(),
         triangles: scene.triangle_count(),
         backend: spec.structure_name(),
-        family: "library".into(),
+        family: Family::of(spec),
         build_ms: Stat::of(&[]),
         mrays: vec![f64::NAN; KINDS.len()],
         paths: vec![String::new(); KINDS.len()],
@@ -367,13 +368,6 @@ fn judged(
         .map(|(_, m)| *m)
         .collect();
     let ns_per_ray = measured.iter().map(|m| 1e3 / m).sum::<f64>() / measured.len().max(1) as f64;
-    let family = if built.spec.is_embree() {
-        "embree"
-    } else if built.spec.is_library() {
-        "library"
-    } else {
-        "raylab"
-    };
     let limits = match built.spec {
         BackendSpec::Library { library, .. } => {
             library.limits().iter().map(|s| s.to_string()).collect()
@@ -384,7 +378,7 @@ fn judged(
         scene: scene.name.clone(),
         triangles: scene.triangle_count(),
         backend: built.spec.structure_name(),
-        family: family.to_string(),
+        family: Family::of(&built.spec),
         build_ms,
         mrays,
         paths,
@@ -472,8 +466,7 @@ pub fn markdown(points: &[LibraryPoint]) -> String {
         .map(|(b, l)| format!("- `{b}`: {}\n", l.join("; ")))
         .collect();
     format!(
-        "{}### Every CPU BVH side by side\n\nOne thread, each backend on its fastest query path per ray kind (raylab's 8-wide trees and Embree are timed on single rays and on packets of 8 and 16, interleaved, and the fastest counts; the path is listed), the same recorded rays (one render's primary, shadow and AO rays and a diffuse bounce per primary hit: at most 50000 consecutive rays of each from the middle of the render's stream, so that packets hold neighbouring rays). Wrong: answers (closest hit for primary and diffuse, any hit for shadow and AO) that the exact reference says are false misses, false hits, the wrong triangle or a t beyond its bound; undecidable: double precision could not say. Edge rays: as many rays aimed exactly at the scene's vertices and at points on its edges, from 1e-4 to 0.5 of the scene's size away (`validate --rays edges`), each asked for its closest hit and for any hit; they are timed but kept out of the time per ray in the chart.\n\n{}\nWhat the other libraries lack, and what raylab does instead:\n\n{limits}",
-        super::cliffs::markdown(points),
+        "### Every CPU BVH side by side\n\nOne thread, each backend on its fastest query path per ray kind (raylab's 8-wide trees and Embree are timed on single rays and on packets of 8 and 16, interleaved, and the fastest counts; the path is listed), the same recorded rays (one render's primary, shadow and AO rays and a diffuse bounce per primary hit: at most 50000 consecutive rays of each from the middle of the render's stream, so that packets hold neighbouring rays). Wrong: answers (closest hit for primary and diffuse, any hit for shadow and AO) that the exact reference says are false misses, false hits, the wrong triangle or a t beyond its bound; undecidable: double precision could not say. Edge rays: as many rays aimed exactly at the scene's vertices and at points on its edges, from 1e-4 to 0.5 of the scene's size away (`validate --rays edges`), each asked for its closest hit and for any hit; they are timed but kept out of the time per ray in the chart.\n\n{}\nWhat the other libraries lack, and what raylab does instead:\n\n{limits}",
         t.markdown()
     )
 }
@@ -514,6 +507,21 @@ where
         .take(MAX_SCENES)
         .collect();
     let backends = distinct(pts.iter().map(|p| p.backend.as_str()));
+    // Each backend in a shade of its family's colour.
+    let family_of = |b: &str| {
+        pts.iter()
+            .find(|p| p.backend == b)
+            .map_or(Family::Raylab, |p| p.family)
+    };
+    let colors: Vec<RGBAColor> = backends
+        .iter()
+        .map(|b| {
+            let f = family_of(b);
+            let kin: Vec<&&str> = backends.iter().filter(|o| family_of(o) == f).collect();
+            let i = kin.iter().position(|o| **o == *b).unwrap_or(0);
+            family_shade(f, i, kin.len())
+        })
+        .collect();
     let areas = panels.split_evenly((2, scenes.len().max(1)));
     // Top row: the render's rays; bottom row: the edge and vertex rays.
     type WrongOf = fn(&LibraryPoint) -> f64;
@@ -557,14 +565,22 @@ where
                 .draw()?;
             for p in &here {
                 let ci = backends.iter().position(|b| *b == p.backend).unwrap_or(0);
-                let c = color(ci);
+                let c = colors[ci];
                 let at = (p.ns_per_ray.max(1e-3), y(p));
-                if p.family == "raylab" {
-                    chart.draw_series(std::iter::once(Circle::new(at, 6, c.filled())))?;
-                } else if p.family == "embree" {
-                    chart.draw_series(std::iter::once(TriangleMarker::new(at, 7, c.filled())))?;
-                } else {
-                    chart.draw_series(std::iter::once(Cross::new(at, 6, c.stroke_width(2))))?;
+                match p.family {
+                    Family::Raylab => {
+                        chart.draw_series(std::iter::once(Circle::new(at, 6, c.filled())))?;
+                    }
+                    Family::Embree => {
+                        chart.draw_series(std::iter::once(TriangleMarker::new(
+                            at,
+                            7,
+                            c.filled(),
+                        )))?;
+                    }
+                    _ => {
+                        chart.draw_series(std::iter::once(Cross::new(at, 6, c.stroke_width(2))))?;
+                    }
                 }
             }
         }
@@ -572,7 +588,7 @@ where
     let entries: Vec<(String, RGBAColor)> = backends
         .iter()
         .enumerate()
-        .map(|(i, b)| (b.to_string(), color(i)))
+        .map(|(i, b)| (b.to_string(), colors[i]))
         .collect();
     side_legend(&side, &entries, Swatch::Dot)?;
     root.present()?;

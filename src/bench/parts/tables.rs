@@ -10,7 +10,9 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::ChartSection;
-use crate::bench::charts::{draw_bars, log_label, log_range, save_chart, short, Bars, DrawResult};
+use crate::bench::charts::{
+    best_per_family, draw_bars, log_label, log_range, save_chart, short, Bars, DrawResult,
+};
 use crate::bench::measure::Measurement;
 use crate::bench::variants::BASELINE;
 use crate::error::Result;
@@ -214,7 +216,7 @@ pub fn csv(ms: &[Measurement]) -> String {
 pub const SECTION: ChartSection = ChartSection {
     title: "Speedups",
     stem: "speedup",
-    caption: "Speedup of each variant over the baseline, per scene and view (log scale).",
+    caption: "Speedup over the baseline per scene and view (log scale): the best variant of each family (raylab, Embree, each library); the tables below have every variant.",
 };
 
 /// The part's charts: one per AO mode.
@@ -241,30 +243,25 @@ where
 {
     let here: Vec<&Measurement> = d.ms.iter().filter(|m| m.ao == d.ao).collect();
     let mut groups: Vec<(String, String, usize)> = Vec::new();
-    let mut variants: Vec<String> = Vec::new();
     for m in &here {
         if !groups.iter().any(|(s, v, _)| *s == m.scene && *v == m.view) {
             groups.push((m.scene.clone(), m.view.clone(), m.triangles));
         }
-        if !variants.contains(&m.variant) {
-            variants.push(m.variant.clone());
-        }
     }
-    let series = variants
-        .into_iter()
-        .map(|variant| {
-            let values = groups
-                .iter()
-                .map(|(scene, view, _)| {
-                    let m = here
-                        .iter()
-                        .find(|m| m.variant == variant && m.scene == *scene && m.view == *view)?;
-                    speedup(d.ms, m)
-                })
-                .collect();
-            (variant, values)
-        })
-        .collect();
+    // The best variant of each family per cell (the tables have each).
+    let series = best_per_family(
+        &here,
+        groups.len(),
+        |m| m.family,
+        |m| m.variant.as_str(),
+        |m, g| {
+            let (scene, view, _) = &groups[g];
+            (m.scene == *scene && m.view == *view)
+                .then(|| speedup(d.ms, m))
+                .flatten()
+        },
+        "variants",
+    );
     let values: Vec<f64> = here.iter().filter_map(|m| speedup(d.ms, m)).collect();
     let y = log_range(values.iter().copied().chain([1.0]));
     let speedup_label = |v: &f64| {
@@ -315,6 +312,7 @@ pub(crate) mod tests {
             ao: ao.into(),
             variant: variant.into(),
             backend: "x".into(),
+            family: crate::bench::family::Family::Raylab,
             schedule: "serial".into(),
             build_threads: 1,
             render_threads: 1,

@@ -3,7 +3,7 @@
 //! per primary hit (incoherent), recorded once per scene, traced by every
 //! backend on every query path it has (single rays, packets, streams) on each
 //! thread count, repetitions interleaved across backends so that a noisy
-//! machine slows them alike. Every path is asked in streams of [`CHUNK`] rays.
+//! machine slows them alike. Every path is asked in streams of [`CHUNK`](crate::bench::timing::CHUNK) rays.
 //!
 //! A speed figure is only quoted for right answers (tinybvh's habit): before
 //! timing, every backend answers every ray once; raylab's own backends must
@@ -12,9 +12,6 @@
 //! a hit against a miss) are counted and reported: ties on shared edges, and
 //! the libraries' own misses, which `raylab validate` classifies.
 
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::time::Instant;
-
 use std::path::Path;
 
 use serde::Serialize;
@@ -22,15 +19,17 @@ use serde::Serialize;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use crate::bench::charts::{draw_bars, log_label, log_range, save_chart, short, Bars, DrawResult};
+use crate::bench::charts::{
+    best_per_family, draw_bars, log_label, log_range, save_chart, short, Bars, DrawResult,
+};
 
 use super::ChartSection;
-use crate::accel::{build_backend, Backend, BackendKind, BackendSpec, Built};
+use crate::accel::{build_backend, BackendKind, BackendSpec, Built};
 use crate::bench::config::BenchConfig;
+use crate::bench::family::Family;
 use crate::bench::measure::Stat;
+use crate::bench::timing::{answers, digest, min_run_s, passes_for, trace, Answer};
 use crate::error::{Error, Result};
-use crate::geometry::Ray;
-use crate::os::FlushDenormals;
 use crate::progress::StepBar;
 use crate::render::AoMode;
 use crate::render::RenderSettings;
@@ -42,14 +41,10 @@ use crate::table::{
 };
 use crate::validate::{recorded_rays, RaySet};
 
-/// Rays handed to a thread at a time: small enough to balance two threads,
-/// large enough that the shared counter is touched rarely.
-const CHUNK: usize = 512;
-
 pub const SECTION: ChartSection = ChartSection {
     title: "Query throughput",
     stem: "trace-",
-    caption: "Rays traced per second per backend, scene and ray kind, on one thread count per chart (log scale; the same recorded rays for every backend, no shading).",
+    caption: "Rays traced per second per scene and ray kind, on one thread count per chart (log scale; the same recorded rays for every backend, no shading): the fastest backend and query path of each family (raylab, Embree, each library); the table below has every one.",
 };
 
 /// The thread counts measured: one, and all bench threads.
@@ -121,12 +116,11 @@ pub struct TracePoint {
     pub structure: String,
     /// The query path: `single`, `packet8`, `stream`.
     pub query: String,
-    /// Embree's (the reference the own backends' times are divided by).
-    pub embree: bool,
-    /// Another library's (neither raylab's own nor Embree).
-    pub library: bool,
+    /// Whose it is: raylab's own, Embree (the reference the own backends'
+    /// times are divided by), or another library.
+    pub family: Family,
     /// `primary` or `diffuse` (closest hit), `shadow` or `ao` (any hit).
-    pub kind: String,
+    pub kind: RaySet,
     pub threads: usize,
     pub rays: usize,
     /// Millions of rays per second of wall time, over the measured runs.
@@ -140,146 +134,6 @@ pub struct TracePoint {
     pub build_ms: f64,
     /// Bytes of its acceleration structure ([`Backend::memory_bytes`]).
     pub memory_bytes: Option<usize>,
-}
-
-/// What a query answered, comparable across backends: the hit triangle and the
-/// bits of `t` for closest hits, hit or not for any-hit queries.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Answer {
-    Closest(Option<(u32, u32)>),
-    Any(bool),
-}
-
-/// Answers each ray of `rays` as the ray kind asks (closest or any hit),
-/// through the backend's stream queries (its query path).
-fn answers(backend: &dyn Backend, closest: bool, rays: &[Ray], out: &mut Vec<Answer>) {
-    out.clear();
-    if closest {
-        let mut hits = vec![None; rays.len()];
-        backend.intersect_stream(rays, &mut hits);
-        out.extend(
-            hits.iter()
-                .map(|h| Answer::Closest(h.map(|h| (h.tri, h.t.to_bits())))),
-        );
-    } else {
-        let mut occluded = vec![false; rays.len()];
-        backend.occluded_stream(rays, &mut occluded);
-        out.extend(occluded.iter().map(|&o| Answer::Any(o)));
-    }
-}
-
-/// A number that depends on every answer, so the timed loop cannot be elided.
-#[inline]
-fn digest(a: Answer) -> u64 {
-    match a {
-        Answer::Closest(Some((tri, _))) => tri as u64 + 1,
-        Answer::Closest(None) | Answer::Any(false) => 0,
-        Answer::Any(true) => 1,
-    }
-}
-
-/// A timed run lasts at least about this long: its rays are traced as many
-/// times over as the warm-up run says it takes. Runs of a millisecond (a small
-/// scene's shadow rays on the fastest paths) measured thread start-up more
-/// than tracing: raylab's fastest packets seemed to gain 0.9-1.3x from a
-/// second thread where Embree's slower ones gained 1.6-1.9x.
-pub const MIN_RUN_S: f64 = 0.02;
-
-/// How many passes over its rays make a run last `min_run_s` (the bench's
-/// [`MIN_RUN_S`], 0 for `--quick`), from one pass's `seconds`.
-pub fn passes_for(seconds: f64, min_run_s: f64) -> usize {
-    (min_run_s / seconds.max(1e-9)).ceil().clamp(1.0, 10_000.0) as usize
-}
-
-/// The least duration of a timed run for `cfg`: none for `--quick`, whose
-/// figures only show that every path runs.
-pub fn min_run_s(cfg: &BenchConfig) -> f64 {
-    if cfg.quick {
-        0.0
-    } else {
-        MIN_RUN_S
-    }
-}
-
-/// Traces `rays` `passes` times on `threads` threads, streams of [`CHUNK`]
-/// rays taken from a shared counter, and returns the wall time in seconds
-/// and the sum of the first pass's answers' digests.
-///
-/// The calling thread is one of the `threads`, so no more threads exist than
-/// trace. The clock starts when the last thread arrives at the start line
-/// (the others are spinning on it then) and stops when the last one
-/// finishes, so neither thread start-up nor joining is timed. It used to
-/// start when the calling thread released workers it then waited for: three
-/// threads on two CPUs, and a worker off its CPU for a scheduler tick inside
-/// the clock. Wuson's rays in 20 ms runs on two threads gained 1.2-2.1x from
-/// the second thread that way (8 runs, both backends), 1.7-2.0x this way.
-pub fn trace(
-    backend: &dyn Backend,
-    closest: bool,
-    rays: &[Ray],
-    threads: usize,
-    passes: usize,
-) -> (f64, u64) {
-    let threads = threads.max(1);
-    let chunks_per_pass = rays.len().div_ceil(CHUNK);
-    let chunks = chunks_per_pass * passes;
-    let next = AtomicUsize::new(0);
-    let arrived = AtomicUsize::new(0);
-    let started = std::sync::OnceLock::new();
-    let work = || {
-        let _ftz = backend.flushes_denormals().then(FlushDenormals::enable);
-        let mut sum = 0u64;
-        let mut hits = vec![None; CHUNK];
-        let mut occluded = vec![false; CHUNK];
-        if arrived.fetch_add(1, Ordering::AcqRel) + 1 == threads {
-            started.get_or_init(Instant::now);
-        }
-        // Yielding while waiting costs nothing when every thread has a CPU,
-        // and lets a thread that lost its CPU have it back sooner.
-        while started.get().is_none() {
-            std::thread::yield_now();
-        }
-        loop {
-            let k = next.fetch_add(1, Ordering::Relaxed);
-            if k >= chunks {
-                break (sum, Instant::now());
-            }
-            let start = k % chunks_per_pass * CHUNK;
-            let chunk = &rays[start..(start + CHUNK).min(rays.len())];
-            let n = chunk.len();
-            // Only the first pass's answers are read: reading every pass's
-            // cost a fast backend about 10% of its two-thread throughput
-            // (a per-ray cost inside the clock), and one pass already shows
-            // answers that depend on the thread count.
-            let check = k < chunks_per_pass;
-            if closest {
-                backend.intersect_stream(chunk, &mut hits[..n]);
-                if check {
-                    for h in &hits[..n] {
-                        // The digest reads only the triangle.
-                        sum = sum.wrapping_add(digest(Answer::Closest(h.map(|h| (h.tri, 0)))));
-                    }
-                }
-            } else {
-                backend.occluded_stream(chunk, &mut occluded[..n]);
-                if check {
-                    sum = sum.wrapping_add(occluded[..n].iter().filter(|&&o| o).count() as u64);
-                }
-            }
-        }
-    };
-    let (sum, finished) = std::thread::scope(|s| {
-        let helpers: Vec<_> = (1..threads).map(|_| s.spawn(work)).collect();
-        let own = work();
-        helpers
-            .into_iter()
-            .filter_map(|h| h.join().ok())
-            .fold(own, |(sum, last), (s, at)| {
-                (sum.wrapping_add(s), last.max(at))
-            })
-    });
-    let started = started.get().copied().unwrap_or(finished);
-    (finished.duration_since(started).as_secs_f64(), sum)
 }
 
 /// The backends of the trace part for the bench's variants: each distinct
@@ -303,7 +157,7 @@ pub fn trace_specs(
 
 /// Measures every backend of `specs` on the rays of one render of `scene`
 /// with `settings`, on each of `thread_counts`, `reps` times, each timed
-/// run at least `min_run` seconds long (see [`MIN_RUN_S`]). The first own
+/// run at least `min_run` seconds long (see [`MIN_RUN_S`](crate::bench::timing::MIN_RUN_S)). The first own
 /// (non-Embree) backend is the reference every other is checked against.
 ///
 /// Builds are measured too: on each thread count, a warm-up build and `reps`
@@ -486,9 +340,8 @@ pub fn trace_backends(
                     backend: b.name(),
                     structure: b.spec.structure_name(),
                     query: b.spec.query().name(),
-                    embree: b.spec.is_embree(),
-                    library: b.spec.is_library(),
-                    kind: kind.name().to_string(),
+                    family: Family::of(&b.spec),
+                    kind,
                     threads,
                     rays: rays.len(),
                     mrays: Stat::of(&rates[bi][ti]),
@@ -509,7 +362,7 @@ fn build_markdown(points: &[TracePoint]) -> String {
     let mut counts: Vec<usize> = points.iter().map(|p| p.threads).collect();
     counts.sort_unstable();
     counts.dedup();
-    let has_embree = points.iter().any(|p| p.embree);
+    let has_embree = points.iter().any(|p| p.family == Family::Embree);
     let mut table = Table::new([("scene", Left), ("backend", Left)]);
     for t in &counts {
         table.column(format!("build ms, {t} thr"), Right);
@@ -539,9 +392,11 @@ fn build_markdown(points: &[TracePoint]) -> String {
                 _ => "-".to_string(),
             });
             if has_embree {
-                let embree = build(&|q| q.embree);
+                let embree = build(&|q| q.family == Family::Embree);
                 row.push(match (own, embree) {
-                    (Some(o), Some(e)) if !p.embree && o.is_finite() && e > 0.0 => {
+                    (Some(o), Some(e))
+                        if p.family != Family::Embree && o.is_finite() && e > 0.0 =>
+                    {
                         format!("{:.2}", o / e)
                     }
                     _ => String::new(),
@@ -570,7 +425,7 @@ pub fn markdown(points: &[TracePoint]) -> String {
             backends.push(&p.backend);
         }
     }
-    let has_embree = points.iter().any(|p| p.embree);
+    let has_embree = points.iter().any(|p| p.family == Family::Embree);
     let mut table = Table::new([
         ("scene", Left),
         ("triangles", Right),
@@ -580,7 +435,7 @@ pub fn markdown(points: &[TracePoint]) -> String {
     for b in &backends {
         table.column(*b, Right);
     }
-    let has_library = points.iter().any(|p| p.library);
+    let has_library = points.iter().any(|p| p.family.is_library());
     if has_embree || has_library {
         table.column("best own", Right);
     }
@@ -592,9 +447,9 @@ pub fn markdown(points: &[TracePoint]) -> String {
         table.column("best library", Right);
         table.column("own/library time", Right);
     }
-    let mut rows: Vec<(&str, &str, usize)> = Vec::new();
+    let mut rows: Vec<(&str, RaySet, usize)> = Vec::new();
     for p in points {
-        let key = (p.scene.as_str(), p.kind.as_str(), p.threads);
+        let key = (p.scene.as_str(), p.kind, p.threads);
         if !rows.contains(&key) {
             rows.push(key);
         }
@@ -608,7 +463,7 @@ pub fn markdown(points: &[TracePoint]) -> String {
         let mut row = vec![
             scene.to_string(),
             first.triangles.to_string(),
-            format!("{kind} ({})", first.rays),
+            format!("{} ({})", kind.name(), first.rays),
             threads.to_string(),
         ];
         for b in &backends {
@@ -626,7 +481,7 @@ pub fn markdown(points: &[TracePoint]) -> String {
                 .filter(|p| which(p))
                 .max_by(|a, b| a.mrays.median.total_cmp(&b.mrays.median))
         };
-        let own = fastest(&|p| !p.embree && !p.library);
+        let own = fastest(&|p| p.family == Family::Raylab);
         if has_embree || has_library {
             row.push(own.map_or(String::new(), |o| o.backend.clone()));
         }
@@ -634,9 +489,9 @@ pub fn markdown(points: &[TracePoint]) -> String {
         for (has, which) in [
             (
                 has_embree,
-                &(|p: &TracePoint| p.embree) as &dyn Fn(&TracePoint) -> bool,
+                &(|p: &TracePoint| p.family == Family::Embree) as &dyn Fn(&TracePoint) -> bool,
             ),
-            (has_library, &|p: &TracePoint| p.library),
+            (has_library, &|p: &TracePoint| p.family.is_library()),
         ] {
             if !has {
                 continue;
@@ -660,7 +515,10 @@ pub fn markdown(points: &[TracePoint]) -> String {
 
 /// The part's charts: one per thread count.
 pub fn charts(dir: &Path, points: &[TracePoint]) -> Result<Vec<String>> {
+    // Each thread count once: the points alternate between them (per
+    // backend), and `dedup` alone drew each chart 528 times over.
     let mut counts: Vec<usize> = points.iter().map(|p| p.threads).collect();
+    counts.sort_unstable();
     counts.dedup();
     counts
         .into_iter()
@@ -684,30 +542,24 @@ where
     DB::ErrorType: 'static,
 {
     let here: Vec<&TracePoint> = d.points.iter().filter(|p| p.threads == d.threads).collect();
-    let mut groups: Vec<(String, String)> = Vec::new();
-    let mut backends: Vec<String> = Vec::new();
+    let mut groups: Vec<(String, RaySet)> = Vec::new();
     for p in &here {
         if !groups.iter().any(|(s, k)| *s == p.scene && *k == p.kind) {
-            groups.push((p.scene.clone(), p.kind.clone()));
-        }
-        if !backends.contains(&p.backend) {
-            backends.push(p.backend.clone());
+            groups.push((p.scene.clone(), p.kind));
         }
     }
-    let series = backends
-        .into_iter()
-        .map(|backend| {
-            let values = groups
-                .iter()
-                .map(|(scene, kind)| {
-                    here.iter()
-                        .find(|p| p.backend == backend && p.scene == *scene && p.kind == *kind)
-                        .map(|p| p.mrays.median)
-                })
-                .collect();
-            (backend, values)
-        })
-        .collect();
+    // The fastest backend and path of each family per cell (the table has each).
+    let series = best_per_family(
+        &here,
+        groups.len(),
+        |p| p.family,
+        |p| p.backend.as_str(),
+        |p, g| {
+            let (scene, kind) = &groups[g];
+            (p.scene == *scene && p.kind == *kind).then_some(p.mrays.median)
+        },
+        "paths",
+    );
     draw_bars(
         root,
         &Bars {
@@ -719,7 +571,7 @@ where
             y_desc: "Mrays/s (log)",
             groups: groups
                 .iter()
-                .map(|(scene, kind)| (short(scene), kind.clone()))
+                .map(|(scene, kind)| (short(scene), kind.name().to_string()))
                 .collect(),
             series,
             y: log_range(here.iter().map(|p| p.mrays.median)),
@@ -732,8 +584,10 @@ where
 mod tests {
     use super::*;
     use crate::accel::bvh::{BuildParams, BvhBackend};
+    use crate::accel::Backend;
     use crate::bench::measure::View;
     use crate::geometry::Hit;
+    use crate::geometry::Ray;
     use crate::render::AoMode;
 
     /// The SAH tree, but every 50th closest hit reports another triangle.
@@ -804,71 +658,6 @@ mod tests {
             !md.contains("own/Embree"),
             "no Embree column without Embree: {md}"
         );
-    }
-
-    /// On any thread count the first pass traces every ray once (its digest
-    /// sum is one pass's), and the clock moves with the passes.
-    #[test]
-    fn passes_multiply_the_work_on_any_thread_count() {
-        let (scene, settings) = setup();
-        let built = build_backend(&BackendSpec::bvh(BuildParams::sah()), &scene).unwrap();
-        let backend = built.as_ref();
-        let rays = recorded_rays(&scene, backend, &settings).unwrap().primary;
-        let (one_s, one) = trace(backend, true, &rays, 1, 1);
-        assert!(one > 0, "some primary rays hit");
-        for threads in [1, 2, 3] {
-            let (s, sum) = trace(backend, true, &rays, threads, 40);
-            assert_eq!(sum, one, "{threads} threads");
-            assert!(s > 5.0 * one_s, "40 passes took {s} s, one {one_s} s");
-        }
-        assert_eq!(passes_for(0.004, MIN_RUN_S), 5);
-        assert_eq!(passes_for(1.0, MIN_RUN_S), 1);
-        assert_eq!(passes_for(0.004, 0.0), 1);
-    }
-
-    /// The SAH tree, noting which threads ask it streams (each a
-    /// millisecond slowly, so that every thread of a run gets some: a thread
-    /// would have to wait for its CPU through most of the run to miss out).
-    struct Noted(BvhBackend, std::sync::Mutex<Vec<std::thread::ThreadId>>);
-
-    impl Backend for Noted {
-        fn intersect(&self, ray: &Ray) -> Option<Hit> {
-            self.0.intersect(ray)
-        }
-        fn occluded(&self, ray: &Ray) -> bool {
-            self.0.occluded(ray)
-        }
-        fn intersect_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
-            let mut seen = self.1.lock().unwrap();
-            let me = std::thread::current().id();
-            if !seen.contains(&me) {
-                seen.push(me);
-            }
-            drop(seen);
-            std::thread::sleep(std::time::Duration::from_millis(1));
-            self.0.intersect_stream(rays, hits);
-        }
-    }
-
-    /// A run on N threads traces on the calling thread and N - 1 others:
-    /// no more threads than CPUs when N is the CPU count (a main thread
-    /// waiting beside N workers made the two-thread figures random).
-    #[test]
-    fn the_calling_thread_is_one_of_the_tracing_threads() {
-        let (scene, settings) = setup();
-        let tree = BvhBackend::new(&scene.mesh(), &BuildParams::sah()).unwrap();
-        let noted = Noted(tree, std::sync::Mutex::new(Vec::new()));
-        let rays = recorded_rays(&scene, &noted, &settings).unwrap().primary;
-        assert!(rays.len() > 3 * CHUNK, "enough chunks for three threads");
-        let me = std::thread::current().id();
-        for threads in [1, 2, 3] {
-            noted.1.lock().unwrap().clear();
-            // 16 passes: over 60 chunks.
-            trace(&noted, true, &rays, threads, 16);
-            let seen = noted.1.lock().unwrap().clone();
-            assert_eq!(seen.len(), threads, "{threads} threads: {seen:?}");
-            assert!(seen.contains(&me), "{threads} threads: not the caller");
-        }
     }
 
     #[test]
