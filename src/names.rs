@@ -58,6 +58,7 @@ macro_rules! value_names {
         }
     )*};
 }
+pub(crate) use value_names;
 
 value_names!(
     crate::accel::BackendKind,
@@ -67,7 +68,6 @@ value_names!(
     crate::geometry::OffsetStrategy,
     crate::render::Schedule,
     crate::validate::RaySet,
-    crate::command::args::LibraryLayout,
 );
 
 #[cfg(test)]

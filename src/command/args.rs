@@ -343,6 +343,8 @@ pub enum LibraryLayout {
     Bvh2,
 }
 
+crate::names::value_names!(LibraryLayout);
+
 impl BackendArgs {
     /// The backend these flags describe, built on `threads`.
     pub fn spec(&self, threads: usize) -> Result<BackendSpec> {
