@@ -336,6 +336,7 @@ fn quick_bench_draws_charts_and_images() {
     assert!(summary.contains("| cornell-water | primary |"), "{summary}");
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("bench.json")).unwrap()).unwrap();
+    assert_eq!(json["format"].as_u64(), Some(2));
     assert!(json["command"]
         .as_str()
         .unwrap()

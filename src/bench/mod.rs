@@ -98,9 +98,18 @@ pub struct SceneImages {
     pub differing_pixels: Vec<(String, usize)>,
 }
 
+/// bench.json's format. 2 (2026-12-05): `format`, `command`, `date` and
+/// `summary` added; trace points name their `family` ("raylab", "embree",
+/// "tinybvh", "obvhs", "bvh-crate") where format 1 had the `embree` and
+/// `library` booleans, and library points say their library where they said
+/// "library". Format 1 had no `format` field.
+pub const FORMAT: u32 = 2;
+
 /// Everything a bench run measured; `bench.json` is this.
 #[derive(Clone, Debug, Serialize)]
 pub struct BenchReport {
+    /// bench.json's format: [`FORMAT`] (a reader can tell the layouts apart).
+    pub format: u32,
     /// The command line that asked for the run.
     pub command: String,
     /// The day it ran (UTC, `YYYY-MM-DD`).
@@ -234,6 +243,7 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
         &measurements,
     );
     let mut report = BenchReport {
+        format: FORMAT,
         command: cfg.command.clone(),
         date: summary::today(),
         machine: Machine::detect(cfg.threads),
