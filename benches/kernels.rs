@@ -20,7 +20,7 @@ fn ao_rays(scene: &raylab::scene::Scene) -> Vec<Ray> {
 }
 
 /// The rays a 48x36 render of `scene` casts (paper AO), in its stream order.
-fn recorded(scene: &raylab::scene::Scene) -> raylab::validate::Recorded {
+fn recorded(scene: &raylab::scene::Scene) -> raylab::measure::validate::Recorded {
     let settings = raylab::render::RenderSettings {
         width: 48,
         height: 36,
@@ -40,7 +40,7 @@ fn recorded(scene: &raylab::scene::Scene) -> raylab::validate::Recorded {
         two_sided_lights: false,
     };
     let bvh = raylab::accel::bvh::BvhBackend::new(&scene.mesh(), &BuildParams::sah()).unwrap();
-    raylab::validate::recorded_rays(scene, &bvh, &settings).unwrap()
+    raylab::measure::validate::recorded_rays(scene, &bvh, &settings).unwrap()
 }
 
 fn ray_box(c: &mut Criterion) {

@@ -67,7 +67,7 @@ value_names!(
     crate::geometry::Intersector,
     crate::geometry::OffsetStrategy,
     crate::render::Schedule,
-    crate::validate::RaySet,
+    crate::measure::validate::RaySet,
 );
 
 #[cfg(test)]
@@ -75,8 +75,8 @@ mod tests {
     use crate::accel::bvh::BuilderKind;
     use crate::accel::BackendKind;
     use crate::geometry::{Intersector, OffsetStrategy};
+    use crate::measure::validate::RaySet;
     use crate::render::Schedule;
-    use crate::validate::RaySet;
 
     #[test]
     fn names_are_the_flags() {

@@ -12,10 +12,10 @@ use raylab::accel::bvh::{build, BuildParams, BuilderKind, Bvh, BvhBackend, Trave
 use raylab::accel::naive::Naive;
 use raylab::accel::Backend;
 use raylab::geometry::{Aabb, Intersector, Ray};
+use raylab::measure::validate::{classify, Agreement};
 use raylab::progress::Progress;
 use raylab::render::{render, AoMode, Schedule};
 use raylab::scene::builtin::{builtin, BUILTIN_SCENES};
-use raylab::validate::{classify, Agreement};
 
 const BUILDERS: [BuildParams; 6] = [
     BuildParams::median(),
@@ -462,7 +462,7 @@ fn sah_tree_is_cheaper_than_median_on_the_big_scenes() {
 #[test]
 fn packet_path_answers_recorded_rays_as_single_rays_do() {
     use raylab::accel::{build_backend, BackendSpec, Query};
-    use raylab::validate::recorded_rays;
+    use raylab::measure::validate::recorded_rays;
     for (name, _) in BUILTIN_SCENES {
         let scene = builtin(name).unwrap();
         let mut s = settings(128, 96, AoMode::Cosine(4));

@@ -12,9 +12,9 @@ use raylab::accel::embree::{Device, EmbreeBackend, EmbreeScene, Quality};
 use raylab::accel::naive::Naive;
 use raylab::accel::Backend;
 use raylab::geometry::{Aabb, Hit, Ray};
+use raylab::measure::validate::{compare, primary_rays, random_rays, recorded_rays, Agreement};
 use raylab::render::AoMode;
 use raylab::scene::builtin::{builtin, BUILTIN_SCENES};
-use raylab::validate::{compare, primary_rays, random_rays, recorded_rays, Agreement};
 
 #[test]
 fn embree_hits_agree_with_naive_on_random_rays_ties_aside() {
@@ -294,7 +294,7 @@ fn validate_finds_a_planted_disagreement_and_calls_it_genuine() {
 fn embree_packets_and_streams_answer_as_its_single_rays() {
     use raylab::accel::embree::api::HAS_STREAMS;
     use raylab::accel::Query;
-    use raylab::validate::classify;
+    use raylab::measure::validate::classify;
     for name in ["cornell-sphere", "cornell-water"] {
         let scene = builtin(name).unwrap();
         let tris = scene.triangle_vertices();

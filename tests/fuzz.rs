@@ -40,7 +40,7 @@ use std::time::{Duration, Instant};
 use base64::Engine;
 use glam::Vec3;
 use raylab::geometry::Ray;
-use raylab::validate::RaySet;
+use raylab::measure::validate::RaySet;
 
 /// Mutants in a default run (the CI run): `RAYLAB_FUZZ_CASES` overrides.
 const DEFAULT_CASES: usize = 300;
@@ -243,7 +243,7 @@ fn ray_file_seed() -> Vec<u8> {
             tmax: f32::INFINITY,
         })
         .collect();
-    raylab::rayfile::encode(&[
+    raylab::measure::rayfile::encode(&[
         (RaySet::Primary, rays.clone()),
         (RaySet::Shadow, rays[..4].to_vec()),
         (RaySet::Ao, rays[4..8].to_vec()),
@@ -761,7 +761,7 @@ fn mutated_files_and_hostile_rays_end_in_one_line_or_success() {
     for f in 0..ray_files {
         let rays = hostile_rays(&mut rng, 1000);
         rays_run += rays.len();
-        let bytes = raylab::rayfile::encode(&[(RaySet::Random, rays)]);
+        let bytes = raylab::measure::rayfile::encode(&[(RaySet::Random, rays)]);
         let backend = BACKENDS[f % BACKENDS.len()];
         let s = seed("hostile.rays", bytes.clone());
         let (outcome, err) = run_file_case(&work.join("rays"), &s, &bytes, backend);

@@ -303,7 +303,7 @@ fn field_in_centimetres() -> raylab::scene::Scene {
 fn secondary_rays_leave_a_far_flat_field_without_hitting_it() {
     use raylab::accel::bvh::{BuildParams, BvhBackend};
     use raylab::camera::Camera;
-    use raylab::validate::{judge_spawns, recorded_rays};
+    use raylab::measure::validate::{judge_spawns, recorded_rays};
     let scene = field_in_centimetres();
     let backend = BvhBackend::new(&scene.triangle_vertices(), &BuildParams::sah()).unwrap();
     let mut s = settings(128, 96, AoMode::Cosine(4));

@@ -5,7 +5,7 @@
 //! the suite, not asserted.
 
 use raylab::geometry::{Intersector, OffsetStrategy};
-use raylab::stress::*;
+use raylab::measure::stress::*;
 
 #[test]
 fn watertight_and_robust_embree_never_leak_on_closed_meshes() {

@@ -98,7 +98,7 @@ pub struct BenchConfig {
     pub quiet: bool,
     /// Rays from a ray file (`--rays`), traced by the `libraries` part
     /// instead of the first view's recorded rays.
-    pub rays: Option<crate::rayfile::RaySets>,
+    pub rays: Option<crate::measure::rayfile::RaySets>,
     /// The command line that asked for the run, as the report quotes it.
     pub command: String,
 }

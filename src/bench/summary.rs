@@ -12,11 +12,11 @@ use super::parts::libraries::{LibraryPoint, KINDS};
 use super::parts::trace::TracePoint;
 use super::parts::validate::ValidationRow;
 use super::Machine;
+use crate::measure::validate::RaySet;
 use crate::table::{
     Align::{Left, Right},
     Table,
 };
-use crate::validate::RaySet;
 
 /// One backend on one query path, and its speed on one scene and ray kind.
 #[derive(Clone, Debug, Serialize)]

@@ -164,9 +164,9 @@ mod tests {
     use crate::accel::{build_backend, BackendSpec};
     use crate::bench::measure::View;
     use crate::geometry::Hit;
+    use crate::measure::validate::recorded_rays;
     use crate::render::{AoMode, RenderSettings};
     use crate::scene::Scene;
-    use crate::validate::recorded_rays;
 
     fn setup() -> (Scene, RenderSettings) {
         let scene = crate::scene::builtin::builtin("cornell-sphere").unwrap();

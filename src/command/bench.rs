@@ -235,7 +235,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             ));
         }
         cfg.parts = vec![crate::bench::config::Part::Libraries];
-        cfg.rays = Some(crate::rayfile::read(path)?);
+        cfg.rays = Some(crate::measure::rayfile::read(path)?);
     }
     if args.cliffs {
         if args.parts != "all" && cfg.parts != [crate::bench::config::Part::Libraries] {

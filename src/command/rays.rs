@@ -1,5 +1,5 @@
 //! `raylab rays`: writes a scene's recorded ray sets to a ray file
-//! ([`crate::rayfile`]), for `validate --rays` and `bench --rays`, or for
+//! ([`crate::measure::rayfile`]), for `validate --rays` and `bench --rays`, or for
 //! another tool to trace.
 
 use std::path::PathBuf;
@@ -10,8 +10,8 @@ use super::args::{parse_threads, SceneFileArgs, ViewArgs};
 use crate::accel::bvh::BuildParams;
 use crate::accel::{build_backend, BackendSpec};
 use crate::error::Result;
+use crate::measure::validate::{ray_sets, RaySet};
 use crate::render::schedule::default_threads;
-use crate::validate::{ray_sets, RaySet};
 
 #[derive(Args, Debug)]
 pub struct RaysArgs {
@@ -58,7 +58,7 @@ pub fn run(args: &RaysArgs) -> Result<()> {
         false,
     )?
     .0;
-    crate::rayfile::write(&args.out, &sets)?;
+    crate::measure::rayfile::write(&args.out, &sets)?;
     let counts: Vec<String> = sets
         .iter()
         .map(|(s, r)| format!("{} {}", r.len(), s.name()))

@@ -86,7 +86,7 @@ pub fn run(args: &StatsArgs) -> Result<()> {
                     builder.name()
                 ));
             }
-            reports.push(crate::stats::builder_report(
+            reports.push(crate::measure::stats::builder_report(
                 &scene,
                 &params,
                 &settings,
@@ -98,7 +98,7 @@ pub fn run(args: &StatsArgs) -> Result<()> {
     if args.json {
         crate::console::outln(&serde_json::to_string_pretty(&reports)?)?;
     } else {
-        crate::console::out(&crate::stats::markdown_table(&reports))?;
+        crate::console::out(&crate::measure::stats::markdown_table(&reports))?;
         crate::console::outln(&format!(
             "Render for work per ray: {}x{}, ao {}, {} light sample(s); builds on 1 and {} threads, median of {}.",
             args.view.size.0, args.view.size.1, args.view.ao, args.view.light_samples, threads, args.reps

@@ -41,7 +41,7 @@ pub struct StressArgs {
 }
 
 pub fn run(args: &StressArgs) -> Result<()> {
-    use crate::stress::*;
+    use crate::measure::stress::*;
     let want = |name: &str| args.suite == "all" || args.suite == name;
     if let Some(dir) = &args.out {
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;

@@ -8,15 +8,15 @@ use serde::Serialize;
 use super::args::{parse_threads, BackendArgs, SceneFileArgs, ViewArgs};
 use crate::accel::{build_backend, BackendKind, BackendSpec};
 use crate::error::{Error, Result};
+use crate::measure::rayfile::RaySets;
+use crate::measure::validate::{ray_sets, RaySet, SpawnReport};
 use crate::output;
-use crate::rayfile::RaySets;
 use crate::render::schedule::default_threads;
 use crate::scene::builtin::BUILTIN_SCENES;
 use crate::table::{
     Align::{Left, Right},
     Table,
 };
-use crate::validate::{ray_sets, RaySet, SpawnReport};
 
 #[derive(Args, Debug)]
 pub struct ValidateArgs {
@@ -68,7 +68,7 @@ pub struct ValidateArgs {
 /// `--against`: the exact reference, or a backend.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Reference {
-    /// The exact reference (`src/exact.rs`).
+    /// The exact reference (`src/measure/exact.rs`).
     Exact,
     /// A backend (its build threads set when it is built).
     Backend(BackendSpec),
@@ -107,7 +107,7 @@ struct ExactValidateReport {
     wrong_per_million: f64,
     max_genuine: usize,
     pass: bool,
-    sets: Vec<crate::exact::ExactReport>,
+    sets: Vec<crate::measure::exact::ExactReport>,
     /// The recorded render's secondary-ray origins, judged against their own
     /// surfaces (None for a ray file, or sets recorded without a render).
     spawns: Option<SpawnReport>,
@@ -122,7 +122,7 @@ struct ValidateReport {
     ties: usize,
     max_genuine: usize,
     pass: bool,
-    sets: Vec<crate::validate::SetReport>,
+    sets: Vec<crate::measure::validate::SetReport>,
     /// See [`ExactValidateReport::spawns`].
     spawns: Option<SpawnReport>,
     diff_image: Option<String>,
@@ -190,13 +190,13 @@ fn file_rays(args: &ValidateArgs, names: &[String]) -> Result<Option<RaySets>> {
             "draws a render's primary rays, not a ray file's",
         ));
     }
-    crate::rayfile::read(path).map(Some)
+    crate::measure::rayfile::read(path).map(Some)
 }
 
 /// Each set of `rays` evenly subsampled to at most `count`.
 fn subsampled(rays: &RaySets, count: usize) -> RaySets {
     rays.iter()
-        .map(|(set, r)| (*set, crate::validate::subsample(r.clone(), count)))
+        .map(|(set, r)| (*set, crate::measure::validate::subsample(r.clone(), count)))
         .collect()
 }
 
@@ -225,7 +225,7 @@ fn diff_image_path(base: &Path, scene: &str, several: bool) -> PathBuf {
 }
 
 pub fn run(args: &ValidateArgs) -> Result<()> {
-    use crate::validate::{compare, mismatch_image};
+    use crate::measure::validate::{compare, mismatch_image};
     let threads = args.threads.unwrap_or_else(default_threads);
     let names: Vec<String> = if args.scenes.is_empty() {
         BUILTIN_SCENES.iter().map(|(n, _)| n.to_string()).collect()
@@ -394,12 +394,12 @@ fn finish<'a>(
 fn run_exact(
     args: &ValidateArgs,
     names: &[String],
-    sets: &[crate::validate::RaySet],
+    sets: &[crate::measure::validate::RaySet],
     file_rays: Option<RaySets>,
     spec: BackendSpec,
     threads: usize,
 ) -> Result<()> {
-    use crate::exact::{judge, ExactReference};
+    use crate::measure::exact::{judge, ExactReference};
     if args.diff_image.is_some() {
         return Err(Error::usage(
             "--diff-image",
@@ -424,7 +424,7 @@ fn run_exact(
                 ray_sets(&scene, recorder.as_ref(), &settings, sets, count, false)?
             }
         };
-        let set_reports: Vec<crate::exact::ExactReport> = set_rays
+        let set_reports: Vec<crate::measure::exact::ExactReport> = set_rays
             .iter()
             .map(|(set, rays)| judge(set.name(), rays, tested.as_ref(), &reference))
             .collect();
@@ -468,7 +468,7 @@ fn run_exact(
 
 /// One row per ray set: the backend's closest-hit and any-hit answers as the
 /// exact reference judges them.
-fn exact_table(sets: &[crate::exact::ExactReport]) -> Table {
+fn exact_table(sets: &[crate::measure::exact::ExactReport]) -> Table {
     let mut t = Table::new([
         ("set", Left),
         ("rays", Right),
@@ -507,7 +507,7 @@ fn exact_table(sets: &[crate::exact::ExactReport]) -> Table {
 }
 
 /// One row per ray set: how the backend under test agreed with the reference.
-fn set_table(sets: &[crate::validate::SetReport]) -> Table {
+fn set_table(sets: &[crate::measure::validate::SetReport]) -> Table {
     let mut t = Table::new([
         ("set", Left),
         ("rays", Right),

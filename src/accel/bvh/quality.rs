@@ -1,6 +1,6 @@
 //! Quality metrics of a built tree, independent of any ray: size, depth, leaf
 //! fill, memory and the SAH cost. Measured traversal work per ray comes from
-//! rendering with the counting tracer of [`crate::stats`].
+//! rendering with the counting tracer of [`crate::measure::stats`].
 
 use serde::Serialize;
 

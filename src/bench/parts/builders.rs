@@ -103,14 +103,15 @@ fn builder_quality(
     for builder in quality_builders() {
         bar.set_message(format!("builders: {} on {}", builder.name(), scene.name));
         let params = BuildParams::for_builder(builder).with_threads(threads);
-        let report = crate::stats::builder_report(scene, &params, settings, threads, reps)?;
+        let report =
+            crate::measure::stats::builder_report(scene, &params, settings, threads, reps)?;
         let backend = BvhBackend::new(&scene.mesh(), &params)?;
         let (render_ms, _) =
             timed_renders(scene, &backend, settings, Schedule::Tiles, threads, reps)?;
         bar.step();
         let work = [report.primary, report.shadow, report.ao];
         let rays: u64 = work.iter().map(|w| w.rays).sum();
-        let per_ray = |f: fn(&crate::stats::KindWork) -> f64| {
+        let per_ray = |f: fn(&crate::measure::stats::KindWork) -> f64| {
             work.iter().map(|w| f(w) * w.rays as f64).sum::<f64>() / rays.max(1) as f64
         };
         out.push(BuilderPoint {

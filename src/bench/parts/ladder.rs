@@ -30,9 +30,9 @@ use crate::bench::charts::{
 use crate::bench::config::BenchConfig;
 use crate::bench::measure::Stat;
 use crate::error::Result;
+use crate::measure::validate::RaySet;
 use crate::progress::{Progress, StepBar};
 use crate::render::{render, AoMode, Schedule};
-use crate::validate::RaySet;
 
 use super::trace::{self, TracePoint, KINDS};
 use crate::scene::Scene;

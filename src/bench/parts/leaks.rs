@@ -12,9 +12,9 @@ use crate::bench::charts::{
 };
 use crate::bench::config::BenchConfig;
 use crate::error::Result;
+use crate::measure::stress::LeakRow;
 use crate::progress::StepBar;
 use crate::scene::Scene;
-use crate::stress::LeakRow;
 
 pub const SECTION: ChartSection = ChartSection {
     title: "Leaks against speed",
@@ -30,8 +30,8 @@ pub fn steps(_cfg: &BenchConfig, _scenes: &[Scene]) -> u64 {
 /// The leak suite on its own meshes (the bench's scenes are not used).
 pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<LeakRow>> {
     bar.set_message("leaks: rays at vertices and edges of closed meshes".into());
-    let rows = crate::stress::leak_suite(
-        &crate::stress::leak_meshes(cfg.quick),
+    let rows = crate::measure::stress::leak_suite(
+        &crate::measure::stress::leak_meshes(cfg.quick),
         if cfg.quick { 2 } else { 4 },
     )?;
     bar.step();
@@ -42,7 +42,7 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<Le
 pub fn markdown(points: &[LeakRow]) -> String {
     format!(
         "### Leaks against speed (rays through closed meshes)\n\n{}\n",
-        crate::stress::leak_table(points).markdown()
+        crate::measure::stress::leak_table(points).markdown()
     )
 }
 

@@ -2,7 +2,7 @@
 //! other libraries (tinybvh, obvhs, the bvh crate), each on its fastest query
 //! path, on the same recorded rays in one process: build time on one thread,
 //! throughput per ray kind on one thread, and how many of its answers are
-//! wrong against the exact reference (`src/exact.rs`). Its chart is the
+//! wrong against the exact reference (`src/measure/exact.rs`). Its chart is the
 //! design card's "chart one against the other": time per ray against wrong
 //! answers per million, one point per backend and intersector.
 
@@ -25,8 +25,9 @@ use crate::bench::family::Family;
 use crate::bench::measure::Stat;
 use crate::bench::timing::{min_run_s, passes_for, trace};
 use crate::error::Result;
-use crate::exact::{judge_answers, ExactAnswer, ExactReference, ExactReport};
 use crate::geometry::{Intersector, Ray};
+use crate::measure::exact::{judge_answers, ExactAnswer, ExactReference, ExactReport};
+use crate::measure::validate::{edge_rays, recorded_rays, RaySet};
 use crate::progress::StepBar;
 use crate::render::AoMode;
 use crate::scene::Scene;
@@ -34,7 +35,6 @@ use crate::table::{
     Align::{Left, Right},
     Table,
 };
-use crate::validate::{edge_rays, recorded_rays, RaySet};
 
 pub const SECTION: ChartSection = ChartSection {
     title: "Every CPU BVH: speed against accuracy",

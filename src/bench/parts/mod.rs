@@ -92,7 +92,7 @@ plain_part!(GrowthPart, Growth, growth, growth::GrowthPoint);
 plain_part!(AoErrorPart, AoError, ao_error, ao_error::AoErrorPoint);
 plain_part!(BuildersPart, Builders, builders, builders::BuilderPoint);
 plain_part!(LadderPart, Ladder, ladder, ladder::LadderPoint);
-plain_part!(LeaksPart, Leaks, leaks, crate::stress::LeakRow);
+plain_part!(LeaksPart, Leaks, leaks, crate::measure::stress::LeakRow);
 
 /// The `libraries` part, led by the cliff table (which reads its points;
 /// here, so that neither file imports the other both ways).

@@ -30,6 +30,7 @@ use crate::bench::family::Family;
 use crate::bench::measure::Stat;
 use crate::bench::timing::{answers, digest, min_run_s, passes_for, trace, Answer};
 use crate::error::{Error, Result};
+use crate::measure::validate::{recorded_rays, RaySet};
 use crate::progress::StepBar;
 use crate::render::AoMode;
 use crate::render::RenderSettings;
@@ -39,7 +40,6 @@ use crate::table::{
     Align::{Left, Right},
     Table,
 };
-use crate::validate::{recorded_rays, RaySet};
 
 pub const SECTION: ChartSection = ChartSection {
     title: "Query throughput",

@@ -62,7 +62,7 @@ fn validation(
     threads: usize,
     bar: &StepBar,
 ) -> Result<Vec<ValidationRow>> {
-    use crate::validate::{compare, ray_sets, RaySet};
+    use crate::measure::validate::{compare, ray_sets, RaySet};
     let against = if crate::accel::embree::AVAILABLE {
         BackendKind::Embree
     } else {

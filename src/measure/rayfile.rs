@@ -25,7 +25,7 @@ use glam::Vec3;
 
 use crate::error::{Error, Result};
 use crate::geometry::Ray;
-use crate::validate::RaySet;
+use crate::measure::validate::RaySet;
 
 pub const MAGIC: &[u8; 8] = b"RAYLABRY";
 pub const VERSION: u32 = 1;

@@ -830,7 +830,7 @@ pub fn judge_answers(
             .into_iter()
             .find(|(_, v)| v.is_wrong());
         if let (Some((query, verdict)), true) =
-            (wrong, r.examples.len() < crate::validate::EXAMPLES)
+            (wrong, r.examples.len() < crate::measure::validate::EXAMPLES)
         {
             let mut exact = answer.hits.clone();
             exact.sort_by(|a, b| a.t_lo.total_cmp(&b.t_lo));

@@ -27,15 +27,15 @@ use crate::accel::library::Library;
 use crate::accel::naive::Naive;
 use crate::accel::{build_backend, Backend, BackendSpec, Built};
 use crate::error::{Error, Result};
-use crate::exact::{judge_answers, ExactReference};
 use crate::geometry::{Aabb, Hit, Intersector, OffsetStrategy, Ray};
+use crate::measure::exact::{judge_answers, ExactReference};
+use crate::measure::validate::{classify, Agreement};
 use crate::rng::Rng;
 use crate::scene::MeshRef;
 use crate::table::{
     Align::{Left, Right},
     Table,
 };
-use crate::validate::{classify, Agreement};
 
 /// A triangle mesh as index triples over shared vertices, with a point inside
 /// for every target (None for meshes whose inside is unknown).
@@ -800,7 +800,7 @@ pub fn degenerate_suite(rays_per_case: usize, specs: &[BackendSpec]) -> Result<V
             .map(|t| t.map(|i| positions[i as usize]))
             .collect();
         let bounds = Aabb::from_points(&positions);
-        let mut rays = crate::validate::random_rays(bounds, rays_per_case, 3);
+        let mut rays = crate::measure::validate::random_rays(bounds, rays_per_case, 3);
         let axes = [Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z, -Vec3::Z];
         let mut rng = Rng::for_pixel(1, 2, 3);
         for i in 0..rays_per_case / 2 {
