@@ -11,7 +11,7 @@ use raylab::accel::bvh::BuildParams;
 
 use raylab::accel::{build_backend, Backend, BackendSpec};
 use raylab::camera::Camera;
-use raylab::geometry::{intersect_triangle, safe_reciprocal, Aabb, Ray, TriangleTest, Watertight};
+use raylab::geometry::{intersect_triangle, Aabb, Ray, SlabRay, TriangleTest, Watertight};
 use raylab::scene::builtin::builtin;
 
 /// The AO rays of a 48x36 render of `scene` (paper AO): an incoherent fixed set.
@@ -45,10 +45,7 @@ fn recorded(scene: &raylab::scene::Scene) -> raylab::measure::validate::Recorded
 
 fn ray_box(c: &mut Criterion) {
     let rays = camera_rays();
-    let prepared: Vec<(Vec3, Vec3)> = rays
-        .iter()
-        .map(|r| (r.origin, safe_reciprocal(r.dir)))
-        .collect();
+    let prepared: Vec<SlabRay> = rays.iter().map(SlabRay::new).collect();
     let boxes = [
         (
             "hit",
@@ -72,9 +69,9 @@ fn ray_box(c: &mut Criterion) {
             b.iter(|| {
                 prepared
                     .iter()
-                    .filter(|(o, inv)| {
+                    .filter(|slab| {
                         std::hint::black_box(&aabb)
-                            .intersect(*o, *inv, 0.0, f32::INFINITY)
+                            .intersect(slab, 0.0, f32::INFINITY)
                             .is_some()
                     })
                     .count()

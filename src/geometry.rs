@@ -156,18 +156,19 @@ impl Aabb {
         other.is_empty() || (self.min.cmple(other.min).all() && other.max.cmple(self.max).all())
     }
 
-    /// Slab test against a ray whose reciprocal direction is `inv_dir` (see
-    /// [`safe_reciprocal`]). Returns the entry distance if the box overlaps
-    /// `(tmin, tmax)`, with `tmax` the caller's current closest hit.
+    /// Slab test against a ray prepared as [`SlabRay`]. Returns the entry
+    /// distance if the box overlaps `(tmin, tmax)`, with `tmax` the caller's
+    /// current closest hit.
     ///
     /// Conservative: the exit distance is enlarged by `1 + 2 gamma(3)` (pbrt-v4,
     /// after Ize 2013), which bounds the rounding of the three operations per slab,
     /// so a box that a ray touches in one point (a vertex, a flat box's face) is
-    /// never culled by rounding.
+    /// never culled by rounding; and a ray lying in a face's plane keeps the box
+    /// (see [`SlabRay`]).
     #[inline]
-    pub fn intersect(&self, origin: Vec3, inv_dir: Vec3, tmin: f32, tmax: f32) -> Option<f32> {
-        let t0 = (self.min - origin) * inv_dir;
-        let t1 = (self.max - origin) * inv_dir;
+    pub fn intersect(&self, ray: &SlabRay, tmin: f32, tmax: f32) -> Option<f32> {
+        let t0 = (self.min - ray.from_min) * ray.inv_dir;
+        let t1 = (self.max - ray.from_max) * ray.inv_dir;
         let near = t0.min(t1).max_element().max(tmin);
         let far = (t0.max(t1).min_element() * SLAB_GROW).min(tmax);
         if near <= far {
@@ -210,6 +211,74 @@ pub fn safe_reciprocal(d: Vec3) -> Vec3 {
         }
     };
     Vec3::new(r(d.x), r(d.y), r(d.z))
+}
+
+/// How far a ray with a zero direction component reaches to either side of
+/// its plane in the slab tests, at least (see [`SlabRay`]): `1e-10 *
+/// RECIPROCAL_MAX = 1e20`, a slab distance beyond any ray's `tmax`.
+pub const IN_PLANE_REACH: f32 = 1e-10;
+
+/// A ray as every slab test of raylab's trees sees it: the reciprocal
+/// direction ([`safe_reciprocal`]), and the origin the boxes' minimum planes
+/// (`from_min`) and maximum planes (`from_max`) are measured from.
+///
+/// On an axis where the direction is not zero both are the origin, and the
+/// test is the textbook one. Where it is zero the ray lies in a plane of that
+/// axis and meets a box only if the plane lies within the box's slab, the
+/// faces included; but `(face - origin) * RECIPROCAL_MAX` is `0 * BIG = 0`
+/// when the origin lies exactly in a face (origins land on vertex
+/// coordinates often far from the origin, where floats are coarse), and a
+/// zero exit distance culls the box as soon as another axis's entry is
+/// positive: a ray along +x in the plane of a leaf box's top face missed the
+/// triangle whose edge lies in it (`far:20000`'s AO rays, 17 false misses).
+/// So on such an axis the minimum planes are measured from just above the
+/// origin and the maximum planes from just below it (by an ulp, and at least
+/// [`IN_PLANE_REACH`]): a face the ray lies in is a huge distance behind the
+/// entry and ahead of the exit, the slab test keeps the box, and a box whose
+/// face is that close to the plane on its far side is kept too (only ever
+/// one more box visited, never a hit lost).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SlabRay {
+    pub from_min: Vec3,
+    pub from_max: Vec3,
+    pub inv_dir: Vec3,
+}
+
+impl SlabRay {
+    #[inline]
+    pub fn new(ray: &Ray) -> SlabRay {
+        let in_plane = ray.dir.cmpeq(Vec3::ZERO);
+        if !in_plane.any() {
+            return SlabRay {
+                from_min: ray.origin,
+                from_max: ray.origin,
+                inv_dir: safe_reciprocal(ray.dir),
+            };
+        }
+        let o = ray.origin;
+        SlabRay {
+            from_min: Vec3::select(in_plane, o.map(above_plane), o),
+            from_max: Vec3::select(in_plane, o.map(below_plane), o),
+            inv_dir: safe_reciprocal(ray.dir),
+        }
+    }
+}
+
+/// The coordinate [`SlabRay`] measures minimum planes from when the ray
+/// lies in the plane at `c`: `c + max(|c| * 2^-23, IN_PLANE_REACH)`, at least
+/// an ulp above `c` (`|c| * 2^-23` is exact and never under an ulp of `c`)
+/// and at most two. Monotone in `c` (the maximum of two rising functions),
+/// which the packet frustum relies on: the greatest origin's value bounds
+/// every ray's. The packet kernels compute the same operations lane by lane.
+#[inline]
+pub fn above_plane(c: f32) -> f32 {
+    c + (c.abs() * f32::EPSILON).max(IN_PLANE_REACH)
+}
+
+/// [`above_plane`]'s mirror, for maximum planes.
+#[inline]
+pub fn below_plane(c: f32) -> f32 {
+    c - (c.abs() * f32::EPSILON).max(IN_PLANE_REACH)
 }
 
 /// Moller-Trumbore ray/triangle test. Returns `(t, u, v)` for a hit with `t` in
@@ -896,24 +965,86 @@ mod tests {
             min: Vec3::ZERO,
             max: Vec3::ONE,
         };
+        let test =
+            |o: Vec3, d: Vec3, tmax: f32| b.intersect(&SlabRay::new(&Ray::new(o, d)), 0.0, tmax);
         // Ray inside the slab x in [0,1] travelling along +z with dx = dy = 0.
-        let o = Vec3::new(0.5, 0.5, -1.0);
         let d = Vec3::new(0.0, 0.0, 1.0);
-        let t = b.intersect(o, safe_reciprocal(d), 0.0, f32::INFINITY);
+        let t = test(Vec3::new(0.5, 0.5, -1.0), d, f32::INFINITY);
         assert!((t.unwrap() - 1.0).abs() < 1e-6);
         // Ray in the boundary plane x = 0 still counts (flat boxes must be hit).
-        let o = Vec3::new(0.0, 0.5, -1.0);
-        assert!(b
-            .intersect(o, safe_reciprocal(d), 0.0, f32::INFINITY)
-            .is_some());
+        assert!(test(Vec3::new(0.0, 0.5, -1.0), d, f32::INFINITY).is_some());
         // Outside the slab: miss.
-        let o = Vec3::new(1.5, 0.5, -1.0);
-        assert!(b
-            .intersect(o, safe_reciprocal(d), 0.0, f32::INFINITY)
-            .is_none());
+        assert!(test(Vec3::new(1.5, 0.5, -1.0), d, f32::INFINITY).is_none());
         // Beyond tmax: miss.
-        let o = Vec3::new(0.5, 0.5, -1.0);
-        assert!(b.intersect(o, safe_reciprocal(d), 0.0, 0.5).is_none());
+        assert!(test(Vec3::new(0.5, 0.5, -1.0), d, 0.5).is_none());
+    }
+
+    /// A ray lying in a face's plane, entering the box through another axis
+    /// (a positive entry), keeps the box on every face and either sign of
+    /// zero, near the origin and far from it. Measured from the origin
+    /// itself, the maximum faces (the minimum ones for -0.0) gave the slab an
+    /// exit of `0 * RECIPROCAL_MAX = 0` and culled the box.
+    #[test]
+    fn rays_in_a_face_plane_keep_the_box() {
+        for centre in [Vec3::ZERO, Vec3::splat(1e5), Vec3::new(-3e4, 7.0, 1e6)] {
+            let b = Aabb {
+                min: centre,
+                max: centre + Vec3::new(0.25, 0.5, 1.0),
+            };
+            for axis in [1, 2] {
+                for face in [b.min[axis], b.max[axis]] {
+                    for zero in [0.0f32, -0.0] {
+                        let mut o = b.min - Vec3::X;
+                        o[axis] = face;
+                        let mut d = Vec3::new(1.0, 0.0, 0.0);
+                        d[axis] = zero;
+                        d[3 - axis] = 0.0;
+                        o[3 - axis] = b.min[3 - axis];
+                        let slab = SlabRay::new(&Ray::new(o, d));
+                        let entry = b.intersect(&slab, 0.0, f32::INFINITY);
+                        assert!(
+                            entry.is_some_and(|t| (0.5..2.0).contains(&t)),
+                            "centre {centre} axis {axis} face {face} zero {zero}: {entry:?}"
+                        );
+                        // The textbook test (the origin for both faces) culls
+                        // the box on one face of the two.
+                        let plain = SlabRay {
+                            from_min: o,
+                            from_max: o,
+                            inv_dir: slab.inv_dir,
+                        };
+                        let culled = b.intersect(&plain, 0.0, f32::INFINITY).is_none();
+                        let exit_face = if zero.is_sign_negative() {
+                            b.min
+                        } else {
+                            b.max
+                        };
+                        assert_eq!(culled, face == exit_face[axis]);
+                        // A plane beside the box still misses it.
+                        let mut beside = o;
+                        beside[axis] = b.max[axis] + 1e-3 * b.max[axis].abs().max(1.0);
+                        assert!(b
+                            .intersect(&SlabRay::new(&Ray::new(beside, d)), 0.0, f32::INFINITY)
+                            .is_none());
+                    }
+                }
+            }
+        }
+        // The reach is an ulp or two far from the origin and IN_PLANE_REACH
+        // near it.
+        for c in [1e5f32, -1e5, 3.0, -0.75, 1e-20] {
+            let (up, down) = (above_plane(c), below_plane(c));
+            assert!(
+                up > c && up <= c.next_up().next_up().max(c + IN_PLANE_REACH),
+                "{c}"
+            );
+            assert!(
+                down < c && down >= c.next_down().next_down().min(c - IN_PLANE_REACH),
+                "{c}"
+            );
+        }
+        assert_eq!(below_plane(0.0), -IN_PLANE_REACH);
+        assert!(above_plane(-0.0) > 0.0);
     }
 
     #[test]

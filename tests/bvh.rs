@@ -222,6 +222,104 @@ fn bvh_hits_match_naive_on_random_triangle_soups() {
     }
 }
 
+/// Triangles 0.03-0.1 across scattered over a 4-unit cube about `centre`,
+/// each with an edge in a plane z = const (its first two vertices share their
+/// z), the third vertex above or below: a leaf box's top or bottom face lies
+/// in that plane, as on meshes far from the origin, where coordinates are
+/// coarse and vertices share them.
+fn edge_in_plane_triangles(n: usize, centre: Vec3, seed: u64) -> Vec<[Vec3; 3]> {
+    let mut rng = TestRng(seed);
+    (0..n)
+        .map(|_| {
+            let c = centre + rng.vec_in(Vec3::splat(-2.0), Vec3::splat(2.0));
+            let size = rng.range(0.03, 0.1);
+            let up = if rng.next_f32() < 0.5 { size } else { -size };
+            let mut v = |dz: f32| c + Vec3::new(rng.range(-size, size), rng.range(-size, size), dz);
+            let (a, b, apex) = (v(0.0), v(0.0), v(up));
+            [a, Vec3::new(b.x, b.y, a.z), apex]
+        })
+        .collect()
+}
+
+/// Rays along +-x and +-y (either sign of zero in the other components)
+/// lying in the plane of a triangle's in-plane edge and crossing it: their
+/// origin lies exactly in a leaf box's face plane. Measured from the origin,
+/// that face's slab distance is `0 * RECIPROCAL_MAX = 0`, and the box was
+/// culled when it was the exit (17 false misses on far:20000's AO rays).
+fn rays_in_edge_planes(tris: &[[Vec3; 3]], n: usize, seed: u64) -> Vec<Ray> {
+    let mut rng = TestRng(seed);
+    let bounds = Aabb::from_points(&tris.iter().flatten().copied().collect::<Vec<_>>());
+    (0..n)
+        .map(|i| {
+            let t = &tris[i % tris.len()];
+            let p = t[0] + (t[1] - t[0]) * rng.next_f32();
+            // The first half in runs of 16 alike (packets whose rays agree
+            // in sign), the second mixed ray by ray.
+            let j = if i < n / 2 { i / 16 } else { i };
+            let zero = if j / 4 % 2 == 0 { 0.0 } else { -0.0 };
+            let (o, d) = match j % 4 {
+                0 => (
+                    Vec3::new(bounds.min.x - 1.0, p.y, t[0].z),
+                    Vec3::new(1.0, zero, zero),
+                ),
+                1 => (
+                    Vec3::new(bounds.max.x + 1.0, p.y, t[0].z),
+                    Vec3::new(-1.0, zero, zero),
+                ),
+                2 => (
+                    Vec3::new(p.x, bounds.min.y - 1.0, t[0].z),
+                    Vec3::new(zero, 1.0, zero),
+                ),
+                _ => (
+                    Vec3::new(p.x, bounds.max.y + 1.0, t[0].z),
+                    Vec3::new(zero, -1.0, zero),
+                ),
+            };
+            Ray::new(o, d)
+        })
+        .collect()
+}
+
+/// Rays lying in a leaf box's face plane get naive's answers from every
+/// tree and path: binary, 4- and 8-wide single rays (each node kernel), and
+/// 8- and 16-ray packets; near the origin and 1e5 from it.
+#[test]
+fn rays_in_a_box_face_plane_hit_as_naive_does() {
+    use raylab::accel::bvh::BvhBackend;
+    use raylab::accel::Query;
+    for (k, centre) in [Vec3::ZERO, Vec3::new(1e5, 0.0, 1e5)]
+        .into_iter()
+        .enumerate()
+    {
+        let tris = edge_in_plane_triangles(2000, centre, 31 + k as u64);
+        let rays = rays_in_edge_planes(&tris, 8000, 41 + k as u64);
+        let naive = Naive::from_triangles(tris.clone());
+        let hits = rays.iter().filter(|r| naive.intersect(r).is_some()).count();
+        // Most cross their edge where Moller-Trumbore's rounding says inside.
+        assert!(hits > rays.len() / 4, "{centre}: only {hits} hits");
+        assert_same_hits(&format!("edge planes at {centre}"), &tris, &rays, 13, false);
+        for width in [8, 16] {
+            let packets = BvhBackend::new(&tris, &BuildParams::sah().with_width(8))
+                .unwrap()
+                .with_query(Query::Packet(width))
+                .unwrap();
+            let mut got = vec![None; rays.len()];
+            packets.intersect_stream(&rays, &mut got);
+            let mut occluded = vec![false; rays.len()];
+            packets.occluded_stream(&rays, &mut occluded);
+            for (i, ray) in rays.iter().enumerate() {
+                let want = naive.intersect(ray);
+                assert_eq!(got[i], want, "{centre} packet{width} ray {i} {ray:?}");
+                assert_eq!(
+                    occluded[i],
+                    want.is_some(),
+                    "{centre} packet{width} ray {i}"
+                );
+            }
+        }
+    }
+}
+
 /// Checks the layout's invariants. A builder that splits triangles
 /// (`splits`) may put one in several leaves, each holding only its part.
 fn check_invariants(bvh: &Bvh, tris: &[[Vec3; 3]], max_leaf: usize, splits: bool) {

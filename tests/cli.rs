@@ -829,9 +829,10 @@ fn validate_judges_the_secondary_ray_origins_of_a_flat_field() {
 
 /// Node boxes far from the origin are not swollen by a margin proportional to
 /// the coordinates: `far:2000` is `mesh:2000` moved to about 1e5, and its
-/// binary tree's shadow rays test 2.3x the triangles of the mesh at the origin
-/// (one ulp of margin); with the two-ulp margin of before they tested 3.4x,
-/// and the traversal took 1.9-2.3x Embree's time per ray kind on far:20000.
+/// binary tree's shadow rays test 1.05x the triangles of the mesh at the
+/// origin (2026-12-05). With a margin of one ulp of the coordinates they
+/// tested 2.3x, with two ulps 3.4x, and the traversal took 1.4-1.6x and
+/// 1.9-2.3x Embree's time per ray kind on far:20000.
 #[test]
 fn boxes_far_from_the_origin_stay_tight() {
     let shadow_triangles = |scene: &str| {
@@ -853,7 +854,7 @@ fn boxes_far_from_the_origin_stay_tight() {
     };
     let (far, near) = (shadow_triangles("far:2000"), shadow_triangles("mesh:2000"));
     assert!(
-        far < 2.8 * near,
+        far < 1.5 * near,
         "far {far} vs near {near} triangles per shadow ray"
     );
 }

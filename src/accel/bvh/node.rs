@@ -165,40 +165,38 @@ pub(crate) fn skeleton_of(root: BuildNode, tri_ids: Vec<u32>) -> Skeleton {
 }
 
 /// `b` grown on every axis in which it has an extent by [`BOX_MARGIN`] of
-/// that extent, and by at least one ulp of its largest coordinate magnitude;
-/// not on an axis in which it is flat. A flat box bounds triangles that all
-/// lie in one axis-aligned plane, and a ray meets such a triangle only where
-/// it crosses that plane, which the zero-width slab admits exactly (its entry
-/// and exit are the same rounded `t`, and the exit is grown by
-/// [`crate::geometry::SLAB_GROW`]); a margin there only lets in rays that
-/// leave the plane. Grown, every flat box of a flat export (a field 100 units
-/// across: +-4.8e-5) held the secondary rays leaving it, which then walked
-/// every box around their origin down to the leaves: 3-5x the time of
+/// that extent; not on an axis in which it is flat. A flat box bounds
+/// triangles that all lie in one axis-aligned plane, and a ray meets such a
+/// triangle only where it crosses that plane, which the zero-width slab
+/// admits exactly (its entry and exit are the same rounded `t`, and the exit
+/// is grown by [`crate::geometry::SLAB_GROW`]); a margin there only lets in
+/// rays that leave the plane. Grown, every flat box of a flat export (a field
+/// 100 units across: +-4.8e-5) held the secondary rays leaving it, which then
+/// walked every box around their origin down to the leaves: 3-5x the time of
 /// Embree's and every library's shadow and AO rays (`plane:N`).
 ///
-/// The ulp floor is all that distance from the origin needs. A margin of
-/// 2^-22 of the coordinates (two ulps), as this was until 2026-12-05, swelled
-/// every leaf of `far:20000` (triangles 0.03 across at 1e5, where an ulp is
-/// 0.008) to several times its triangles: 5.0/12.1/3.0 triangles tested per
+/// Nothing in proportion to the coordinates. A margin of 2^-22 of the
+/// coordinates (two ulps), as this was until 2026-12-05, swelled every leaf
+/// of `far:20000` (triangles 0.03 across at 1e5, where an ulp is 0.008) to
+/// several times its triangles: 5.0/12.1/3.0 triangles tested per
 /// primary/shadow/AO ray against mesh:20000's 1.6/1.1/0.9, and 1.9-2.3x
-/// Embree's time per ray kind. With one ulp: 2.9/6.2/1.1 triangles, 1.4-1.6x
-/// Embree's time (bench --parts libraries, one thread, interleaved), and
-/// still 0 wrong answers by the exact reference on its rays and edge rays
-/// (Embree: 176 per million); `validate --against naive --rays all` finds 3
-/// ties and no genuine disagreement. Only the extent (no floor) ran at
-/// 0.66-0.87x Embree's time but lost 17 AO hits by the exact reference: rays
-/// with a zero direction component whose origin lies exactly in a leaf box's
-/// face plane (at 1e5 origins land on vertex coordinates often) get
-/// `0 * RECIPROCAL_MAX = 0` as that slab's exit, so the box is culled. The
-/// floor moves every face off such origins (docs/results.md, 2026-12-05).
+/// Embree's time per ray kind; a floor of one ulp still 2.9/6.2/1.1 and
+/// 1.4-1.6x. The floor was there for rays with a zero direction component
+/// whose origin lies exactly in a leaf box's face plane (at 1e5 origins land
+/// on vertex coordinates often): measured from the origin, that face's slab
+/// distance is `0 * RECIPROCAL_MAX = 0`, and the box was culled (17 AO hits
+/// lost on far:20000 without it). The slab tests now measure such faces from
+/// either side of the plane ([`crate::geometry::SlabRay`]), and far:20000's
+/// shadow rays test 1.0 triangles per ray, its traversal 0.8-1.0x Embree's
+/// time, with 0 wrong answers by the exact reference (docs/results.md,
+/// 2026-12-05).
 pub(crate) fn padded(b: Aabb) -> Aabb {
     let magnitude = b.extent().max_element();
-    let ulp = b.min.abs().max(b.max.abs()).max_element() * f32::EPSILON;
     let flat = b.min.cmpeq(b.max);
     let pad = glam::Vec3::select(
         flat,
         glam::Vec3::ZERO,
-        glam::Vec3::splat((magnitude * BOX_MARGIN).max(ulp)),
+        glam::Vec3::splat(magnitude * BOX_MARGIN),
     );
     Aabb {
         min: b.min - pad,

@@ -349,9 +349,9 @@ pub const PARALLEL_REDUCE_CUTOFF: usize = 1 << 13;
 
 // ---- Layouts ----
 
-/// Node boxes are stored grown by this fraction of their extent, and by at
-/// least one ulp of their largest coordinate (`node::padded`, which says why
-/// not more). The ray/triangle test accepts hits that lie
+/// Node boxes are stored grown by this fraction of their extent
+/// (`node::padded`, which says why not more, and why nothing in proportion to
+/// the coordinates). The ray/triangle test accepts hits that lie
 /// outside a triangle by rounding error (a ray aimed at a shared vertex), and
 /// the box must still admit those rays or the BVH would miss hits the naive scan
 /// finds. A parent's margin is never smaller than its children's, so children

@@ -42,7 +42,7 @@ use super::wide::WideNode;
 use super::wide::EMPTY;
 #[cfg(target_arch = "x86_64")]
 use crate::geometry::RECIPROCAL_MAX;
-use crate::geometry::{safe_reciprocal, Hit, Ray};
+use crate::geometry::{above_plane, below_plane, Hit, Ray, SlabRay, IN_PLANE_REACH};
 
 /// Rays per packet of the AVX2 kernel (`--query packet8`).
 pub const PACKET: usize = 8;
@@ -401,7 +401,7 @@ impl<K: NodeKernel<8>, T: BlockTest, const R: usize> PacketKernel<R> for PerRay<
                 ray: *ray,
                 prepared: T::prepare(ray),
                 ray4: Ray4::new(ray),
-                wray: WideRay::new(ray, safe_reciprocal(ray.dir)),
+                wray: WideRay::new(&SlabRay::new(ray)),
                 tmin: ray.tmin * (1.0 - SLAB_SLACK),
             })
             .collect();
@@ -490,6 +490,11 @@ pub struct SimdPacket<L>(pub L);
 #[derive(Clone, Copy, Debug)]
 pub struct SoaRays<L: Lanes<R>, const R: usize> {
     origin: [L::F; 3],
+    /// Whether a valid ray lies in a plane of some axis (a zero direction
+    /// component): its node tests measure each plane from its own origin
+    /// ([`SlabRay`]), computed per node test (fields for them cost the
+    /// common packets 10% of their time: measured).
+    in_plane: bool,
     dir: [L::F; 3],
     inv_dir: [L::F; 3],
     /// Per axis, the lanes whose reciprocal direction is >= 0 (the near
@@ -565,17 +570,31 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
             l.ge(inv_dir[2], zero),
         ];
         let rows = shared_near_rows(positive.map(|m| l.bits(m)), rays.len());
+        // Whether rays lie in a plane of an axis (rare: axis-aligned
+        // directions), for the node tests and the frustum.
+        let in_plane = [
+            l.bits(l.andnot(nonzero!(dx), l.mask(valid))) != 0,
+            l.bits(l.andnot(nonzero!(dy), l.mask(valid))) != 0,
+            l.bits(l.andnot(nonzero!(dz), l.mask(valid))) != 0,
+        ];
         // The valid rays' bounds, component by component (lanes 0-7); lanes
         // 3-5 of `inv_of_*`: the reciprocals of the directions' bounds.
         let (lo, hi) = l.ray_bounds(&loaded, valid);
         let (inv_of_lo, inv_of_hi) = (l.store(inv!(lo)), l.store(inv!(hi)));
-        let (lo, hi) = (l.store(lo), l.store(hi));
+        let (mut lo, mut hi) = (l.store(lo), l.store(hi));
+        // The frustum's origin bounds, widened as SlabRay widens the origins
+        // of in-plane rays (above_plane and below_plane are monotone, so the
+        // bounds' images bound every ray's).
+        for a in (0..3).filter(|&a| in_plane[a]) {
+            (lo[a], hi[a]) = (below_plane(lo[a]), above_plane(hi[a]));
+        }
         let frustum = rows
             .filter(|_| valid != 0)
             .map(|rows| Frustum::of_lanes(rows, &lo, &hi, &inv_of_lo, &inv_of_hi));
         (
             SoaRays {
                 origin: [ox, oy, oz],
+                in_plane: in_plane.contains(&true),
                 dir: [dx, dy, dz],
                 inv_dir,
                 positive,
@@ -609,7 +628,7 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
             near: [f32::INFINITY; 8],
             lanes: 0,
         };
-        let (o, inv) = (p.origin, p.inv_dir);
+        let inv = p.inv_dir;
         let tmin = p.node_tmin;
         let tmax = l.load(tmax);
         let grow = l.splat(SLAB_GROW);
@@ -632,8 +651,8 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
         // computed and each ray's chosen by a blend. Macros, not closures
         // (see `Frustum::children`).
         macro_rules! plane {
-            ($row:expr, $a:expr, $c:expr) => {
-                l.mul(l.sub(l.splat(b[$row][$c]), o[$a]), inv[$a])
+            ($row:expr, $a:expr, $c:expr, $origin:expr) => {
+                l.mul(l.sub(l.splat(b[$row][$c]), $origin), inv[$a])
             };
         }
         // One child: its rays' entry and exit distances from the slab
@@ -659,21 +678,42 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
         }
         let used = used_lanes(l.avx2(), node) & frustum_used;
         match p.rows {
-            Some([rx, ry, rz]) => {
+            Some([rx, ry, rz]) if !p.in_plane => {
+                // The common case, every plane measured from the origin
+                // (three registers, not six).
+                let o = p.origin;
                 for c in bits(used) {
                     child!(
                         c,
-                        (plane!(rx, 0, c), plane!(rx ^ 1, 0, c)),
-                        (plane!(ry, 1, c), plane!(ry ^ 1, 1, c)),
-                        (plane!(rz, 2, c), plane!(rz ^ 1, 2, c))
+                        (plane!(rx, 0, c, o[0]), plane!(rx ^ 1, 0, c, o[0])),
+                        (plane!(ry, 1, c, o[1]), plane!(ry ^ 1, 1, c, o[1])),
+                        (plane!(rz, 2, c, o[2]), plane!(rz ^ 1, 2, c, o[2]))
                     );
                 }
             }
-            None => {
+            // Mixed signs, or a ray lying in a plane of some axis: both
+            // planes per axis, each measured from its own origin
+            // (`SlabRay`), each ray's chosen by a blend.
+            _ => {
+                // SlabRay's origins: the ray's, moved by above_plane's and
+                // below_plane's operations in the lanes of rays lying in a
+                // plane of the axis.
+                let (mut from_min, mut from_max) = (p.origin, p.origin);
+                if p.in_plane {
+                    let (eps, reach) = (l.splat(f32::EPSILON), l.splat(IN_PLANE_REACH));
+                    let zero = l.splat(0.0);
+                    for a in 0..3 {
+                        let o = p.origin[a];
+                        let step = l.max(l.mul(l.abs(o), eps), reach);
+                        let flat = l.eq(p.dir[a], zero);
+                        from_min[a] = l.blend(flat, o, l.add(o, step));
+                        from_max[a] = l.blend(flat, o, l.sub(o, step));
+                    }
+                }
                 macro_rules! blended {
                     ($a:expr, $c:expr) => {{
-                        let lo = plane!(2 * $a, $a, $c);
-                        let hi = plane!(2 * $a + 1, $a, $c);
+                        let lo = plane!(2 * $a, $a, $c, from_min[$a]);
+                        let hi = plane!(2 * $a + 1, $a, $c, from_max[$a]);
                         (
                             l.blend(p.positive[$a], hi, lo),
                             l.blend(p.positive[$a], lo, hi),

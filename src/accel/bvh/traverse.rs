@@ -8,9 +8,7 @@
 use super::leaf::BlockTest;
 use super::node::Bvh;
 use super::params::{CULL_SLACK, SLAB_SLACK, STACK};
-use crate::geometry::{
-    safe_reciprocal, Hit, Intersector, MollerTrumbore, Ray, TriangleTest, Watertight,
-};
+use crate::geometry::{Hit, Intersector, MollerTrumbore, Ray, SlabRay, TriangleTest, Watertight};
 
 /// Receives traversal events.
 pub trait Counter {
@@ -144,11 +142,10 @@ impl Bvh {
 
     /// The entry distance of node `i` if its box overlaps `(tmin, tmax)`.
     #[inline(always)]
-    fn enter(&self, i: u32, ray: &Ray, inv_dir: glam::Vec3, tmax: f32) -> Option<f32> {
+    fn enter(&self, i: u32, ray: &Ray, slab: &SlabRay, tmax: f32) -> Option<f32> {
         let n = &self.nodes[i as usize];
         n.bounds().intersect(
-            ray.origin,
-            inv_dir,
+            slab,
             ray.tmin * (1.0 - SLAB_SLACK),
             tmax * (1.0 + SLAB_SLACK),
         )
@@ -161,14 +158,14 @@ impl Traversal for Bvh {
             return None;
         }
         let prepared = T::prepare(ray);
-        let inv_dir = safe_reciprocal(ray.dir);
+        let slab = SlabRay::new(ray);
         let mut best: Option<Hit> = None;
         // Triangle tests use `tmax` just above the best t so that a hit at the same
         // t with a lower index is still found; `is_closer_than` decides.
         let mut test_ray = *ray;
         let mut stack = [(0u32, 0f32); STACK];
         let mut sp = 0usize;
-        let root_t = self.enter(0, ray, inv_dir, ray.tmax)?;
+        let root_t = self.enter(0, ray, &slab, ray.tmax)?;
         let mut current = Some((0u32, root_t));
         loop {
             let (index, near) = match current.take() {
@@ -203,8 +200,8 @@ impl Traversal for Bvh {
             }
             let (left, right) = (index + 1, node.offset);
             let cut = best_t * (1.0 + CULL_SLACK);
-            let tl = self.enter(left, ray, inv_dir, cut);
-            let tr = self.enter(right, ray, inv_dir, cut);
+            let tl = self.enter(left, ray, &slab, cut);
+            let tr = self.enter(right, ray, &slab, cut);
             match (tl, tr) {
                 (Some(a), Some(b)) => {
                     let (first, second) = if a <= b {
@@ -230,8 +227,8 @@ impl Traversal for Bvh {
             return false;
         }
         let prepared = T::prepare(ray);
-        let inv_dir = safe_reciprocal(ray.dir);
-        if self.enter(0, ray, inv_dir, ray.tmax).is_none() {
+        let slab = SlabRay::new(ray);
+        if self.enter(0, ray, &slab, ray.tmax).is_none() {
             return false;
         }
         let mut stack = [0u32; STACK];
@@ -261,8 +258,8 @@ impl Traversal for Bvh {
                 continue;
             }
             let (left, right) = (index + 1, node.offset);
-            let hit_left = self.enter(left, ray, inv_dir, ray.tmax).is_some();
-            let hit_right = self.enter(right, ray, inv_dir, ray.tmax).is_some();
+            let hit_left = self.enter(left, ray, &slab, ray.tmax).is_some();
+            let hit_right = self.enter(right, ray, &slab, ray.tmax).is_some();
             match (hit_left, hit_right) {
                 (true, true) => {
                     debug_assert!(sp < STACK);

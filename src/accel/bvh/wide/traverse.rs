@@ -18,7 +18,7 @@ use super::super::simd_packet::SimdPacket;
 use super::super::simd_packet::{bits, PacketKernel, PerRay, PACKET, PACKET16};
 use super::super::traverse::{Counter, Traversal};
 use super::node::{for_leaf_blocks, leaf_slots, WideBvh, LEAF};
-use crate::geometry::{safe_reciprocal, Hit, Ray};
+use crate::geometry::{Hit, Ray, SlabRay};
 
 impl<const N: usize> WideBvh<N> {
     /// Starts loading what `child` refers to: a node, or a leaf's first block.
@@ -62,7 +62,7 @@ impl<const N: usize> WideBvh<N> {
     ) -> Option<Hit> {
         let prepared = T::prepare(ray);
         let ray4 = Ray4::new(ray);
-        let wray = WideRay::new(ray, safe_reciprocal(ray.dir));
+        let wray = WideRay::new(&SlabRay::new(ray));
         let tmin = ray.tmin * (1.0 - SLAB_SLACK);
         // Triangles are tested with `tmax` just above the best t, so that a hit
         // at the same t with a lower index is still found; `is_closer_than`
@@ -157,7 +157,7 @@ impl<const N: usize> WideBvh<N> {
     ) -> bool {
         let prepared = T::prepare(ray);
         let ray4 = Ray4::new(ray);
-        let wray = WideRay::new(ray, safe_reciprocal(ray.dir));
+        let wray = WideRay::new(&SlabRay::new(ray));
         let (tmin, tmax) = (ray.tmin * (1.0 - SLAB_SLACK), ray.tmax * (1.0 + SLAB_SLACK));
         let mut stack: ArrayVec<u32, S> = ArrayVec::new();
         let mut current = start;
