@@ -276,36 +276,28 @@ impl NodeKernel<8> for Avx2 {
         unsafe {
             let b = &node.bounds;
             let i = |a: usize| _mm256_set1_ps(ray.inv_dir[a]);
-            // The box test with the near planes measured from `$on` and the
-            // far ones from `$of`. Branching to measure both from the origin
-            // when the ray lies in no axis plane (three registers, not six)
-            // cost single rays and the hybrid packets' single-ray finish
-            // 10-15% of their time (measured): the extra registers cost none
-            // seen.
-            macro_rules! slabs {
-                ($on:expr, $of:expr) => {{
-                    let (on, of) = ($on, $of);
-                    let at = |row: usize, o: f32, a: usize| {
-                        _mm256_mul_ps(
-                            _mm256_sub_ps(_mm256_load_ps(b[row].as_ptr()), _mm256_set1_ps(o)),
-                            i(a),
-                        )
-                    };
-                    (
-                        [
-                            at(ray.near[0], on[0], 0),
-                            at(ray.near[1], on[1], 1),
-                            at(ray.near[2], on[2], 2),
-                        ],
-                        [
-                            at(ray.far[0], of[0], 0),
-                            at(ray.far[1], of[1], 1),
-                            at(ray.far[2], of[2], 2),
-                        ],
-                    )
-                }};
-            }
-            let ([nx, ny, nz], [fx, fy, fz]) = slabs!(ray.near_origin, ray.far_origin);
+            // Near planes measured from `near_origin`, far ones from
+            // `far_origin`. Branching to measure both from the origin when
+            // the ray lies in no axis plane (three registers, not six) cost
+            // single rays and the hybrid packets' single-ray finish 10-15% of
+            // their time (measured): the extra registers cost none seen.
+            let at = |row: usize, o: f32, a: usize| {
+                _mm256_mul_ps(
+                    _mm256_sub_ps(_mm256_load_ps(b[row].as_ptr()), _mm256_set1_ps(o)),
+                    i(a),
+                )
+            };
+            let (on, of) = (ray.near_origin, ray.far_origin);
+            let (nx, ny, nz) = (
+                at(ray.near[0], on[0], 0),
+                at(ray.near[1], on[1], 1),
+                at(ray.near[2], on[2], 2),
+            );
+            let (fx, fy, fz) = (
+                at(ray.far[0], of[0], 0),
+                at(ray.far[1], of[1], 1),
+                at(ray.far[2], of[2], 2),
+            );
             let near = _mm256_max_ps(
                 _mm256_max_ps(_mm256_max_ps(nx, ny), nz),
                 _mm256_set1_ps(tmin),
