@@ -11,6 +11,7 @@
 //!   [`simd`] (the wide trees' node kernels), [`simd_packet`] (the packet
 //!   kernels of the 8-wide tree's packet traversal, written once over the
 //!   AVX2 and AVX-512 lanes of `simd_lanes`);
+//! - [`refit`]: a built tree's boxes recomputed for moved triangles;
 //! - [`backend`]: the tree as a render backend; [`quality`]: the metrics that
 //!   explain a tree's speed.
 
@@ -21,6 +22,7 @@ pub mod node;
 pub mod params;
 pub mod prim;
 pub mod quality;
+pub mod refit;
 pub mod simd;
 #[cfg(target_arch = "x86_64")]
 pub mod simd_lanes;

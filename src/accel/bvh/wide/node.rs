@@ -130,7 +130,7 @@ pub(crate) fn leaf_ref(slot: usize, count: usize) -> u32 {
 
 /// The slots `first..end` of a leaf reference.
 #[inline(always)]
-pub(super) fn leaf_slots(child: u32) -> (usize, usize) {
+pub(crate) fn leaf_slots(child: u32) -> (usize, usize) {
     let first = (child & (MAX_SLOTS as u32 - 1)) as usize;
     let count = ((child & !LEAF) >> SLOT_BITS) as usize + 1;
     (first, first + count)
