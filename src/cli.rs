@@ -112,6 +112,7 @@ pub fn main() -> i32 {
         Command::Scenes => BUILTIN_SCENES
             .iter()
             .chain(PROCEDURAL_SCENES)
+            .chain(crate::scene::motion::ANIMATED_SCENES)
             .try_for_each(|(name, about)| crate::console::outln(&format!("{name:18} {about}"))),
     };
     match result {

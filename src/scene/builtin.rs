@@ -77,6 +77,10 @@ pub const MESH_TRIANGLES: std::ops::RangeInclusive<u64> = 100..=100_000_000;
 
 /// The built-in scene called `name`.
 pub fn builtin(name: &str) -> Result<Scene> {
+    // An animated built-in, as it stands at time 0.
+    if let Some(animation) = super::motion::Animation::parse(name) {
+        return Ok(animation?.rest().clone());
+    }
     let mut b = Builder::default();
     // Scenes with no box, framed from their bounds as a file would be.
     let unframed = [
@@ -152,6 +156,7 @@ pub fn builtin(name: &str) -> Result<Scene> {
             let names: Vec<&str> = BUILTIN_SCENES
                 .iter()
                 .chain(PROCEDURAL_SCENES)
+                .chain(super::motion::ANIMATED_SCENES)
                 .map(|(n, _)| *n)
                 .collect();
             let files: Vec<String> = super::EXTENSIONS.iter().map(|e| format!(".{e}")).collect();
@@ -171,7 +176,11 @@ pub fn builtin(name: &str) -> Result<Scene> {
 }
 
 /// The `N` of `{prefix}:N` (accepts `1e5`-style exponents), within `range`.
-fn parse_count(name: &str, prefix: &str, range: std::ops::RangeInclusive<u64>) -> Result<u64> {
+pub(super) fn parse_count(
+    name: &str,
+    prefix: &str,
+    range: std::ops::RangeInclusive<u64>,
+) -> Result<u64> {
     let text = &name[prefix.len() + 1..];
     let n = text.parse::<u64>().ok().or_else(|| {
         let f: f64 = text.parse().ok()?;

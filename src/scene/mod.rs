@@ -8,6 +8,7 @@ pub mod builtin;
 pub mod gltf;
 pub mod light;
 pub mod load;
+pub mod motion;
 pub mod obj;
 pub mod ply;
 pub mod polygon;
