@@ -10,6 +10,7 @@ pub mod library;
 pub mod naive;
 pub mod query;
 pub mod spec;
+pub mod update;
 
 pub use query::Query;
 pub use spec::{build_backend, parse_backend, BackendKind, BackendSpec, Built};

@@ -38,6 +38,12 @@ impl BvhBackend {
     /// Traces streams with `query`: single rays, or (8-wide trees) packets of
     /// [`PACKET`] or [`PACKET16`] rays.
     pub fn with_query(mut self, query: Query) -> crate::Result<Self> {
+        self.set_query(query)?;
+        Ok(self)
+    }
+
+    /// [`Self::with_query`] in place (unchanged on an error).
+    pub fn set_query(&mut self, query: Query) -> crate::Result<()> {
         match (query, &self.tree) {
             (Query::Single, _) => {}
             (Query::Packet(PACKET | PACKET16), Tree::Wide8(_)) => {}
@@ -52,7 +58,12 @@ impl BvhBackend {
             }
         }
         self.query = query;
-        Ok(self)
+        Ok(())
+    }
+
+    /// How streams are traced.
+    pub fn query(&self) -> Query {
+        self.query
     }
 
     /// Uses `intersector` for the triangle tests.

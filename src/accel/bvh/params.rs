@@ -411,3 +411,20 @@ pub const PACKET_MIN_RAYS: u32 = 2;
 /// every packet made coherent primary rays 12-20% slower on the boxes, so
 /// coherent packets keep 2.
 pub const PACKET_MIN_RAYS_INCOHERENT: u32 = 4;
+
+/// The refit policy's default factor (`bench --rebuild-factor`): rebuild
+/// when the refitted tree's SAH cost exceeds this many times its cost when
+/// last built. Measured by the `animation` bench part, which runs the policy
+/// at this factor beside refit-only and rebuild-every-frame (docs/results.md,
+/// "Scenes that move").
+pub const REBUILD_FACTOR: f32 = 1.5;
+
+/// The unit costs the refit policy's SAH cost weighs node visits and leaf
+/// block tests with: fixed, so that which frames rebuild never depends on a
+/// timing (their ratio is about what `TraversalCosts::measure` finds here:
+/// a block test 1.5-2 node visits).
+pub const REFIT_POLICY_COSTS: super::wide::TraversalCosts = super::wide::TraversalCosts {
+    node_ns: 1.0,
+    block_ns: 1.75,
+    kernel: "policy units",
+};

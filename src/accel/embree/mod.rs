@@ -14,7 +14,9 @@ mod ffi;
 mod wrapper;
 
 #[cfg(feature = "embree")]
-pub use wrapper::{native_packets, tasking_threads, version, Device, EmbreeBackend, EmbreeScene};
+pub use wrapper::{
+    native_packets, tasking_threads, version, Device, EmbreeBackend, EmbreeScene, EmbreeUpdate,
+};
 
 /// Embree's build quality (`--embree-quality`, and the `embree-*` builders).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum, serde::Serialize)]

@@ -215,15 +215,37 @@ pub fn native_packets() -> Vec<usize> {
     Device::new("verbose=0").map_or(Vec::new(), |d| d.native_packets())
 }
 
+/// How a scene whose vertices move is brought up to date on each commit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EmbreeUpdate {
+    /// Embree's refit (`RTC_BUILD_QUALITY_REFIT`, dynamic scene).
+    Refit,
+    /// A full build at this quality.
+    Rebuild(Quality),
+}
+
+fn raw_quality(quality: Quality) -> ffi::RTCBuildQuality {
+    match quality {
+        Quality::Low => ffi::RTCBuildQuality_RTC_BUILD_QUALITY_LOW,
+        Quality::Medium => ffi::RTCBuildQuality_RTC_BUILD_QUALITY_MEDIUM,
+        Quality::High => ffi::RTCBuildQuality_RTC_BUILD_QUALITY_HIGH,
+    }
+}
+
 /// A committed Embree scene holding one triangle mesh.
 pub struct EmbreeScene {
     raw: ffi::RTCScene,
+    /// The scene's one geometry (the scene holds its reference) and its
+    /// vertex buffer (the geometry owns it), for [`EmbreeScene::update_positions`].
+    geometry: ffi::RTCGeometry,
+    vertices: *mut f32,
+    vertex_count: usize,
     /// What the scene build (rtcCommitScene) left allocated: the BVH with its
     /// leaf primitives, as Embree's memory monitor counts it.
     bvh_bytes: usize,
     /// Held, never read: the device (and the error log its callback writes to)
     /// must outlive every scene made on it.
-    _device: Arc<Device>,
+    device: Arc<Device>,
 }
 
 // SAFETY: a committed scene is immutable and Embree allows rtcIntersect1 and
@@ -242,6 +264,85 @@ impl EmbreeScene {
         quality: Quality,
         robust: bool,
     ) -> Result<EmbreeScene> {
+        let q = raw_quality(quality);
+        let flags = if robust {
+            ffi::RTCSceneFlags_RTC_SCENE_FLAG_ROBUST
+        } else {
+            ffi::RTCSceneFlags_RTC_SCENE_FLAG_NONE
+        };
+        Self::with_settings(device, positions, triangles, (q, q), flags)
+    }
+
+    /// A scene whose vertices will move ([`EmbreeScene::update_positions`]),
+    /// updated as `update` says: refitted (the geometry at
+    /// `RTC_BUILD_QUALITY_REFIT` in a `RTC_SCENE_FLAG_DYNAMIC` scene, which
+    /// Embree builds with its two-level builder and refits on each commit,
+    /// as its documentation advises for deforming meshes), or rebuilt at a
+    /// quality on each commit (the scene and geometry at that quality, as
+    /// [`EmbreeScene::new`] builds them).
+    pub fn for_updates(
+        device: &Arc<Device>,
+        positions: &[Vec3],
+        triangles: &[[u32; 3]],
+        update: EmbreeUpdate,
+    ) -> Result<EmbreeScene> {
+        match update {
+            EmbreeUpdate::Refit => Self::with_settings(
+                device,
+                positions,
+                triangles,
+                (
+                    ffi::RTCBuildQuality_RTC_BUILD_QUALITY_LOW,
+                    ffi::RTCBuildQuality_RTC_BUILD_QUALITY_REFIT,
+                ),
+                ffi::RTCSceneFlags_RTC_SCENE_FLAG_DYNAMIC,
+            ),
+            EmbreeUpdate::Rebuild(q) => Self::new(device, positions, triangles, q, false),
+        }
+    }
+
+    /// Moves the scene's vertices to `positions` (as many as it was made
+    /// with) and commits it: Embree refits or rebuilds, as the scene was
+    /// made for.
+    pub fn update_positions(&mut self, positions: &[Vec3]) -> Result<()> {
+        if positions.len() != self.vertex_count {
+            return Err(Error::Other(format!(
+                "embree: an update of {} vertices for a scene of {}",
+                positions.len(),
+                self.vertex_count
+            )));
+        }
+        // SAFETY: `vertices` is the geometry's own buffer of `vertex_count`
+        // float3s (12-byte stride), alive while the scene holds the
+        // geometry, and `&mut self` means no query runs on the scene now.
+        // The geometry and scene are live; the update, geometry commit and
+        // scene commit are Embree's documented sequence for changed buffers.
+        unsafe {
+            std::ptr::copy_nonoverlapping(
+                positions.as_ptr() as *const f32,
+                self.vertices,
+                positions.len() * 3,
+            );
+            ffi::rtcUpdateGeometryBuffer(
+                self.geometry,
+                ffi::RTCBufferType_RTC_BUFFER_TYPE_VERTEX,
+                0,
+            );
+            ffi::rtcCommitGeometry(self.geometry);
+            ffi::rtcCommitScene(self.raw);
+        }
+        self.device.check("rtcCommitScene (update)")
+    }
+
+    /// [`EmbreeScene::new`] with the scene's and the geometry's build
+    /// qualities and the scene flags given.
+    fn with_settings(
+        device: &Arc<Device>,
+        positions: &[Vec3],
+        triangles: &[[u32; 3]],
+        (quality, geometry_quality): (ffi::RTCBuildQuality, ffi::RTCBuildQuality),
+        flags: ffi::RTCSceneFlags,
+    ) -> Result<EmbreeScene> {
         if let Some(t) = triangles
             .iter()
             .find(|t| t.iter().any(|&i| i as usize >= positions.len()))
@@ -256,21 +357,17 @@ impl EmbreeScene {
         let scene = unsafe { ffi::rtcNewScene(raw_device) };
         let mut this = EmbreeScene {
             raw: scene,
+            geometry: std::ptr::null_mut(),
+            vertices: std::ptr::null_mut(),
+            vertex_count: positions.len(),
             bvh_bytes: 0,
-            _device: device.clone(),
+            device: device.clone(),
         };
         device.check("rtcNewScene")?;
-        let quality = match quality {
-            Quality::Low => ffi::RTCBuildQuality_RTC_BUILD_QUALITY_LOW,
-            Quality::Medium => ffi::RTCBuildQuality_RTC_BUILD_QUALITY_MEDIUM,
-            Quality::High => ffi::RTCBuildQuality_RTC_BUILD_QUALITY_HIGH,
-        };
         // SAFETY: a live scene; plain setters.
         unsafe {
             ffi::rtcSetSceneBuildQuality(scene, quality);
-            if robust {
-                ffi::rtcSetSceneFlags(scene, ffi::RTCSceneFlags_RTC_SCENE_FLAG_ROBUST);
-            }
+            ffi::rtcSetSceneFlags(scene, flags);
         }
         // SAFETY: a live device; the geometry is released below after attaching.
         let geometry = unsafe {
@@ -283,7 +380,7 @@ impl EmbreeScene {
         // (Embree 3.13's bvh_builder_twolevel_internal.h, `MeshBuilder`), not
         // its Morton builder.
         // SAFETY: a live geometry; a plain setter.
-        unsafe { ffi::rtcSetGeometryBuildQuality(geometry, quality) };
+        unsafe { ffi::rtcSetGeometryBuildQuality(geometry, geometry_quality) };
         // Embree allocates both buffers itself, which takes care of its alignment
         // and of the padding it reads past the last vertex.
         // SAFETY: a live geometry; Embree returns a buffer of `count` items of
@@ -339,6 +436,9 @@ impl EmbreeScene {
             ffi::rtcAttachGeometry(scene, geometry);
             ffi::rtcReleaseGeometry(geometry);
         }
+        // The scene's reference keeps both alive as long as it lives.
+        this.geometry = geometry;
+        this.vertices = vertices;
         let before = device.memory_bytes();
         // SAFETY: a live scene with its geometry attached.
         unsafe { ffi::rtcCommitScene(scene) };
@@ -594,6 +694,12 @@ impl EmbreeBackend {
     /// Traces streams with `query`: single rays, packets of 4, 8 or 16, or
     /// (Embree 3) the stream API.
     pub fn with_query(mut self, query: Query) -> Result<Self> {
+        self.set_query(query)?;
+        Ok(self)
+    }
+
+    /// [`Self::with_query`] in place (unchanged on an error).
+    pub fn set_query(&mut self, query: Query) -> Result<()> {
         match query {
             Query::Single | Query::Packet(4 | 8 | 16) => {}
             Query::Stream if api::HAS_STREAMS => {}
@@ -605,7 +711,7 @@ impl EmbreeBackend {
             }
         }
         self.query = query;
-        Ok(self)
+        Ok(())
     }
 
     /// The threads its build ran on (see [`tasking_threads`]).
@@ -627,6 +733,26 @@ impl EmbreeBackend {
     /// buffer copies and the BVH build: what [`crate::accel::build_backend`] times).
     pub fn new(scene: &Scene, quality: Quality, robust: bool, threads: usize) -> Result<Self> {
         Self::from_mesh(&scene.positions, &scene.triangles, quality, robust, threads)
+    }
+
+    /// Builds over `scene` for per-frame updates ([`EmbreeScene::for_updates`])
+    /// on a new device of `threads` threads.
+    pub fn for_updates(scene: &Scene, update: EmbreeUpdate, threads: usize) -> Result<Self> {
+        super::builder::release_device_above(threads);
+        let device = Device::new(&format!("threads={threads}"))?;
+        let build_threads = tasking_threads();
+        let embree = EmbreeScene::for_updates(&device, &scene.positions, &scene.triangles, update)?;
+        Ok(EmbreeBackend {
+            scene: embree,
+            query: Query::Single,
+            native: device.native_packets(),
+            build_threads,
+        })
+    }
+
+    /// Moves the vertices and commits ([`EmbreeScene::update_positions`]).
+    pub fn update_positions(&mut self, positions: &[Vec3]) -> Result<()> {
+        self.scene.update_positions(positions)
     }
 
     /// Builds over raw arrays (degenerate triangles included), for stress tests.

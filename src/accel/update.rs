@@ -1,0 +1,265 @@
+//! Following a scene whose vertices move: a backend built on the first frame
+//! and brought up to date on each next one by a [`Strategy`]: raylab's tree
+//! refitted, rebuilt at a rung, or refitted until its SAH cost has grown past
+//! a factor of the cost it had when last built (the policy); Embree's scene
+//! refitted or rebuilt at a quality. What each frame costs and how fast the
+//! result traces is the `animation` bench part's question.
+
+use super::bvh::params::{Quality, REBUILD_FACTOR, REFIT_POLICY_COSTS};
+use super::bvh::{BuildParams, BvhBackend, Tree};
+use super::{Backend, Query};
+use crate::error::Result;
+use crate::scene::Scene;
+
+/// How a backend follows the frames of an animation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Strategy {
+    /// raylab's 8-wide tree at a rung, built on the first frame and
+    /// refitted on every next one.
+    Refit(Quality),
+    /// raylab's 8-wide tree rebuilt at a rung on every frame.
+    Rebuild(Quality),
+    /// Refit, and rebuild at the rung when the refitted tree's SAH cost
+    /// exceeds `factor` times its cost right after its last build.
+    Policy { rung: Quality, factor: f32 },
+    /// Embree's refit (`RTC_BUILD_QUALITY_REFIT` in a dynamic scene).
+    EmbreeRefit,
+    /// Embree's scene rebuilt at a quality on every frame.
+    EmbreeRebuild(Quality),
+}
+
+fn rung_name(q: Quality) -> &'static str {
+    match q {
+        Quality::Low => "low",
+        Quality::Medium => "medium",
+        Quality::High => "high",
+    }
+}
+
+impl Strategy {
+    /// The strategies the `animation` bench part compares: raylab's refit,
+    /// rebuild at each rung and the policy at `factor` (all at the medium
+    /// rung but the rebuilds), and, where linked, Embree's refit and its
+    /// rebuilds at each quality.
+    pub fn compared(factor: f32) -> Vec<Strategy> {
+        let mut out = vec![
+            Strategy::Refit(Quality::Medium),
+            Strategy::Rebuild(Quality::Low),
+            Strategy::Rebuild(Quality::Medium),
+            Strategy::Rebuild(Quality::High),
+            Strategy::Policy {
+                rung: Quality::Medium,
+                factor,
+            },
+        ];
+        if crate::accel::embree::AVAILABLE {
+            out.extend([
+                Strategy::EmbreeRefit,
+                Strategy::EmbreeRebuild(Quality::Low),
+                Strategy::EmbreeRebuild(Quality::Medium),
+                Strategy::EmbreeRebuild(Quality::High),
+            ]);
+        }
+        out
+    }
+
+    /// Its name in reports: `raylab-refit`, `raylab-rebuild-low`,
+    /// `raylab-policy-1.5`, `embree-refit`, `embree-rebuild-medium`.
+    pub fn name(&self) -> String {
+        match self {
+            Strategy::Refit(Quality::Medium) => "raylab-refit".into(),
+            Strategy::Refit(q) => format!("raylab-refit-{}", rung_name(*q)),
+            Strategy::Rebuild(q) => format!("raylab-rebuild-{}", rung_name(*q)),
+            Strategy::Policy { factor, .. } => format!("raylab-policy-{factor}"),
+            Strategy::EmbreeRefit => "embree-refit".into(),
+            Strategy::EmbreeRebuild(q) => format!("embree-rebuild-{}", rung_name(*q)),
+        }
+    }
+
+    /// Whether it is Embree's.
+    pub fn is_embree(&self) -> bool {
+        matches!(self, Strategy::EmbreeRefit | Strategy::EmbreeRebuild(_))
+    }
+
+    /// The rung a fresh raylab build of the same quality uses (for the SAH
+    /// cost over a fresh build's), raylab's strategies only.
+    pub fn rung(&self) -> Option<Quality> {
+        match *self {
+            Strategy::Refit(q) | Strategy::Rebuild(q) => Some(q),
+            Strategy::Policy { rung, .. } => Some(rung),
+            _ => None,
+        }
+    }
+}
+
+/// A policy factor from the command line: a finite number above 1.
+pub fn parse_factor(s: &str) -> std::result::Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(f) if f.is_finite() && f > 1.0 => Ok(f),
+        _ => Err(format!(
+            "'{s}' is not a factor above 1 (the refitted tree's SAH cost over its cost when built; default {REBUILD_FACTOR})"
+        )),
+    }
+}
+
+enum Inner {
+    Raylab {
+        backend: BvhBackend,
+        params: BuildParams,
+        /// The SAH cost right after the last build (the policy's reference).
+        built_cost: f64,
+    },
+    #[cfg(feature = "embree")]
+    Embree(crate::accel::embree::EmbreeBackend),
+}
+
+/// A backend following an animation's frames.
+pub struct Follower {
+    pub strategy: Strategy,
+    threads: usize,
+    inner: Inner,
+}
+
+/// What an update did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Updated {
+    /// Whether the structure was built anew (always for the rebuilds, when
+    /// the cost grew too much for the policy, never for the refits).
+    pub rebuilt: bool,
+}
+
+/// The SAH cost the policy compares (node visits and block tests in fixed
+/// proportion, so that its decisions do not depend on a timing).
+fn policy_cost(tree: &Tree) -> f64 {
+    match tree {
+        Tree::Wide8(t) => t.sah_cost(&REFIT_POLICY_COSTS),
+        Tree::Wide4(t) => t.sah_cost(&REFIT_POLICY_COSTS),
+        Tree::Binary(t) => crate::accel::bvh::quality::TreeStats::with_block(t, 1, 4).sah_cost,
+    }
+}
+
+impl Follower {
+    /// Builds the structure on `first` (the first frame) with `threads`
+    /// build threads.
+    pub fn new(strategy: Strategy, first: &Scene, threads: usize) -> Result<Follower> {
+        let inner = match strategy {
+            Strategy::Refit(q) | Strategy::Rebuild(q) | Strategy::Policy { rung: q, .. } => {
+                let params = BuildParams::for_quality(q)
+                    .with_width(8)
+                    .with_threads(threads);
+                let backend = BvhBackend::new(&first.mesh(), &params)?;
+                let built_cost = policy_cost(&backend.tree);
+                Inner::Raylab {
+                    backend,
+                    params,
+                    built_cost,
+                }
+            }
+            #[cfg(feature = "embree")]
+            Strategy::EmbreeRefit | Strategy::EmbreeRebuild(_) => {
+                use crate::accel::embree::{EmbreeBackend, EmbreeUpdate};
+                let update = match strategy {
+                    Strategy::EmbreeRebuild(q) => EmbreeUpdate::Rebuild(q),
+                    _ => EmbreeUpdate::Refit,
+                };
+                Inner::Embree(EmbreeBackend::for_updates(first, update, threads)?)
+            }
+            #[cfg(not(feature = "embree"))]
+            Strategy::EmbreeRefit | Strategy::EmbreeRebuild(_) => {
+                return Err(crate::accel::embree::unavailable())
+            }
+        };
+        Ok(Follower {
+            strategy,
+            threads,
+            inner,
+        })
+    }
+
+    /// Brings the structure up to `frame` (the same triangles, moved).
+    pub fn update(&mut self, frame: &Scene) -> Result<Updated> {
+        let threads = self.threads;
+        match &mut self.inner {
+            Inner::Raylab {
+                backend,
+                params,
+                built_cost,
+            } => {
+                let rebuild = match self.strategy {
+                    Strategy::Rebuild(_) => true,
+                    Strategy::Policy { factor, .. } => {
+                        let mesh = frame.mesh();
+                        let tree = &mut backend.tree;
+                        crate::accel::bvh::in_pool(threads, || tree.refit(&mesh, threads > 1))?;
+                        policy_cost(&backend.tree) > factor as f64 * *built_cost
+                    }
+                    _ => {
+                        let mesh = frame.mesh();
+                        let tree = &mut backend.tree;
+                        crate::accel::bvh::in_pool(threads, || tree.refit(&mesh, threads > 1))?;
+                        false
+                    }
+                };
+                if rebuild {
+                    let query = backend.query();
+                    *backend = BvhBackend::new(&frame.mesh(), params)?.with_query(query)?;
+                    *built_cost = policy_cost(&backend.tree);
+                }
+                Ok(Updated { rebuilt: rebuild })
+            }
+            #[cfg(feature = "embree")]
+            Inner::Embree(e) => {
+                e.update_positions(&frame.positions)?;
+                Ok(Updated {
+                    rebuilt: self.strategy != Strategy::EmbreeRefit,
+                })
+            }
+        }
+    }
+
+    /// Traces streams with `query` from now on.
+    pub fn set_query(&mut self, query: Query) -> Result<()> {
+        match &mut self.inner {
+            Inner::Raylab { backend, .. } => backend.set_query(query),
+            #[cfg(feature = "embree")]
+            Inner::Embree(e) => e.set_query(query),
+        }
+    }
+
+    /// The query paths it can trace with.
+    pub fn queries(&self) -> Vec<Query> {
+        match &self.inner {
+            Inner::Raylab { .. } => vec![Query::Single, Query::Packet(8), Query::Packet(16)],
+            #[cfg(feature = "embree")]
+            Inner::Embree(_) => vec![Query::Single, Query::Packet(8), Query::Packet(16)],
+        }
+    }
+
+    /// The backend as it stands.
+    pub fn backend(&self) -> &dyn Backend {
+        match &self.inner {
+            Inner::Raylab { backend, .. } => backend,
+            #[cfg(feature = "embree")]
+            Inner::Embree(e) => e,
+        }
+    }
+
+    /// The SAH cost the policy compares, for raylab's trees.
+    pub fn policy_cost(&self) -> Option<f64> {
+        match &self.inner {
+            Inner::Raylab { backend, .. } => Some(policy_cost(&backend.tree)),
+            #[cfg(feature = "embree")]
+            Inner::Embree(_) => None,
+        }
+    }
+}
+
+/// The SAH cost of a fresh raylab build at `rung` on `frame` (what the
+/// strategies' costs are divided by).
+pub fn fresh_cost(frame: &Scene, rung: Quality, threads: usize) -> Result<f64> {
+    let params = BuildParams::for_quality(rung)
+        .with_width(8)
+        .with_threads(threads);
+    let tree = crate::accel::bvh::build(&frame.mesh(), &params)?;
+    Ok(policy_cost(&tree))
+}
