@@ -33,10 +33,12 @@ pub enum Part {
     Leaks,
     /// Every BVH's hits against Embree's (or naive's).
     Validate,
+    /// Scenes that move: refit against rebuild, raylab's and Embree's.
+    Animation,
 }
 
 impl Part {
-    pub const ALL: [Part; 10] = [
+    pub const ALL: [Part; 11] = [
         Part::Tables,
         Part::Trace,
         Part::Scaling,
@@ -47,6 +49,7 @@ impl Part {
         Part::Libraries,
         Part::Leaks,
         Part::Validate,
+        Part::Animation,
     ];
 
     /// The name `--parts` takes.
@@ -62,6 +65,7 @@ impl Part {
             Part::Libraries => "libraries",
             Part::Leaks => "leaks",
             Part::Validate => "validate",
+            Part::Animation => "animation",
         }
     }
 }
@@ -101,6 +105,9 @@ pub struct BenchConfig {
     pub rays: Option<crate::measure::rayfile::RaySets>,
     /// The command line that asked for the run, as the report quotes it.
     pub command: String,
+    /// The refit policy's factor for the `animation` part (`--rebuild-factor`;
+    /// `None`: the default, `REBUILD_FACTOR`).
+    pub rebuild_factor: Option<f32>,
 }
 
 impl BenchConfig {

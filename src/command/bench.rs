@@ -67,7 +67,8 @@ pub struct BenchArgs {
     #[arg(long, value_name = "S", default_value_t = 60.0)]
     max_variant_s: f64,
     /// Parts to run, separated by commas: all, or tables, trace, scaling,
-    /// growth, ao-error, builders, ladder, libraries, leaks, validate.
+    /// growth, ao-error, builders, ladder, libraries, leaks, validate,
+    /// animation.
     #[arg(long, value_name = "LIST", default_value = "all")]
     parts: String,
     /// A ray file (`raylab rays`) for the `libraries` part to trace instead
@@ -84,6 +85,11 @@ pub struct BenchArgs {
     /// the best peer. (Not with --rays: each class traces its own rays.)
     #[arg(long, conflicts_with = "rays")]
     cliffs: bool,
+    /// The refit policy's factor in the `animation` part: rebuild when the
+    /// refitted tree's SAH cost exceeds F times its cost when last built
+    /// (a number above 1) [default: 1.5].
+    #[arg(long, value_name = "F", value_parser = crate::accel::update::parse_factor)]
+    rebuild_factor: Option<f32>,
     /// Folder for bench.md, bench.csv, bench.json, charts/, images/ and
     /// index.html. A folder holding files bench did not write is refused
     /// (they could be overwritten) unless --force is given.
@@ -217,7 +223,14 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         quiet: args.quiet,
         rays: None,
         command: crate::bench::summary::command_line(std::env::args()),
+        rebuild_factor: args.rebuild_factor,
     };
+    if args.rebuild_factor.is_some() && !cfg.wants(crate::bench::config::Part::Animation) {
+        return Err(Error::usage(
+            "--rebuild-factor",
+            "applies to the animation part (--parts animation)",
+        ));
+    }
     let mut cfg = cfg;
     // Before the scenes load and the measuring starts.
     crate::bench::check_out_dir(&cfg.out, cfg.force)?;

@@ -8,6 +8,7 @@
 //! below and its line in `reports!` (the tables part, the matrix, is run and
 //! reported by `bench` itself).
 
+pub mod animation;
 pub mod ao_error;
 pub mod builders;
 pub mod cliffs;
@@ -93,6 +94,12 @@ plain_part!(AoErrorPart, AoError, ao_error, ao_error::AoErrorPoint);
 plain_part!(BuildersPart, Builders, builders, builders::BuilderPoint);
 plain_part!(LadderPart, Ladder, ladder, ladder::LadderPoint);
 plain_part!(LeaksPart, Leaks, leaks, crate::measure::stress::LeakRow);
+plain_part!(
+    AnimationPart,
+    Animation,
+    animation,
+    animation::AnimationPoint
+);
 
 /// The `libraries` part, led by the cliff table (which reads its points;
 /// here, so that neither file imports the other both ways).
@@ -254,6 +261,7 @@ reports! {
     Libraries(LibrariesPart) = "libraries" as libraries,
     Leaks(LeaksPart) = "leaks" as leaks,
     Validate(ValidatePart) = "validation" as validation,
+    Animation(AnimationPart) = "animation" as animation,
 }
 
 /// The reports of the parts that ran, in the order they ran. In
