@@ -44,7 +44,25 @@ pub struct RenderArgs {
         default_value = "out.png"
     )]
     output: PathBuf,
-    /// Print one JSON object with the results on stdout.
+    /// For an animated scene (explode:N, cloth:N): render it as it stands
+    /// this many seconds into its animation.
+    #[arg(
+        long,
+        value_name = "SECONDS",
+        allow_negative_numbers = true,
+        conflicts_with = "frames"
+    )]
+    time: Option<f32>,
+    /// For an animated scene: render frames A to B (inclusive, numbered from
+    /// 0 at time 0) at --fps frames per second, each to the output's name
+    /// with the frame number added (out.png: out_0000.png, ...), the camera
+    /// fixed.
+    #[arg(long, value_name = "A..B", value_parser = parse_frames)]
+    frames: Option<(u32, u32)>,
+    /// Frames per second of --frames.
+    #[arg(long, value_name = "F", requires = "frames", value_parser = parse_fps)]
+    fps: Option<f32>,
+    /// Print one JSON object with the results on stdout (one per frame).
     #[arg(long)]
     json: bool,
     /// No progress bar and no summary on stderr.
@@ -133,15 +151,99 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     }
     args.view.check()?;
     args.files.check(std::slice::from_ref(&args.scene))?;
+
+    if args.time.is_none() && args.frames.is_none() {
+        let start = Instant::now();
+        let scene = args.files.load(&args.scene)?;
+        return render_scene(args, &spec, threads, scene, start.elapsed(), &args.output);
+    }
+    let start = Instant::now();
+    let animation = crate::scene::motion::Animation::parse(&args.scene).unwrap_or_else(|| {
+        let names: Vec<&str> = crate::scene::motion::ANIMATED_SCENES
+            .iter()
+            .map(|(n, _)| *n)
+            .collect();
+        Err(crate::Error::usage(
+            if args.time.is_some() {
+                "--time"
+            } else {
+                "--frames"
+            },
+            format!(
+                "'{}' does not move: animated scenes are {}",
+                args.scene,
+                names.join(", ")
+            ),
+        ))
+    })?;
+    let load_time = start.elapsed();
+    if let Some(t) = args.time {
+        animation.check_time(t, "--time")?;
+        let frame = animation.frame(t);
+        return render_scene(args, &spec, threads, frame, load_time, &args.output);
+    }
+    let (first, last) = args.frames.expect("--time or --frames");
+    let fps = args.fps.unwrap_or(DEFAULT_FPS);
+    animation.check_time(last as f32 / fps, "--frames")?;
+    for f in first..=last {
+        let start = Instant::now();
+        let frame = animation.frame(f as f32 / fps);
+        let output = numbered(&args.output, f);
+        render_scene(args, &spec, threads, frame, start.elapsed(), &output)?;
+    }
+    Ok(())
+}
+
+/// Frames per second of `--frames` without `--fps`.
+const DEFAULT_FPS: f32 = 24.0;
+
+/// `out.png` with frame `f`'s number: `out_0007.png`.
+fn numbered(output: &std::path::Path, f: u32) -> PathBuf {
+    let stem = output
+        .file_stem()
+        .map_or("frame".into(), |s| s.to_string_lossy().into_owned());
+    let ext = output
+        .extension()
+        .map_or("png".into(), |e| e.to_string_lossy().into_owned());
+    output.with_file_name(format!("{stem}_{f:04}.{ext}"))
+}
+
+/// `A..B` of `--frames`: whole numbers, A at most B.
+fn parse_frames(s: &str) -> std::result::Result<(u32, u32), String> {
+    let bad = || format!("'{s}' is not A..B (frame numbers from 0, A at most B: 0..47)");
+    let (a, b) = s.split_once("..").ok_or_else(bad)?;
+    let a: u32 = a.trim().parse().map_err(|_| bad())?;
+    let b: u32 = b.trim().parse().map_err(|_| bad())?;
+    if a > b {
+        return Err(bad());
+    }
+    Ok((a, b))
+}
+
+/// `--fps`: a positive finite number.
+fn parse_fps(s: &str) -> std::result::Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(f) if f.is_finite() && f > 0.0 => Ok(f),
+        _ => Err(format!(
+            "'{s}' is not a positive number of frames per second"
+        )),
+    }
+}
+
+/// Builds the backend over `scene`, renders it to `output` and reports.
+fn render_scene(
+    args: &RenderArgs,
+    spec: &crate::accel::BackendSpec,
+    threads: usize,
+    mut scene: crate::scene::Scene,
+    load_time: Duration,
+    output: &std::path::Path,
+) -> Result<()> {
     let say = |line: String| {
         if !args.quiet {
             crate::console::say(&line);
         }
     };
-
-    let start = Instant::now();
-    let mut scene = args.files.load(&args.scene)?;
-    let load_time = start.elapsed();
     let settings = args.view.prepare(&mut scene)?;
     for w in &scene.warnings {
         say(format!("warning: {w}"));
@@ -154,7 +256,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         ms(load_time)
     ));
 
-    let backend = build_backend(&spec, &scene)?;
+    let backend = build_backend(spec, &scene)?;
     say(format!(
         "backend {}: built in {:.1} ms",
         backend.name(),
@@ -196,7 +298,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     }
     let rgb8 = srgb::to_srgb8(&frame);
     let hash = srgb::image_hash(&rgb8);
-    output::write_png(&args.output, frame.width, frame.height, &rgb8)?;
+    output::write_png(output, frame.width, frame.height, &rgb8)?;
 
     let threads_used = args.schedule.threads_used(threads, settings.height);
     let mrays = stats.total_rays() as f64 / render_time.as_secs_f64().max(1e-9) / 1e6;
@@ -222,10 +324,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         stats.ao_rays,
         significant(per_thread(stats.ao_rays, stats.ao_time)),
     ));
-    say(format!(
-        "wrote {} (image hash {hash})",
-        args.output.display()
-    ));
+    say(format!("wrote {} (image hash {hash})", output.display()));
 
     if args.json {
         let report = RenderReport {
@@ -257,7 +356,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
                 ao: ms(stats.ao_time),
             },
             mrays_per_s: mrays,
-            output: args.output.display().to_string(),
+            output: output.display().to_string(),
             image_hash: hash,
             warnings,
             embree_version: backend.spec.is_embree().then(embree_version),

@@ -1,0 +1,221 @@
+//! Scenes that move: every update strategy (raylab's refit, rebuilds and
+//! policy; Embree's refit and rebuilds) followed through an animation's
+//! frames answers as the naive scan over that frame does: raylab's trees bit
+//! for bit, on every query path, Embree's with no genuine disagreement. The
+//! explosion carries triangles far outside the rest pose's bounds, so a stale
+//! box would lose hits. Also: a refit never rebuilds, the policy rebuilds
+//! when and only when its cost grew past the factor, and the render and bench
+//! flags of animations.
+
+mod common;
+
+use common::{assert_one_line_error, assert_success, raylab, temp_dir, TestRng};
+use glam::Vec3;
+use raylab::accel::bvh::params::Quality;
+use raylab::accel::naive::Naive;
+use raylab::accel::update::{Follower, Strategy};
+use raylab::accel::{Backend, Query};
+use raylab::geometry::{Hit, Ray};
+use raylab::measure::validate::{classify, Agreement};
+use raylab::scene::motion::Animation;
+
+/// Rays from inside and around the box, in every direction, in runs of
+/// neighbours (so that packets see coherent and incoherent groups).
+fn rays(n: usize, seed: u64) -> Vec<Ray> {
+    let mut rng = TestRng(seed);
+    let mut out = Vec::with_capacity(n);
+    while out.len() < n {
+        let o = rng.vec_in(Vec3::new(-1.5, -0.5, -1.5), Vec3::new(1.5, 2.5, 3.0));
+        let d = rng.unit();
+        for k in 0..8 {
+            let jitter = Vec3::new(k as f32 * 1e-3, 0.0, -(k as f32) * 1e-3);
+            out.push(Ray::new(o, (d + jitter).normalize()));
+        }
+    }
+    out.truncate(n);
+    out
+}
+
+fn closest(backend: &dyn Backend, rays: &[Ray]) -> Vec<Option<Hit>> {
+    let mut hits = vec![None; rays.len()];
+    backend.intersect_stream(rays, &mut hits);
+    hits
+}
+
+fn occluded(backend: &dyn Backend, rays: &[Ray]) -> Vec<bool> {
+    let mut out = vec![false; rays.len()];
+    backend.occluded_stream(rays, &mut out);
+    out
+}
+
+#[test]
+fn every_strategy_answers_as_the_naive_scan_on_every_frame() {
+    let rays = rays(4000, 17);
+    for name in ["explode:3000", "cloth:3000"] {
+        let animation = Animation::parse(name).unwrap().unwrap();
+        let times = [0.0, 0.4, 1.0, 1.6, 2.0];
+        let mut followers: Vec<Follower> = Strategy::compared(1.3)
+            .into_iter()
+            .map(|s| Follower::new(s, animation.rest(), 2).unwrap())
+            .collect();
+        for &t in &times {
+            let frame = animation.frame(t);
+            let naive = Naive::new(&frame);
+            let want = closest(&naive, &rays);
+            let want_any = occluded(&naive, &rays);
+            let triangles = frame.triangle_vertices();
+            for f in &mut followers {
+                f.update(&frame).unwrap();
+                let who = format!("{name} at {t} s, {}", f.strategy.name());
+                for q in [Query::Single, Query::Packet(8), Query::Packet(16)] {
+                    f.set_query(q).unwrap();
+                    let got = closest(f.backend(), &rays);
+                    let got_any = occluded(f.backend(), &rays);
+                    if f.strategy.is_embree() {
+                        let genuine = rays
+                            .iter()
+                            .zip(got.iter().zip(&want))
+                            .filter(|(r, (g, w))| {
+                                classify(r, **g, **w, &triangles) == Agreement::Genuine
+                            })
+                            .count();
+                        assert_eq!(genuine, 0, "{who} {q}");
+                    } else {
+                        assert_eq!(got, want, "{who} {q}");
+                        assert_eq!(got_any, want_any, "{who} {q}");
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn refits_never_rebuild_and_the_policy_rebuilds_past_its_factor() {
+    let animation = Animation::parse("explode:3000").unwrap().unwrap();
+    let mut refit = Follower::new(Strategy::Refit(Quality::Medium), animation.rest(), 1).unwrap();
+    let factor = 1.2;
+    let mut policy = Follower::new(
+        Strategy::Policy {
+            rung: Quality::Medium,
+            factor,
+        },
+        animation.rest(),
+        1,
+    )
+    .unwrap();
+    let built = policy.policy_cost().unwrap();
+    let mut reference = built;
+    let mut rebuilds = 0;
+    for step in 1..=10 {
+        let frame = animation.frame(0.2 * step as f32);
+        assert!(!refit.update(&frame).unwrap().rebuilt);
+        // What the refitted tree would cost: the refit-only follower's,
+        // while the policy has not rebuilt yet.
+        let refitted = refit.policy_cost().unwrap();
+        let updated = policy.update(&frame).unwrap();
+        if rebuilds == 0 {
+            assert_eq!(
+                updated.rebuilt,
+                refitted > factor as f64 * reference,
+                "step {step}: refitted {refitted}, built {reference}"
+            );
+        }
+        if updated.rebuilt {
+            rebuilds += 1;
+            reference = policy.policy_cost().unwrap();
+        }
+    }
+    // The explosion swells a refitted tree far past 1.2x.
+    assert!((1..10).contains(&rebuilds), "{rebuilds} rebuilds");
+    assert!(refit.policy_cost().unwrap() > 1.5 * built);
+}
+
+#[test]
+fn render_takes_a_time_and_frames_of_an_animation() {
+    let dir = temp_dir("animation-render");
+    let out = dir.join("e.png");
+    let o = out.to_str().unwrap();
+    let r = raylab(&[
+        "render",
+        "explode:2000",
+        "--time",
+        "1",
+        "--size",
+        "64x48",
+        "-q",
+        "-o",
+        o,
+    ]);
+    assert_success(&r);
+    assert!(out.exists());
+    let r = raylab(&[
+        "render",
+        "cloth:2000",
+        "--frames",
+        "3..4",
+        "--fps",
+        "10",
+        "--size",
+        "64x48",
+        "-q",
+        "-o",
+        o,
+        "--json",
+    ]);
+    assert_success(&r);
+    let text = String::from_utf8_lossy(&r.stdout);
+    assert_eq!(text.lines().count(), 2, "{text}");
+    assert!(dir.join("e_0003.png").exists() && dir.join("e_0004.png").exists());
+    // The frames differ: the cloth moves.
+    let hashes: Vec<&str> = text
+        .lines()
+        .map(|l| {
+            l.split("\"image_hash\":\"")
+                .nth(1)
+                .unwrap()
+                .split('"')
+                .next()
+                .unwrap()
+        })
+        .collect();
+    assert_ne!(hashes[0], hashes[1]);
+}
+
+#[test]
+fn bad_animation_flags_get_one_line_errors() {
+    assert_one_line_error(&["render", "cornell-original", "--time", "1"], "--time");
+    assert_one_line_error(&["render", "mesh:1000", "--frames", "0..3"], "--frames");
+    assert_one_line_error(&["render", "explode:2000", "--time", "9"], "--time");
+    assert_one_line_error(&["render", "explode:2000", "--time", "-1"], "--time");
+    assert_one_line_error(&["render", "cloth:2000", "--frames", "4..2"], "--frames");
+    assert_one_line_error(&["render", "cloth:2000", "--frames", "0..100"], "--frames");
+    assert_one_line_error(
+        &["render", "cloth:2000", "--fps", "0", "--frames", "0..1"],
+        "--fps",
+    );
+    assert_one_line_error(&["render", "cloth:2000", "--fps", "10"], "--frames");
+    assert_one_line_error(&["render", "cloth:20", "--time", "1"], "cloth:N");
+    assert_one_line_error(
+        &[
+            "bench",
+            "--quick",
+            "--parts",
+            "libraries",
+            "--rebuild-factor",
+            "2",
+        ],
+        "--rebuild-factor",
+    );
+    assert_one_line_error(
+        &[
+            "bench",
+            "--quick",
+            "--parts",
+            "animation",
+            "--rebuild-factor",
+            "0.5",
+        ],
+        "--rebuild-factor",
+    );
+}
