@@ -59,7 +59,7 @@ fn every_strategy_answers_as_the_naive_scan_on_every_frame() {
             .map(|s| Follower::new(s, animation.rest(), 2).unwrap())
             .collect();
         for &t in &times {
-            let frame = animation.frame(t);
+            let frame = animation.frame(t).unwrap();
             let naive = Naive::new(&frame);
             let want = closest(&naive, &rays);
             let want_any = occluded(&naive, &rays);
@@ -108,7 +108,7 @@ fn refits_never_rebuild_and_the_policy_rebuilds_past_its_factor() {
     let mut reference = built;
     let mut rebuilds = 0;
     for step in 1..=10 {
-        let frame = animation.frame(0.2 * step as f32);
+        let frame = animation.frame(0.2 * step as f32).unwrap();
         assert!(!refit.update(&frame).unwrap().rebuilt);
         // What the refitted tree would cost: the refit-only follower's,
         // while the policy has not rebuilt yet.

@@ -5,7 +5,7 @@
 //! refitted or rebuilt at a quality. What each frame costs and how fast the
 //! result traces is the `animation` bench part's question.
 
-use super::bvh::params::{Quality, REBUILD_FACTOR, REFIT_POLICY_COSTS};
+use super::bvh::params::{Quality, PARALLEL_CUTOFF, REBUILD_FACTOR, REFIT_POLICY_COSTS};
 use super::bvh::{BuildParams, BvhBackend, Tree};
 use super::{Backend, Query};
 use crate::error::Result;
@@ -138,6 +138,18 @@ fn policy_cost(tree: &Tree) -> f64 {
     }
 }
 
+/// Refits `tree` to `frame` on `threads` threads, on the calling thread
+/// below [`PARALLEL_CUTOFF`] triangles as the builds are (waking a pool
+/// cost simple_skin's 8 triangles 0.1 ms a refit, 20x the refit).
+fn refit(tree: &mut Tree, frame: &Scene, threads: usize) -> Result<()> {
+    let mesh = frame.mesh();
+    if threads > 1 && frame.triangle_count() >= PARALLEL_CUTOFF {
+        crate::accel::bvh::in_pool(threads, || tree.refit(&mesh, true))
+    } else {
+        tree.refit(&mesh, false)
+    }
+}
+
 impl Follower {
     /// Builds the structure on `first` (the first frame) with `threads`
     /// build threads.
@@ -188,15 +200,11 @@ impl Follower {
                 let rebuild = match self.strategy {
                     Strategy::Rebuild(_) => true,
                     Strategy::Policy { factor, .. } => {
-                        let mesh = frame.mesh();
-                        let tree = &mut backend.tree;
-                        crate::accel::bvh::in_pool(threads, || tree.refit(&mesh, threads > 1))?;
+                        refit(&mut backend.tree, frame, threads)?;
                         policy_cost(&backend.tree) > factor as f64 * *built_cost
                     }
                     _ => {
-                        let mesh = frame.mesh();
-                        let tree = &mut backend.tree;
-                        crate::accel::bvh::in_pool(threads, || tree.refit(&mesh, threads > 1))?;
+                        refit(&mut backend.tree, frame, threads)?;
                         false
                     }
                 };

@@ -108,6 +108,8 @@ pub struct BenchConfig {
     /// The refit policy's factor for the `animation` part (`--rebuild-factor`;
     /// `None`: the default, `REBUILD_FACTOR`).
     pub rebuild_factor: Option<f32>,
+    /// Where scene files' references may be read (`--allow-outside-refs`).
+    pub ref_policy: crate::scene::refs::RefPolicy,
 }
 
 impl BenchConfig {

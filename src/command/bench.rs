@@ -224,6 +224,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         rays: None,
         command: crate::bench::summary::command_line(std::env::args()),
         rebuild_factor: args.rebuild_factor,
+        ref_policy: args.files.policy(),
     };
     if args.rebuild_factor.is_some() && !cfg.wants(crate::bench::config::Part::Animation) {
         return Err(Error::usage(
@@ -316,6 +317,12 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         return Err(Error::Other(format!(
             "bench: {} disagrees with {} on {} rays of {}",
             v.tested, v.reference, v.genuine, v.scene
+        )));
+    }
+    if let Some(p) = report.parts.animation().iter().find(|p| p.wrong > 0) {
+        return Err(Error::Other(format!(
+            "bench: {} answers {} of {} rays unlike a fresh build on frame {} of {}",
+            p.strategy, p.wrong, p.checked, p.frame, p.scene
         )));
     }
     Ok(())

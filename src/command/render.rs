@@ -14,7 +14,7 @@ use crate::error::Result;
 use crate::output;
 use crate::progress::Progress;
 use crate::render::schedule::default_threads;
-use crate::render::{self, srgb, Schedule};
+use crate::render::{self, srgb, RenderSettings, Schedule};
 use crate::table::ms;
 
 #[derive(Args, Debug)]
@@ -56,12 +56,16 @@ pub struct RenderArgs {
     /// For an animated scene: render frames A to B (inclusive, numbered from
     /// 0 at time 0) at --fps frames per second, each to the output's name
     /// with the frame number added (out.png: out_0000.png, ...), the camera
-    /// fixed.
+    /// and default light set from the first frame (see --follow).
     #[arg(long, value_name = "A..B", value_parser = parse_frames)]
     frames: Option<(u32, u32)>,
     /// Frames per second of --frames.
     #[arg(long, value_name = "F", requires = "frames", value_parser = parse_fps)]
     fps: Option<f32>,
+    /// With --frames: frame every image from its own bounds (camera and
+    /// default light follow the motion) instead of from the first frame's.
+    #[arg(long, requires = "frames")]
+    follow: bool,
     /// Print one JSON object with the results on stdout (one per frame).
     #[arg(long)]
     json: bool,
@@ -155,41 +159,42 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     if args.time.is_none() && args.frames.is_none() {
         let start = Instant::now();
         let scene = args.files.load(&args.scene)?;
-        return render_scene(args, &spec, threads, scene, start.elapsed(), &args.output);
+        return render_scene(
+            args,
+            &spec,
+            threads,
+            scene,
+            start.elapsed(),
+            &args.output,
+            None,
+        );
     }
     let start = Instant::now();
-    let animation = crate::scene::motion::Animation::parse(&args.scene).unwrap_or_else(|| {
-        let names: Vec<&str> = crate::scene::motion::ANIMATED_SCENES
-            .iter()
-            .map(|(n, _)| *n)
-            .collect();
-        Err(crate::Error::usage(
-            if args.time.is_some() {
-                "--time"
-            } else {
-                "--frames"
-            },
-            format!(
-                "'{}' does not move: animated scenes are {}",
-                args.scene,
-                names.join(", ")
-            ),
-        ))
-    })?;
+    let flag = if args.time.is_some() {
+        "--time"
+    } else {
+        "--frames"
+    };
+    let animation = crate::scene::motion::Animation::load(&args.scene, args.files.policy(), flag)?;
     let load_time = start.elapsed();
     if let Some(t) = args.time {
         animation.check_time(t, "--time")?;
-        let frame = animation.frame(t);
-        return render_scene(args, &spec, threads, frame, load_time, &args.output);
+        let frame = animation.frame(t)?;
+        return render_scene(args, &spec, threads, frame, load_time, &args.output, None);
     }
     let (first, last) = args.frames.expect("--time or --frames");
     let fps = args.fps.unwrap_or(DEFAULT_FPS);
     animation.check_time(last as f32 / fps, "--frames")?;
+    // The view and default light of the first frame, kept for all of them
+    // unless --follow.
+    let mut framing = animation.frame(first as f32 / fps)?;
+    let fixed = (args.view.prepare(&mut framing)?, framing.lights.extra);
     for f in first..=last {
         let start = Instant::now();
-        let frame = animation.frame(f as f32 / fps);
+        let frame = animation.frame(f as f32 / fps)?;
         let output = numbered(&args.output, f);
-        render_scene(args, &spec, threads, frame, start.elapsed(), &output)?;
+        let fixed = (!args.follow).then_some(&fixed);
+        render_scene(args, &spec, threads, frame, start.elapsed(), &output, fixed)?;
     }
     Ok(())
 }
@@ -230,7 +235,12 @@ fn parse_fps(s: &str) -> std::result::Result<f32, String> {
     }
 }
 
-/// Builds the backend over `scene`, renders it to `output` and reports.
+/// The settings and outside light of a fixed view, kept across frames.
+type FixedView = (RenderSettings, Option<crate::scene::light::Emitter>);
+
+/// Builds the backend over `scene`, renders it to `output` and reports;
+/// with `fixed`, in that view and light, else in the one the flags and the
+/// scene's bounds give.
 fn render_scene(
     args: &RenderArgs,
     spec: &crate::accel::BackendSpec,
@@ -238,13 +248,21 @@ fn render_scene(
     mut scene: crate::scene::Scene,
     load_time: Duration,
     output: &std::path::Path,
+    fixed: Option<&FixedView>,
 ) -> Result<()> {
     let say = |line: String| {
         if !args.quiet {
             crate::console::say(&line);
         }
     };
-    let settings = args.view.prepare(&mut scene)?;
+    let settings = match fixed {
+        Some((settings, light)) => {
+            scene.check_traceable()?;
+            scene.lights.extra = *light;
+            settings.clone()
+        }
+        None => args.view.prepare(&mut scene)?,
+    };
     for w in &scene.warnings {
         say(format!("warning: {w}"));
     }

@@ -29,6 +29,32 @@ pub fn load_gltf_bytes(bytes: &[u8], path: &Path) -> Result<Scene> {
 
 /// [`load_gltf_bytes`], external buffers read where `policy` allows.
 pub fn load_gltf_bytes_with(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Scene> {
+    Ok(load_parts(bytes, path, policy)?.scene)
+}
+
+/// A loaded glTF file: the flattened scene, and what its animations are
+/// evaluated on (the document, its buffers, where each placed primitive's
+/// vertices went).
+pub(super) struct Loaded {
+    pub scene: Scene,
+    pub doc: gltf::Document,
+    pub buffers: Vec<Vec<u8>>,
+    pub placements: Vec<Placement>,
+}
+
+/// One primitive as placed by one node: its vertices are the scene's
+/// `base .. base + count`.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Placement {
+    pub node: usize,
+    pub mesh: usize,
+    pub primitive: usize,
+    pub base: usize,
+    pub count: usize,
+}
+
+/// [`load_gltf_bytes_with`], keeping what animations need.
+pub(super) fn load_parts(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Loaded> {
     let err = |msg: String| Error::Parse {
         path: path.to_path_buf(),
         line: 0,
@@ -82,7 +108,7 @@ pub fn load_gltf_bytes_with(bytes: &[u8], path: &Path, policy: RefPolicy) -> Res
         ));
     }
     let any_normals = out.normals.iter().any(|n| *n != Vec3::ZERO);
-    Scene::from_file(
+    let scene = Scene::from_file(
         path,
         out.positions,
         any_normals.then_some(out.normals),
@@ -90,7 +116,14 @@ pub fn load_gltf_bytes_with(bytes: &[u8], path: &Path, policy: RefPolicy) -> Res
         out.material_ids,
         out.materials,
         warnings,
-    )
+    )?;
+    let gltf::Gltf { document, .. } = gltf;
+    Ok(Loaded {
+        scene,
+        doc: document,
+        buffers,
+        placements: out.placements,
+    })
 }
 
 /// Whether `bytes` declare glTF 1.0 (`"version": "1.0"` in the asset, or a
@@ -399,7 +432,7 @@ fn check_accessors(doc: &gltf::Document, buffers: &[Vec<u8>]) -> std::result::Re
 /// bounds-checked: the gltf crate's reader panics on component types,
 /// strides and sparse data it does not expect, so raylab reads accessors
 /// itself; and sparse data that cannot be read is an error, never "no data".
-fn read_elements<T: Copy + Default>(
+pub(super) fn read_elements<T: Copy + Default>(
     a: &gltf::Accessor,
     buffers: &[Vec<u8>],
     n: usize,
@@ -475,7 +508,7 @@ fn read_elements<T: Copy + Default>(
 
 /// One component of a float attribute: f32, or an integer normalized or not
 /// (`KHR_mesh_quantization`'s POSITION and NORMAL types).
-fn decode_float(ty: gltf::accessor::DataType, normalized: bool, b: &[u8]) -> f32 {
+pub(super) fn decode_float(ty: gltf::accessor::DataType, normalized: bool, b: &[u8]) -> f32 {
     use gltf::accessor::DataType;
     match ty {
         DataType::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
@@ -503,7 +536,7 @@ fn view_bytes<'a>(view: &gltf::buffer::View, buffers: &'a [Vec<u8>]) -> Option<&
 }
 
 /// A VEC3 attribute (`what`: its semantic, for messages) as finite vectors.
-fn read_vec3s(
+pub(super) fn read_vec3s(
     a: &gltf::Accessor,
     buffers: &[Vec<u8>],
     what: &str,
@@ -561,6 +594,7 @@ struct Flattened {
     /// glTF material index (None: the default) -> index into `materials`.
     material_of: HashMap<Option<usize>, u32>,
     skipped_primitives: usize,
+    placements: Vec<Placement>,
 }
 
 /// Node nesting deeper than this is taken for a cycle (the format forbids them).
@@ -583,7 +617,17 @@ impl Flattened {
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
         if let Some(mesh) = node.mesh() {
             for prim in mesh.primitives() {
+                let base = self.positions.len();
                 self.primitive(&prim, world, buffers)?;
+                if self.positions.len() > base {
+                    self.placements.push(Placement {
+                        node: node.index(),
+                        mesh: mesh.index(),
+                        primitive: prim.index(),
+                        base,
+                        count: self.positions.len() - base,
+                    });
+                }
             }
         }
         for child in node.children() {

@@ -6,6 +6,7 @@
 pub mod budget;
 pub mod builtin;
 pub mod gltf;
+pub mod gltf_motion;
 pub mod light;
 pub mod load;
 pub mod motion;

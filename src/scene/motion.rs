@@ -11,6 +11,9 @@
 //! - `cloth:N`: a cloth of about N triangles pinned along one edge, waving
 //!   in travelling waves. Neighbours stay neighbours: the easy case.
 //!
+//! - a glTF file's animations ([`super::gltf_motion`]): node TRS keyframes,
+//!   morph targets and skins, as the file's author made them.
+//!
 //! Frames drop the rest pose's vertex normals (they would not follow the
 //! motion) and shade with the geometric normal.
 
@@ -57,6 +60,8 @@ enum Motion {
         axes: Vec<Vec3>,
         spins: Vec<f32>,
     },
+    /// A glTF file's animations (node TRS, morph weights, skins).
+    Nodes(Box<super::gltf_motion::NodeMotion>),
     /// Vertices from `first` on are a `cols x rows` grid hanging in the
     /// plane z = `z0`, pinned at its left column.
     Cloth {
@@ -98,6 +103,47 @@ impl Animation {
             "cloth" => Some(Self::cloth(name)),
             _ => None,
         }
+    }
+
+    /// The animation `spec` names: an animated built-in, or a glTF file with
+    /// animations (read where `policy` allows); an error for any other file
+    /// or name, saying which scenes move.
+    pub fn load(spec: &str, policy: super::refs::RefPolicy, flag: &str) -> Result<Animation> {
+        if super::load::is_scene_file(spec) {
+            let path = std::path::Path::new(spec);
+            let is_gltf = path
+                .extension()
+                .and_then(|e| e.to_str())
+                .is_some_and(|e| e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb"));
+            if !is_gltf {
+                return Err(Error::usage(
+                    flag,
+                    format!("{spec} does not move: raylab reads animations from glTF files (.gltf, .glb) and has the animated built-ins explode:N and cloth:N"),
+                ));
+            }
+            let (mut rest, motion) = super::gltf_motion::load(path, policy)?;
+            let duration = motion.duration;
+            let mut positions = rest.positions.clone();
+            motion
+                .positions_at(0.0, &mut positions)
+                .map_err(|m| super::gltf_motion::file_error(path, m))?;
+            rest.positions = positions;
+            return Ok(Animation {
+                rest,
+                motion: Motion::Nodes(Box::new(motion)),
+                duration,
+            });
+        }
+        Animation::parse(spec).unwrap_or_else(|| {
+            let names: Vec<&str> = ANIMATED_SCENES.iter().map(|(n, _)| *n).collect();
+            Err(Error::usage(
+                flag,
+                format!(
+                    "'{spec}' does not move: animated scenes are glTF files with animations and the built-ins {}",
+                    names.join(", ")
+                ),
+            ))
+        })
     }
 
     /// Whether `name` is an animated built-in's name (with any `N`).
@@ -220,7 +266,7 @@ impl Animation {
             duration: CLOTH_SECONDS,
         };
         // The rest pose is the cloth at time 0 (already waving).
-        anim.rest.positions = anim.positions_at(0.0);
+        anim.rest.positions = anim.positions_at(0.0)?;
         Ok(anim)
     }
 
@@ -243,10 +289,15 @@ impl Animation {
         Ok(())
     }
 
-    /// Every vertex at time `t` seconds (in the rest pose's order).
-    pub fn positions_at(&self, t: f32) -> Vec<Vec3> {
+    /// Every vertex at time `t` seconds (in the rest pose's order); an
+    /// error when a file's transforms overflow.
+    pub fn positions_at(&self, t: f32) -> Result<Vec<Vec3>> {
         let mut p = self.rest.positions.clone();
         match &self.motion {
+            Motion::Nodes(m) => m.positions_at(t, &mut p).map_err(|msg| Error::Scene {
+                name: self.rest.name.clone(),
+                msg,
+            })?,
             Motion::Explode {
                 first,
                 centroids,
@@ -283,17 +334,17 @@ impl Animation {
                 }
             }
         }
-        p
+        Ok(p)
     }
 
     /// The scene at time `t` seconds: the rest pose's triangles and
     /// materials, the vertices moved, no vertex normals, lights found anew.
-    pub fn frame(&self, t: f32) -> Scene {
+    pub fn frame(&self, t: f32) -> Result<Scene> {
         let mut s = self.rest.clone();
-        s.positions = self.positions_at(t);
+        s.positions = self.positions_at(t)?;
         s.normals = None;
         s.lights = s.find_lights();
-        s
+        Ok(s)
     }
 }
 
@@ -319,8 +370,8 @@ mod tests {
     fn frames_keep_the_topology_and_move_the_vertices() {
         for name in ["explode:2000", "cloth:2000"] {
             let anim = Animation::parse(name).unwrap().unwrap();
-            let a = anim.frame(0.0);
-            let b = anim.frame(anim.duration * 0.5);
+            let a = anim.frame(0.0).unwrap();
+            let b = anim.frame(anim.duration * 0.5).unwrap();
             assert_eq!(a.triangles, b.triangles, "{name}");
             assert_eq!(a.material_ids, b.material_ids, "{name}");
             let moved = a
@@ -337,8 +388,8 @@ mod tests {
     #[test]
     fn the_explosion_leaves_the_sphere_bounds_and_keeps_triangle_areas() {
         let anim = Animation::parse("explode:1000").unwrap().unwrap();
-        let a = anim.frame(0.0);
-        let b = anim.frame(anim.duration);
+        let a = anim.frame(0.0).unwrap();
+        let b = anim.frame(anim.duration).unwrap();
         let area = |s: &Scene, i: usize| {
             let t = s.triangle(i);
             (t[1] - t[0]).cross(t[2] - t[0]).length()

@@ -85,13 +85,18 @@ pub struct AnimationPoint {
     pub threads: usize,
 }
 
-/// The animations of `cfg`'s scenes, or the defaults when none moves
-/// (with `--quick`, the defaults at a tenth of their size).
+/// The animations of `cfg`'s scenes (animated built-ins, and glTF files
+/// that have animations), or the defaults when none moves (with `--quick`,
+/// the defaults at a tenth of their size).
 fn animations(cfg: &BenchConfig) -> Vec<String> {
     let named: Vec<String> = cfg
         .scenes
         .iter()
-        .filter(|s| Animation::names_one(s))
+        .filter(|s| {
+            Animation::names_one(s)
+                || (crate::scene::load::is_scene_file(s)
+                    && Animation::load(s, cfg.ref_policy, "SCENE").is_ok())
+        })
         .cloned()
         .collect();
     if !named.is_empty() {
@@ -233,6 +238,12 @@ fn time_kinds(
     let mut mrays = Vec::new();
     let mut names = Vec::new();
     for (k, rays) in rays.iter().enumerate() {
+        if rays.is_empty() {
+            // A frame with none of this kind (no light to cast shadow rays to).
+            mrays.push(f64::NAN);
+            names.push(String::new());
+            continue;
+        }
         let closest = k == 0;
         let mut best = (f64::NEG_INFINITY, Query::Single);
         for &q in &paths {
@@ -264,7 +275,7 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<An
     let strategies = Strategy::compared(cfg.rebuild_factor.unwrap_or(REBUILD_FACTOR));
     let mut out = Vec::new();
     for name in animations(cfg) {
-        let animation = Animation::parse(&name).expect("an animated scene's name")?;
+        let animation = Animation::load(&name, cfg.ref_policy, "SCENE")?;
         let n = frames(cfg);
         let times: Vec<f32> = (0..n)
             .map(|f| animation.duration * f as f32 / (n - 1) as f32)
@@ -278,7 +289,7 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<An
         let mut followers: Vec<Follower> = Vec::new();
         for (f, &t) in times.iter().enumerate() {
             bar.set_message(format!("animation: {name} frame {f} of {n}"));
-            let frame = animation.frame(t);
+            let frame = animation.frame(t)?;
             let triangles = frame.triangle_vertices();
             // Update (or, on the first frame, build) every strategy.
             let mut updates = Vec::new();
@@ -331,6 +342,7 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<An
                 let frame_trace_ms = shares
                     .iter()
                     .zip(&mrays)
+                    .filter(|(s, _)| **s > 0.0)
                     .map(|(s, m)| frame_rays * s / total / (m * 1e3))
                     .sum();
                 out.push(AnimationPoint {

@@ -1,0 +1,631 @@
+//! glTF animations as the specification defines them, evaluated into the
+//! flattened scene's vertex array: node translation, rotation and scale
+//! channels (LINEAR, STEP and CUBICSPLINE samplers; rotations spherically
+//! interpolated), morph target weights (POSITION targets), and skins
+//! (JOINTS_0 and WEIGHTS_0 over the joints' world matrices and their inverse
+//! bind matrices; the skinned mesh's own node transform ignored, as the
+//! specification asks). Every animation in the file plays at once, from
+//! time 0 to the last keyframe of any of them.
+//!
+//! The triangle list is the static load's: a frame moves vertices only, so a
+//! tree built on one frame can be refitted to the next.
+
+use glam::{Mat4, Quat, Vec3};
+
+use super::gltf::{decode_float, read_elements, read_vec3s, Loaded};
+use crate::error::{Error, Result};
+
+#[derive(Clone, Debug)]
+struct RestNode {
+    /// A node given by a matrix (which no channel may target).
+    matrix: Option<Mat4>,
+    t: Vec3,
+    r: Quat,
+    s: Vec3,
+    /// The morph weights it starts with (the node's, else its mesh's).
+    weights: Vec<f32>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Path {
+    Translation,
+    Rotation,
+    Scale,
+    Weights,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Interpolation {
+    Linear,
+    Step,
+    CubicSpline,
+}
+
+#[derive(Clone, Debug)]
+struct Channel {
+    node: usize,
+    path: Path,
+    interpolation: Interpolation,
+    times: Vec<f32>,
+    /// `width` components per key (three such per key for cubic splines:
+    /// in-tangent, value, out-tangent).
+    values: Vec<f32>,
+    width: usize,
+}
+
+#[derive(Clone, Debug)]
+struct Skinning {
+    /// Node of each joint, and its inverse bind matrix.
+    joints: Vec<usize>,
+    inverse_bind: Vec<Mat4>,
+    /// Per vertex: four joint indices (into `joints`) and their weights.
+    vertex_joints: Vec<[u16; 4]>,
+    vertex_weights: Vec<[f32; 4]>,
+}
+
+#[derive(Clone, Debug)]
+struct Placed {
+    node: usize,
+    base: usize,
+    /// The primitive's own vertex positions (before any transform).
+    local: Vec<Vec3>,
+    /// POSITION displacements of each morph target.
+    targets: Vec<Vec<Vec3>>,
+    skin: Option<Skinning>,
+}
+
+/// A glTF file's animations over its flattened vertices.
+#[derive(Clone, Debug)]
+pub struct NodeMotion {
+    nodes: Vec<RestNode>,
+    parents: Vec<Option<usize>>,
+    channels: Vec<Channel>,
+    placed: Vec<Placed>,
+    /// The last keyframe's time, seconds.
+    pub duration: f32,
+}
+
+/// Node nesting past this is taken for a cycle.
+const MAX_DEPTH: usize = 256;
+
+fn floats(
+    a: &gltf::Accessor,
+    buffers: &[Vec<u8>],
+    what: &str,
+) -> std::result::Result<Vec<f32>, String> {
+    let n = a.dimensions().multiplicity();
+    let (ty, normalized) = (a.data_type(), a.normalized());
+    let v = read_elements(a, buffers, n, |b| decode_float(ty, normalized, b))?;
+    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+        return Err(format!(
+            "{what} accessor {} component {i} is not finite",
+            a.index()
+        ));
+    }
+    Ok(v)
+}
+
+impl NodeMotion {
+    /// The animations of a loaded file; `None` when it has none.
+    pub(super) fn of(loaded: &Loaded) -> std::result::Result<Option<NodeMotion>, String> {
+        let doc = &loaded.doc;
+        let buffers = &loaded.buffers;
+        if doc.animations().next().is_none() {
+            return Ok(None);
+        }
+        let count = doc.nodes().count();
+        let mut parents = vec![None; count];
+        for node in doc.nodes() {
+            for child in node.children() {
+                if parents[child.index()].replace(node.index()).is_some() {
+                    return Err(format!(
+                        "node {} has two parents: glTF node graphs must be trees",
+                        child.index()
+                    ));
+                }
+            }
+        }
+        let nodes: Vec<RestNode> = doc
+            .nodes()
+            .map(|n| {
+                let weights = n
+                    .weights()
+                    .or_else(|| n.mesh().and_then(|m| m.weights()))
+                    .unwrap_or(&[])
+                    .to_vec();
+                match n.transform() {
+                    gltf::scene::Transform::Matrix { matrix } => RestNode {
+                        matrix: Some(Mat4::from_cols_array_2d(&matrix)),
+                        t: Vec3::ZERO,
+                        r: Quat::IDENTITY,
+                        s: Vec3::ONE,
+                        weights,
+                    },
+                    gltf::scene::Transform::Decomposed {
+                        translation,
+                        rotation,
+                        scale,
+                    } => RestNode {
+                        matrix: None,
+                        t: Vec3::from(translation),
+                        r: Quat::from_array(rotation).normalize(),
+                        s: Vec3::from(scale),
+                        weights,
+                    },
+                }
+            })
+            .collect();
+        let mut channels = Vec::new();
+        let mut duration = 0f32;
+        for anim in doc.animations() {
+            for ch in anim.channels() {
+                let target = ch.target();
+                let node = target.node().index();
+                let sampler = ch.sampler();
+                let path = match target.property() {
+                    gltf::animation::Property::Translation => Path::Translation,
+                    gltf::animation::Property::Rotation => Path::Rotation,
+                    gltf::animation::Property::Scale => Path::Scale,
+                    gltf::animation::Property::MorphTargetWeights => Path::Weights,
+                };
+                if path != Path::Weights && nodes[node].matrix.is_some() {
+                    return Err(format!(
+                        "animation {} targets node {node}, which has a matrix: animated nodes must have TRS properties",
+                        anim.index()
+                    ));
+                }
+                let interpolation = match sampler.interpolation() {
+                    gltf::animation::Interpolation::Linear => Interpolation::Linear,
+                    gltf::animation::Interpolation::Step => Interpolation::Step,
+                    gltf::animation::Interpolation::CubicSpline => Interpolation::CubicSpline,
+                };
+                let times = floats(&sampler.input(), buffers, "animation input")?;
+                if times.is_empty() || times.windows(2).any(|w| w[1] <= w[0]) || times[0] < 0.0 {
+                    return Err(format!(
+                        "animation {} sampler {}: keyframe times must be non-negative and strictly increasing",
+                        anim.index(),
+                        sampler.index()
+                    ));
+                }
+                let values = floats(&sampler.output(), buffers, "animation output")?;
+                let per_key = if interpolation == Interpolation::CubicSpline {
+                    3 * times.len()
+                } else {
+                    times.len()
+                };
+                let width = match path {
+                    Path::Translation | Path::Scale => 3,
+                    Path::Rotation => 4,
+                    Path::Weights => values.len() / per_key.max(1),
+                };
+                if width == 0 || values.len() != per_key * width {
+                    return Err(format!(
+                        "animation {} sampler {}: {} output values for {} keyframes",
+                        anim.index(),
+                        sampler.index(),
+                        values.len(),
+                        times.len()
+                    ));
+                }
+                duration = duration.max(*times.last().expect("non-empty"));
+                channels.push(Channel {
+                    node,
+                    path,
+                    interpolation,
+                    times,
+                    values,
+                    width,
+                });
+            }
+        }
+        let mut placed = Vec::new();
+        for p in &loaded.placements {
+            let mesh = doc.meshes().nth(p.mesh).ok_or("a placed mesh is gone")?;
+            let prim = mesh
+                .primitives()
+                .nth(p.primitive)
+                .ok_or("a placed primitive is gone")?;
+            let position = prim
+                .get(&gltf::Semantic::Positions)
+                .ok_or("a placed primitive lost its positions")?;
+            let local = read_vec3s(&position, buffers, "POSITION")?;
+            let mut targets = Vec::new();
+            for (k, t) in prim.morph_targets().enumerate() {
+                let d = match t.positions() {
+                    Some(a) => read_vec3s(&a, buffers, "morph target POSITION")?,
+                    None => vec![Vec3::ZERO; local.len()],
+                };
+                if d.len() != local.len() {
+                    return Err(format!(
+                        "mesh {} morph target {k}: {} positions for {} vertices",
+                        p.mesh,
+                        d.len(),
+                        local.len()
+                    ));
+                }
+                targets.push(d);
+            }
+            let node = doc.nodes().nth(p.node).ok_or("a placing node is gone")?;
+            let skin = match node.skin() {
+                Some(skin) => Some(skinning(&skin, &prim, buffers, local.len())?),
+                None => None,
+            };
+            if local.len() != p.count {
+                return Err(format!(
+                    "mesh {} primitive {}: {} positions where {} were placed",
+                    p.mesh,
+                    p.primitive,
+                    local.len(),
+                    p.count
+                ));
+            }
+            placed.push(Placed {
+                node: p.node,
+                base: p.base,
+                local,
+                targets,
+                skin,
+            });
+        }
+        Ok(Some(NodeMotion {
+            nodes,
+            parents,
+            channels,
+            placed,
+            duration,
+        }))
+    }
+
+    /// Every vertex at time `t` into `positions` (the flattened scene's
+    /// array); an error when a transform overflows to a non-finite vertex.
+    pub fn positions_at(&self, t: f32, positions: &mut [Vec3]) -> std::result::Result<(), String> {
+        // Each node's local transform and weights at `t`.
+        let mut trs: Vec<(Vec3, Quat, Vec3)> = self.nodes.iter().map(|n| (n.t, n.r, n.s)).collect();
+        let mut weights: Vec<Vec<f32>> = self.nodes.iter().map(|n| n.weights.clone()).collect();
+        for ch in &self.channels {
+            let v = sample(ch, t);
+            let (tr, r, s) = &mut trs[ch.node];
+            match ch.path {
+                Path::Translation => *tr = Vec3::from_slice(&v),
+                Path::Scale => *s = Vec3::from_slice(&v),
+                Path::Rotation => *r = Quat::from_slice(&v).normalize(),
+                Path::Weights => weights[ch.node] = v,
+            }
+        }
+        let local = |i: usize| match self.nodes[i].matrix {
+            Some(m) => m,
+            None => {
+                let (t, r, s) = trs[i];
+                Mat4::from_scale_rotation_translation(s, r, t)
+            }
+        };
+        // World transforms, each node's chain up to its root.
+        let mut world: Vec<Option<Mat4>> = vec![None; self.nodes.len()];
+        for i in 0..self.nodes.len() {
+            let mut chain = vec![i];
+            while let Some(p) = self.parents[*chain.last().expect("non-empty")] {
+                if world[p].is_some() {
+                    chain.push(p);
+                    break;
+                }
+                chain.push(p);
+                if chain.len() > MAX_DEPTH {
+                    return Err(format!("node {i} is nested over {MAX_DEPTH} deep"));
+                }
+            }
+            let mut m = Mat4::IDENTITY;
+            for &n in chain.iter().rev() {
+                m = match world[n] {
+                    Some(w) => w,
+                    None => {
+                        let w = m * local(n);
+                        world[n] = Some(w);
+                        w
+                    }
+                };
+            }
+        }
+        let world: Vec<Mat4> = world.into_iter().map(|w| w.expect("every node")).collect();
+        for p in &self.placed {
+            let w = &weights[p.node];
+            let out = &mut positions[p.base..p.base + p.local.len()];
+            let joints: Vec<Mat4> = p.skin.as_ref().map_or(Vec::new(), |s| {
+                s.joints
+                    .iter()
+                    .zip(&s.inverse_bind)
+                    .map(|(&j, ib)| world[j] * *ib)
+                    .collect()
+            });
+            for (i, (o, &l)) in out.iter_mut().zip(&p.local).enumerate() {
+                let mut v = l;
+                for (k, d) in p.targets.iter().enumerate() {
+                    v += d[i] * w.get(k).copied().unwrap_or(0.0);
+                }
+                *o = match &p.skin {
+                    Some(s) => {
+                        let (js, ws) = (s.vertex_joints[i], s.vertex_weights[i]);
+                        let sum: f32 = ws.iter().sum();
+                        if sum > 0.0 {
+                            let mut m = Mat4::ZERO;
+                            for (j, wt) in js.iter().zip(ws) {
+                                m += joints[*j as usize] * (wt / sum);
+                            }
+                            m.transform_point3(v)
+                        } else {
+                            world[p.node].transform_point3(v)
+                        }
+                    }
+                    None => world[p.node].transform_point3(v),
+                };
+                if !o.is_finite() {
+                    return Err(format!(
+                        "at {t} s a vertex of mesh placed by node {} is not finite",
+                        p.node
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A skin's joints and inverse bind matrices, and a primitive's JOINTS_0
+/// and WEIGHTS_0.
+fn skinning(
+    skin: &gltf::Skin,
+    prim: &gltf::Primitive,
+    buffers: &[Vec<u8>],
+    vertices: usize,
+) -> std::result::Result<Skinning, String> {
+    let joints: Vec<usize> = skin.joints().map(|j| j.index()).collect();
+    let inverse_bind = match skin.inverse_bind_matrices() {
+        Some(a) => {
+            let m = floats(&a, buffers, "inverseBindMatrices")?;
+            if m.len() != 16 * joints.len() {
+                return Err(format!(
+                    "skin {}: {} inverse bind matrices for {} joints",
+                    skin.index(),
+                    m.len() / 16,
+                    joints.len()
+                ));
+            }
+            m.chunks_exact(16).map(Mat4::from_cols_slice).collect()
+        }
+        None => vec![Mat4::IDENTITY; joints.len()],
+    };
+    let (Some(ja), Some(wa)) = (
+        prim.get(&gltf::Semantic::Joints(0)),
+        prim.get(&gltf::Semantic::Weights(0)),
+    ) else {
+        return Err(format!(
+            "skin {}: a skinned primitive without JOINTS_0 and WEIGHTS_0",
+            skin.index()
+        ));
+    };
+    let js = read_elements(&ja, buffers, 4, |b| match b.len() {
+        1 => u16::from(b[0]),
+        2 => u16::from_le_bytes([b[0], b[1]]),
+        _ => u16::MAX,
+    })?;
+    let ws = floats(&wa, buffers, "WEIGHTS_0")?;
+    if js.len() != 4 * vertices || ws.len() != 4 * vertices {
+        return Err(format!(
+            "skin {}: JOINTS_0 and WEIGHTS_0 must give four per vertex",
+            skin.index()
+        ));
+    }
+    if let Some(&bad) = js.iter().find(|&&j| j as usize >= joints.len()) {
+        return Err(format!(
+            "skin {}: joint {bad} out of range ({} joints)",
+            skin.index(),
+            joints.len()
+        ));
+    }
+    Ok(Skinning {
+        joints,
+        inverse_bind,
+        vertex_joints: js
+            .chunks_exact(4)
+            .map(|c| [c[0], c[1], c[2], c[3]])
+            .collect(),
+        vertex_weights: ws
+            .chunks_exact(4)
+            .map(|c| [c[0], c[1], c[2], c[3]])
+            .collect(),
+    })
+}
+
+/// A channel's value at `t` (clamped to its first and last keyframes), as
+/// the glTF specification's interpolations define it.
+fn sample(ch: &Channel, t: f32) -> Vec<f32> {
+    let w = ch.width;
+    let keys = ch.times.len();
+    let cubic = ch.interpolation == Interpolation::CubicSpline;
+    // Component `c` of key `k`'s value (the middle of a cubic triple).
+    let value = |k: usize| -> &[f32] {
+        let start = if cubic { (3 * k + 1) * w } else { k * w };
+        &ch.values[start..start + w]
+    };
+    if t <= ch.times[0] || keys == 1 {
+        return value(0).to_vec();
+    }
+    if t >= ch.times[keys - 1] {
+        return value(keys - 1).to_vec();
+    }
+    let k = ch.times.partition_point(|&x| x <= t) - 1;
+    let (t0, t1) = (ch.times[k], ch.times[k + 1]);
+    let dt = t1 - t0;
+    let s = (t - t0) / dt;
+    match ch.interpolation {
+        Interpolation::Step => value(k).to_vec(),
+        Interpolation::Linear if ch.path == Path::Rotation => {
+            let a = Quat::from_slice(value(k));
+            let b = Quat::from_slice(value(k + 1));
+            a.slerp(b, s).to_array().to_vec()
+        }
+        Interpolation::Linear => value(k)
+            .iter()
+            .zip(value(k + 1))
+            .map(|(a, b)| a + (b - a) * s)
+            .collect(),
+        Interpolation::CubicSpline => {
+            let out_tangent = &ch.values[(3 * k + 2) * w..(3 * k + 3) * w];
+            let in_tangent = &ch.values[(3 * (k + 1)) * w..(3 * (k + 1) + 1) * w];
+            let (s2, s3) = (s * s, s * s * s);
+            (0..w)
+                .map(|c| {
+                    (2.0 * s3 - 3.0 * s2 + 1.0) * value(k)[c]
+                        + dt * (s3 - 2.0 * s2 + s) * out_tangent[c]
+                        + (-2.0 * s3 + 3.0 * s2) * value(k + 1)[c]
+                        + dt * (s3 - s2) * in_tangent[c]
+                })
+                .collect()
+        }
+    }
+}
+
+/// [`NodeMotion::of`]'s error as the file's.
+pub(super) fn file_error(path: &std::path::Path, msg: String) -> Error {
+    Error::Parse {
+        path: path.to_path_buf(),
+        line: 0,
+        msg,
+    }
+}
+
+/// Loads a glTF file's animations: the scene as loaded, and its motion.
+pub(super) fn load(
+    path: &std::path::Path,
+    policy: super::refs::RefPolicy,
+) -> Result<(super::Scene, NodeMotion)> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let loaded = super::gltf::load_parts(&bytes, path, policy)?;
+    let motion = NodeMotion::of(&loaded)
+        .map_err(|m| file_error(path, m))?
+        .ok_or_else(|| file_error(path, "the file has no animations".into()))?;
+    Ok((loaded.scene, motion))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A one-triangle glTF whose node moves by a translation channel (and,
+    /// with `matrix`, is given by a matrix instead, which the format
+    /// forbids for animated nodes).
+    fn translated_triangle(matrix: bool, times: [f32; 2]) -> Vec<u8> {
+        use base64::Engine;
+        let mut bin: Vec<u8> = Vec::new();
+        for f in [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0] {
+            bin.extend(f.to_le_bytes());
+        }
+        for f in times {
+            bin.extend(f.to_le_bytes());
+        }
+        for f in [0.0f32, 0.0, 0.0, 2.0, 0.0, 4.0] {
+            bin.extend(f.to_le_bytes());
+        }
+        let uri = format!(
+            "data:application/octet-stream;base64,{}",
+            base64::engine::general_purpose::STANDARD.encode(&bin)
+        );
+        let node = if matrix {
+            r#"{"mesh":0,"matrix":[1,0,0,0,0,1,0,0,0,0,1,0,0,0,0,1]}"#
+        } else {
+            r#"{"mesh":0}"#
+        };
+        format!(
+            r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],
+            "nodes":[{node}],
+            "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}}}}]}}],
+            "buffers":[{{"byteLength":{},"uri":"{uri}"}}],
+            "bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":36}},
+                           {{"buffer":0,"byteOffset":36,"byteLength":8}},
+                           {{"buffer":0,"byteOffset":44,"byteLength":24}}],
+            "accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}},
+                         {{"bufferView":1,"componentType":5126,"count":2,"type":"SCALAR","min":[{}],"max":[{}]}},
+                         {{"bufferView":2,"componentType":5126,"count":2,"type":"VEC3"}}],
+            "animations":[{{"channels":[{{"sampler":0,"target":{{"node":0,"path":"translation"}}}}],
+                            "samplers":[{{"input":1,"output":2}}]}}]}}"#,
+            bin.len(),
+            times[0],
+            times[1]
+        )
+        .into_bytes()
+    }
+
+    fn motion_of(bytes: &[u8]) -> std::result::Result<NodeMotion, String> {
+        let path = std::path::Path::new("moving.gltf");
+        let loaded = super::super::gltf::load_parts(bytes, path, Default::default())
+            .map_err(|e| e.to_string())?;
+        Ok(NodeMotion::of(&loaded)?.expect("animated"))
+    }
+
+    #[test]
+    fn a_translation_channel_moves_its_nodes_vertices() {
+        let m = motion_of(&translated_triangle(false, [0.0, 2.0])).unwrap();
+        assert_eq!(m.duration, 2.0);
+        let mut p = vec![Vec3::ZERO; 3];
+        m.positions_at(1.0, &mut p).unwrap();
+        assert_eq!(
+            p,
+            [
+                Vec3::new(1.0, 0.0, 2.0),
+                Vec3::new(2.0, 0.0, 2.0),
+                Vec3::new(1.0, 1.0, 2.0)
+            ]
+        );
+        m.positions_at(9.0, &mut p).unwrap();
+        assert_eq!(p[0], Vec3::new(2.0, 0.0, 4.0));
+    }
+
+    #[test]
+    fn animated_matrices_and_unordered_keyframes_are_refused() {
+        let err = motion_of(&translated_triangle(true, [0.0, 2.0])).unwrap_err();
+        assert!(err.contains("matrix"), "{err}");
+        let err = motion_of(&translated_triangle(false, [2.0, 1.0])).unwrap_err();
+        assert!(err.contains("increasing"), "{err}");
+    }
+
+    fn channel(interpolation: Interpolation, path: Path, values: Vec<f32>) -> Channel {
+        let width = if path == Path::Rotation { 4 } else { 3 };
+        Channel {
+            node: 0,
+            path,
+            interpolation,
+            times: vec![1.0, 2.0],
+            values,
+            width,
+        }
+    }
+
+    #[test]
+    fn samplers_interpolate_as_the_specification_says() {
+        let lin = channel(
+            Interpolation::Linear,
+            Path::Translation,
+            vec![0.0, 0.0, 0.0, 2.0, 4.0, 6.0],
+        );
+        assert_eq!(sample(&lin, 0.0), vec![0.0, 0.0, 0.0]);
+        assert_eq!(sample(&lin, 1.5), vec![1.0, 2.0, 3.0]);
+        assert_eq!(sample(&lin, 5.0), vec![2.0, 4.0, 6.0]);
+        let step = Channel {
+            interpolation: Interpolation::Step,
+            ..lin.clone()
+        };
+        assert_eq!(sample(&step, 1.99), vec![0.0, 0.0, 0.0]);
+        // Cubic with zero tangents: smoothstep between the values.
+        let mut v = vec![0.0; 18];
+        v[12..15].copy_from_slice(&[4.0, 4.0, 4.0]);
+        let cubic = channel(Interpolation::CubicSpline, Path::Translation, v);
+        assert_eq!(sample(&cubic, 1.5), vec![2.0, 2.0, 2.0]);
+        assert!((sample(&cubic, 1.25)[0] - 4.0 * (3.0 * 0.0625 - 2.0 * 0.015625)).abs() < 1e-6);
+        // Rotation: the half-way slerp of a quarter turn is an eighth.
+        let q = Quat::from_rotation_y(std::f32::consts::FRAC_PI_2);
+        let mut rv = Quat::IDENTITY.to_array().to_vec();
+        rv.extend(q.to_array());
+        let rot = channel(Interpolation::Linear, Path::Rotation, rv);
+        let half = Quat::from_slice(&sample(&rot, 1.5));
+        assert!(half.angle_between(Quat::from_rotation_y(std::f32::consts::FRAC_PI_4)) < 1e-5);
+    }
+}
