@@ -293,8 +293,40 @@ fn bvh_builds(c: &mut Criterion) {
     g.finish();
 }
 
+/// One frame's update per strategy on the animated built-ins: raylab's refit
+/// against Embree's, on 1 and 2 threads (the `animation` bench part times
+/// them per frame inside a whole animation; this is the kernel alone).
+fn refits(c: &mut Criterion) {
+    use raylab::accel::bvh::params::Quality;
+    use raylab::accel::update::{Follower, Strategy};
+    use raylab::scene::motion::Animation;
+    raylab::os::keep_freed_memory();
+    let mut g = c.benchmark_group("refit");
+    g.sample_size(20);
+    for name in ["cloth:20000", "explode:20000"] {
+        let animation = Animation::parse(name).unwrap().unwrap();
+        let frame = animation.frame(animation.duration / 2.0).unwrap();
+        g.throughput(Throughput::Elements(frame.triangle_count() as u64));
+        let mut strategies = vec![Strategy::Refit(Quality::Medium)];
+        if raylab::accel::embree::AVAILABLE {
+            strategies.push(Strategy::EmbreeRefit);
+        }
+        for strategy in strategies {
+            for threads in [1, 2] {
+                let mut f = Follower::new(strategy, animation.rest(), threads).unwrap();
+                let id = format!("{}-{threads}t", strategy.name());
+                g.bench_function(BenchmarkId::new(id, name), |b| {
+                    b.iter(|| f.update(&frame).unwrap())
+                });
+            }
+        }
+    }
+    g.finish();
+}
+
 criterion_group!(
     benches,
+    refits,
     ray_box,
     ray_triangle,
     camera_queries,

@@ -38,20 +38,20 @@ fn rung_name(q: Quality) -> &'static str {
 
 impl Strategy {
     /// The strategies the `animation` bench part compares: raylab's refit,
-    /// rebuild at each rung and the policy at `factor` (all at the medium
-    /// rung but the rebuilds), and, where linked, Embree's refit and its
+    /// rebuild at each rung and the policy at each of `factors` (refit and
+    /// policy at the medium rung), and, where linked, Embree's refit and its
     /// rebuilds at each quality.
-    pub fn compared(factor: f32) -> Vec<Strategy> {
+    pub fn compared(factors: &[f32]) -> Vec<Strategy> {
         let mut out = vec![
             Strategy::Refit(Quality::Medium),
             Strategy::Rebuild(Quality::Low),
             Strategy::Rebuild(Quality::Medium),
             Strategy::Rebuild(Quality::High),
-            Strategy::Policy {
-                rung: Quality::Medium,
-                factor,
-            },
         ];
+        out.extend(factors.iter().map(|&factor| Strategy::Policy {
+            rung: Quality::Medium,
+            factor,
+        }));
         if crate::accel::embree::AVAILABLE {
             out.extend([
                 Strategy::EmbreeRefit,
@@ -92,15 +92,24 @@ impl Strategy {
     }
 }
 
-/// A policy factor from the command line: a finite number above 1.
-pub fn parse_factor(s: &str) -> std::result::Result<f32, String> {
-    match s.parse::<f32>() {
-        Ok(f) if f.is_finite() && f > 1.0 => Ok(f),
-        _ => Err(format!(
-            "'{s}' is not a factor above 1 (the refitted tree's SAH cost over its cost when built; default {REBUILD_FACTOR})"
-        )),
-    }
+/// Policy factors from the command line: numbers above 1, separated by
+/// commas (`1.25,1.5,2`).
+pub fn parse_factors(s: &str) -> std::result::Result<Factors, String> {
+    s.split(',')
+        .map(|f| match f.trim().parse::<f32>() {
+            Ok(x) if x.is_finite() && x > 1.0 => Ok(x),
+            _ => Err(format!(
+                "'{f}' is not a factor above 1 (the refitted tree's SAH cost over its cost when built; default {REBUILD_FACTOR})"
+            )),
+        })
+        .collect::<std::result::Result<Vec<f32>, String>>()
+        .map(Factors)
 }
+
+/// The policy factors `--rebuild-factor` gives (a type of their own, so
+/// that the command line takes the list as one value).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Factors(pub Vec<f32>);
 
 enum Inner {
     Raylab {

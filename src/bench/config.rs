@@ -105,9 +105,9 @@ pub struct BenchConfig {
     pub rays: Option<crate::measure::rayfile::RaySets>,
     /// The command line that asked for the run, as the report quotes it.
     pub command: String,
-    /// The refit policy's factor for the `animation` part (`--rebuild-factor`;
-    /// `None`: the default, `REBUILD_FACTOR`).
-    pub rebuild_factor: Option<f32>,
+    /// The refit policy's factors for the `animation` part
+    /// (`--rebuild-factor`; empty: the default, `REBUILD_FACTOR`).
+    pub rebuild_factors: Vec<f32>,
     /// Where scene files' references may be read (`--allow-outside-refs`).
     pub ref_policy: crate::scene::refs::RefPolicy,
 }

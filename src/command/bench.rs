@@ -85,11 +85,12 @@ pub struct BenchArgs {
     /// the best peer. (Not with --rays: each class traces its own rays.)
     #[arg(long, conflicts_with = "rays")]
     cliffs: bool,
-    /// The refit policy's factor in the `animation` part: rebuild when the
-    /// refitted tree's SAH cost exceeds F times its cost when last built
-    /// (a number above 1) [default: 1.5].
-    #[arg(long, value_name = "F", value_parser = crate::accel::update::parse_factor)]
-    rebuild_factor: Option<f32>,
+    /// The refit policy's factors in the `animation` part, separated by
+    /// commas (a policy each): rebuild when the refitted tree's SAH cost
+    /// exceeds F times its cost when last built (numbers above 1)
+    /// [default: 1.5].
+    #[arg(long, value_name = "F,...", value_parser = crate::accel::update::parse_factors)]
+    rebuild_factor: Option<crate::accel::update::Factors>,
     /// Folder for bench.md, bench.csv, bench.json, charts/, images/ and
     /// index.html. A folder holding files bench did not write is refused
     /// (they could be overwritten) unless --force is given.
@@ -223,7 +224,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         quiet: args.quiet,
         rays: None,
         command: crate::bench::summary::command_line(std::env::args()),
-        rebuild_factor: args.rebuild_factor,
+        rebuild_factors: args.rebuild_factor.clone().map_or(Vec::new(), |f| f.0),
         ref_policy: args.files.policy(),
     };
     if args.rebuild_factor.is_some() && !cfg.wants(crate::bench::config::Part::Animation) {
@@ -319,7 +320,15 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             v.tested, v.reference, v.genuine, v.scene
         )));
     }
-    if let Some(p) = report.parts.animation().iter().find(|p| p.wrong > 0) {
+    // Embree's wrong answers are its own rounding, reported in the table
+    // (as the libraries part reports them); raylab's trees must answer as
+    // a fresh build does, bit for bit.
+    if let Some(p) = report
+        .parts
+        .animation()
+        .iter()
+        .find(|p| p.wrong > 0 && !p.embree)
+    {
         return Err(Error::Other(format!(
             "bench: {} answers {} of {} rays unlike a fresh build on frame {} of {}",
             p.strategy, p.wrong, p.checked, p.frame, p.scene

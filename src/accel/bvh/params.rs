@@ -428,3 +428,10 @@ pub const REFIT_POLICY_COSTS: super::wide::TraversalCosts = super::wide::Travers
     block_ns: 1.75,
     kernel: "policy units",
 };
+
+/// Blocks per task of a parallel refit's vertex pass.
+pub const REFIT_CHUNK: usize = 256;
+
+/// Levels of a wide tree whose subtrees a parallel refit fits in parallel
+/// (8-wide: up to 64 tasks under the root, enough for 2-16 threads).
+pub const REFIT_PARALLEL_DEPTH: u32 = 2;

@@ -6,21 +6,26 @@
 //! and it finds the same hits: hits are decided by the triangle tests, which
 //! read the updated leaf vertices, and the boxes only prune.
 //!
-//! Two passes: the leaf vertices (and each leaf slot's box) in parallel,
-//! since they read the scene's triangles at random; then the node boxes from
-//! the leaves up, serially (a few operations per node). A tree a spatial-split
+//! Two passes: the leaf vertices in parallel, since they read the scene's
+//! triangles at random; then the node boxes from the leaves up, a leaf's box
+//! from its blocks four lanes at a time, the top levels' subtrees in
+//! parallel (on the depth-first layout the builders make, where every
+//! subtree is a run of nodes that can be handed to a thread of its own). A tree a spatial-split
 //! builder made refits to whole-triangle boxes, never the clipped ones it was
 //! built with: the refit cannot know where the moved triangle's clipped parts
 //! lie, and the whole box is the safe bound.
 
+use arrayvec::ArrayVec;
+use glam::Vec4;
 use rayon::prelude::*;
 
 use super::leaf::{Tri4, EMPTY_ID, LANES};
 use super::node::{padded, Bvh};
+use super::params::{REFIT_CHUNK, REFIT_PARALLEL_DEPTH};
 use super::prim::Triangles;
 use super::tree::Tree;
-use super::wide::node::{leaf_slots, EMPTY, LEAF};
-use super::wide::WideBvh;
+use super::wide::node::{for_leaf_blocks, EMPTY, LEAF};
+use super::wide::{WideBvh, WideNode};
 use crate::error::{Error, Result};
 use crate::geometry::Aabb;
 
@@ -31,6 +36,110 @@ fn triangle_box(t: &[glam::Vec3; 3]) -> Aabb {
         min: t[0].min(t[1]).min(t[2]),
         max: t[0].max(t[1]).max(t[2]),
     }
+}
+
+/// The box of the triangles in `block`'s lanes set in `lanes` (a mask),
+/// four lanes at a time: the rows of the three vertices per axis, unused
+/// lanes replaced by +inf (for the minimum) and -inf (for the maximum).
+#[inline]
+fn lanes_box(block: &Tri4, lanes: u32) -> Aabb {
+    let used = glam::BVec4A::new(
+        lanes & 1 != 0,
+        lanes & 2 != 0,
+        lanes & 4 != 0,
+        lanes & 8 != 0,
+    );
+    let (inf, neg) = (Vec4::splat(f32::INFINITY), Vec4::splat(f32::NEG_INFINITY));
+    let mut lo = [0f32; 3];
+    let mut hi = [0f32; 3];
+    for axis in 0..3 {
+        let [a, b, c] = [block.v[0][axis], block.v[1][axis], block.v[2][axis]];
+        lo[axis] = Vec4::select(used, a.min(b).min(c), inf).min_element();
+        hi[axis] = Vec4::select(used, a.max(b).max(c), neg).max_element();
+    }
+    Aabb {
+        min: glam::Vec3::from(lo),
+        max: glam::Vec3::from(hi),
+    }
+}
+
+/// Sets the lane boxes of the subtree whose root is node `first`, laid out
+/// depth-first in `nodes` (the root, then each child's subtree as a run, in
+/// index order), from the blocks' vertices; returns its unpadded box, or
+/// `None` as soon as the layout is not so (boxes set so far are right, and
+/// the caller refits the rest another way). Forks into the children's runs
+/// for `parallel_depth` levels.
+fn refit_run<const N: usize>(
+    nodes: &mut [WideNode<N>],
+    first: u32,
+    blocks: &[Tri4],
+    parallel_depth: u32,
+) -> Option<Aabb> {
+    let (head, mut rest) = nodes.split_first_mut()?;
+    // Interior lanes by child index: their runs follow one another.
+    let mut kids: ArrayVec<(usize, u32), N> = (0..N)
+        .filter(|&l| head.child[l] != EMPTY && head.child[l] & LEAF == 0)
+        .map(|l| (l, head.child[l]))
+        .collect();
+    kids.sort_unstable_by_key(|&(_, c)| c);
+    let mut runs: ArrayVec<(usize, u32, &mut [WideNode<N>]), N> = ArrayVec::new();
+    let mut at = first.checked_add(1)?;
+    for (i, &(lane, child)) in kids.iter().enumerate() {
+        if child != at {
+            return None;
+        }
+        let len = match kids.get(i + 1) {
+            Some(&(_, next)) => (next - child) as usize,
+            None => rest.len(),
+        };
+        if len == 0 || len > rest.len() {
+            return None;
+        }
+        let (run, tail) = std::mem::take(&mut rest).split_at_mut(len);
+        runs.push((lane, child, run));
+        rest = tail;
+        at = at.checked_add(len as u32)?;
+    }
+    if !rest.is_empty() {
+        return None;
+    }
+    let refit = |(lane, child, run): (usize, u32, &mut [WideNode<N>])| {
+        (
+            lane,
+            refit_run(run, child, blocks, parallel_depth.saturating_sub(1)),
+        )
+    };
+    let boxes: ArrayVec<(usize, Option<Aabb>), N> = if parallel_depth > 0 && runs.len() > 1 {
+        let v: Vec<_> = runs
+            .into_iter()
+            .collect::<Vec<_>>()
+            .into_par_iter()
+            .map(refit)
+            .collect();
+        v.into_iter().collect()
+    } else {
+        runs.into_iter().map(refit).collect()
+    };
+    let mut node_box = Aabb::EMPTY;
+    for lane in 0..N {
+        let child = head.child[lane];
+        if child == EMPTY {
+            continue;
+        }
+        let b = if child & LEAF != 0 {
+            let mut b = Aabb::EMPTY;
+            for_leaf_blocks(child, |block, lanes| {
+                b = b.union(lanes_box(&blocks[block], lanes));
+                false
+            });
+            b
+        } else {
+            boxes.iter().find(|(l, _)| *l == lane)?.1?
+        };
+        node_box = node_box.union(b);
+        head.set_lane(lane, &padded(b), child);
+    }
+    Some(node_box)
 }
 
 /// Refuses triangles that are not the ones the tree was built over (another
@@ -106,29 +215,40 @@ impl<const N: usize> WideBvh<N> {
             .max()
             .map_or(0, |m| m as usize + 1);
         check_count(highest, triangles.count())?;
-        // Pass 1: each block's vertices, and each used lane's triangle box.
-        let update = |block: &mut Tri4| -> [Aabb; LANES] {
-            let mut boxes = [Aabb::EMPTY; LANES];
-            for (lane, b) in boxes.iter_mut().enumerate() {
+        // Pass 1: each block's vertices.
+        let update = |block: &mut Tri4| {
+            for lane in 0..LANES {
                 let id = block.ids[lane];
                 if id != EMPTY_ID {
-                    let tri = triangles.get(id as usize);
-                    block.set_lane(lane, &tri, id);
-                    *b = triangle_box(&tri);
+                    block.set_lane(lane, &triangles.get(id as usize), id);
                 }
             }
-            boxes
         };
-        let slot_boxes: Vec<[Aabb; LANES]> = if parallel {
-            self.blocks.par_iter_mut().map(update).collect()
+        if parallel {
+            // Runs of blocks, not single ones: a task per block cost more
+            // than it saved at 20k triangles.
+            self.blocks
+                .par_chunks_mut(REFIT_CHUNK)
+                .for_each(|run| run.iter_mut().for_each(update));
         } else {
-            self.blocks.iter_mut().map(update).collect()
-        };
+            self.blocks.iter_mut().for_each(update);
+        }
         if self.nodes.is_empty() {
             return Ok(());
         }
-        // Pass 2: preorder from the root, whose reverse reaches every child
-        // before its parent whatever the builder's numbering.
+        // Pass 2 on a depth-first layout (every subtree a run of nodes, as
+        // the builders lay them out): subtrees refitted on their own slices,
+        // the top levels' in parallel.
+        let depth = if parallel { REFIT_PARALLEL_DEPTH } else { 0 };
+        if refit_run(&mut self.nodes, 0, &self.blocks, depth).is_none() {
+            self.refit_nodes_any_layout();
+        }
+        Ok(())
+    }
+
+    /// Pass 2 on any layout: preorder from the root, whose reverse reaches
+    /// every child before its parent whatever the builder's numbering.
+    fn refit_nodes_any_layout(&mut self) {
         let mut preorder = Vec::with_capacity(self.nodes.len());
         let mut pending = vec![0u32];
         while let Some(i) = pending.pop() {
@@ -149,10 +269,12 @@ impl<const N: usize> WideBvh<N> {
                     continue;
                 }
                 let b = if child & LEAF != 0 {
-                    let (first, end) = leaf_slots(child);
-                    (first..end).fold(Aabb::EMPTY, |b, slot| {
-                        b.union(slot_boxes[slot / LANES][slot % LANES])
-                    })
+                    let mut b = Aabb::EMPTY;
+                    for_leaf_blocks(child, |block, lanes| {
+                        b = b.union(lanes_box(&self.blocks[block], lanes));
+                        false
+                    });
+                    b
                 } else {
                     raw[child as usize]
                 };
@@ -161,7 +283,6 @@ impl<const N: usize> WideBvh<N> {
             }
             raw[i as usize] = node_box;
         }
-        Ok(())
     }
 }
 
@@ -252,6 +373,33 @@ mod tests {
         };
         assert_eq!(a.nodes, b.nodes);
         assert_eq!(a.tris, b.tris);
+    }
+
+    #[test]
+    fn the_builders_wide_trees_refit_by_runs_as_by_the_preorder_sweep() {
+        let rest = random_tris(3000, 8);
+        let frame = moved(&rest, 2);
+        for builder in [BuilderKind::Sah, BuilderKind::Lbvh, BuilderKind::Sbvh] {
+            for optimize in [false, true] {
+                let params = BuildParams::for_builder(builder)
+                    .with_width(8)
+                    .with_optimize(optimize);
+                let Tree::Wide8(mut runs) = build(&rest, &params).unwrap() else {
+                    panic!("width 8")
+                };
+                let mut sweep = runs.clone();
+                runs.refit(&frame, true).unwrap();
+                sweep.refit(&frame, false).unwrap();
+                sweep.refit_nodes_any_layout();
+                assert_eq!(runs.nodes, sweep.nodes, "{builder:?} optimize {optimize}");
+                // Every builder lays its tree out depth-first, so the runs
+                // path (not the fallback) did the work.
+                assert!(
+                    super::refit_run(&mut sweep.nodes, 0, &sweep.blocks, 0).is_some(),
+                    "{builder:?} optimize {optimize}: not depth-first"
+                );
+            }
+        }
     }
 
     #[test]

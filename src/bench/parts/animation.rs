@@ -33,7 +33,8 @@ use crate::bench::measure::Stat;
 use crate::bench::timing::{min_run_s, passes_for, trace};
 use crate::error::Result;
 use crate::geometry::{Hit, Ray};
-use crate::measure::validate::{classify, recorded_rays, Agreement};
+use crate::measure::exact::ExactReference;
+use crate::measure::validate::recorded_rays;
 use crate::progress::StepBar;
 use crate::render::AoMode;
 use crate::scene::motion::Animation;
@@ -78,8 +79,9 @@ pub struct AnimationPoint {
     pub frame_rays: f64,
     /// The ms those rays take at the measured rates.
     pub frame_trace_ms: f64,
-    /// Answers that differ from a fresh raylab build's: bit for bit for
-    /// raylab's strategies, genuine disagreements for Embree's.
+    /// Answers that differ from a fresh raylab build's: by a bit for
+    /// raylab's strategies; for Embree's, those of them the exact reference
+    /// judges wrong.
     pub wrong: usize,
     pub checked: usize,
     pub threads: usize,
@@ -198,29 +200,45 @@ fn answers(backend: &dyn Backend, closest: bool, rays: &[Ray]) -> Vec<Option<Hit
     }
 }
 
-/// Answers of `follower` that differ from `want`: any difference for
-/// raylab's strategies; for Embree's, closest hits that disagree
-/// genuinely and occlusion answers that differ.
+/// Wrong answers of `follower` (and answers checked): for raylab's
+/// strategies every answer that differs from `want` (a fresh build's) by a
+/// bit; for Embree's, answers that differ and that the exact reference
+/// judges wrong (not a tie at an edge or undecidable: Embree's own
+/// rounding decides such rays, on every strategy alike).
 fn count_wrong(
     follower: &Follower,
     rays: &[Vec<Ray>],
     want: &[Vec<Option<Hit>>],
+    exact: &mut Option<ExactReference>,
     triangles: &[[glam::Vec3; 3]],
 ) -> (usize, usize) {
     let mut wrong = 0;
     let mut checked = 0;
     for (k, (rays, want)) in rays.iter().zip(want).enumerate() {
-        let got = answers(follower.backend(), k == 0, rays);
+        let closest = k == 0;
+        let got = answers(follower.backend(), closest, rays);
         checked += rays.len();
         for ((ray, g), w) in rays.iter().zip(&got).zip(want) {
-            let differs = if follower.strategy.is_embree() && k == 0 {
-                classify(ray, *g, *w, triangles) == Agreement::Genuine
-            } else if k == 0 {
+            let differs = if closest {
                 g != w
             } else {
                 g.is_some() != w.is_some()
             };
-            wrong += differs as usize;
+            if !differs {
+                continue;
+            }
+            if !follower.strategy.is_embree() {
+                wrong += 1;
+                continue;
+            }
+            let reference = exact.get_or_insert_with(|| ExactReference::new(triangles.to_vec()));
+            let answer = reference.answer(ray);
+            let verdict = if closest {
+                answer.judge_closest(*g)
+            } else {
+                answer.judge_occluded(g.is_some())
+            };
+            wrong += verdict.is_wrong() as usize;
         }
     }
     (wrong, checked)
@@ -272,7 +290,12 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<An
     let min_run = min_run_s(cfg);
     let per_kind = if cfg.quick { 2_000 } else { 30_000 };
     let threads = cfg.threads.max(1);
-    let strategies = Strategy::compared(cfg.rebuild_factor.unwrap_or(REBUILD_FACTOR));
+    let factors = if cfg.rebuild_factors.is_empty() {
+        vec![REBUILD_FACTOR]
+    } else {
+        cfg.rebuild_factors.clone()
+    };
+    let strategies = Strategy::compared(&factors);
     let mut out = Vec::new();
     for name in animations(cfg) {
         let animation = Animation::load(&name, cfg.ref_policy, "SCENE")?;
@@ -291,6 +314,8 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<An
             bar.set_message(format!("animation: {name} frame {f} of {n}"));
             let frame = animation.frame(t)?;
             let triangles = frame.triangle_vertices();
+            // Built on the first answer that needs judging.
+            let mut exact: Option<ExactReference> = None;
             // Update (or, on the first frame, build) every strategy.
             let mut updates = Vec::new();
             for (i, s) in strategies.iter().enumerate() {
@@ -335,7 +360,7 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<An
                     Some(follower.policy_cost()? / fresh)
                 });
                 let (mrays, paths) = time_kinds(follower, &rays, threads, reps, min_run)?;
-                let (wrong, checked) = count_wrong(follower, &rays, &want, &triangles);
+                let (wrong, checked) = count_wrong(follower, &rays, &want, &mut exact, &triangles);
                 // Each kind's share of a whole frame's rays, as recorded.
                 let shares: Vec<f64> = rays.iter().map(|r| r.len() as f64).collect();
                 let total: f64 = shares.iter().sum::<f64>().max(1.0);
@@ -499,7 +524,7 @@ pub fn markdown(points: &[AnimationPoint]) -> String {
     }
     format!(
         "### Scenes that move: totals over {frames} frames ({threads} thread{})\n\n\
-         Build: the first frame's. Updates: the {} frames after it. Trace: each frame's recorded rays (primary, shadow, AO) at the bench's image size, one sample per pixel, at each strategy's measured rates on its fastest path. Wrong: answers that differ from a fresh raylab build of the frame (bit for bit for raylab's trees; genuine disagreements for Embree's).\n\n{}\n\
+         Build: the first frame's. Updates: the {} frames after it. Trace: each frame's recorded rays (primary, shadow, AO) at the bench's image size, one sample per pixel, at each strategy's measured rates on its fastest path. Wrong: answers that differ from a fresh raylab build of the frame (by a bit, for raylab's trees; for Embree's, those of them the exact reference judges wrong).\n\n{}\n\
          ### Scenes that move: per frame\n\n{}\n",
         if threads == 1 { "" } else { "s" },
         frames - 1,

@@ -130,7 +130,7 @@ pub(crate) fn leaf_ref(slot: usize, count: usize) -> u32 {
 
 /// The slots `first..end` of a leaf reference.
 #[inline(always)]
-pub(crate) fn leaf_slots(child: u32) -> (usize, usize) {
+pub(super) fn leaf_slots(child: u32) -> (usize, usize) {
     let first = (child & (MAX_SLOTS as u32 - 1)) as usize;
     let count = ((child & !LEAF) >> SLOT_BITS) as usize + 1;
     (first, first + count)
@@ -148,7 +148,7 @@ pub(super) fn leaf_block_count(child: u32) -> usize {
 /// block's lanes that belong to the leaf. Calls `f` for each block in order
 /// and stops early when it returns `true`; returns whether it did.
 #[inline(always)]
-pub(super) fn for_leaf_blocks(child: u32, mut f: impl FnMut(usize, u32) -> bool) -> bool {
+pub(crate) fn for_leaf_blocks(child: u32, mut f: impl FnMut(usize, u32) -> bool) -> bool {
     let (mut slot, end) = leaf_slots(child);
     while slot < end {
         let base = slot & !(LANES - 1);
