@@ -54,7 +54,7 @@ fn every_strategy_answers_as_the_naive_scan_on_every_frame() {
     for name in ["explode:3000", "cloth:3000"] {
         let animation = Animation::parse(name).unwrap().unwrap();
         let times = [0.0, 0.4, 1.0, 1.6, 2.0];
-        let mut followers: Vec<Follower> = Strategy::compared(1.3)
+        let mut followers: Vec<Follower> = Strategy::compared(&[1.3, 2.0])
             .into_iter()
             .map(|s| Follower::new(s, animation.rest(), 2).unwrap())
             .collect();
