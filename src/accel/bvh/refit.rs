@@ -120,9 +120,22 @@ fn refit_run<const N: usize>(
     } else {
         runs.into_iter().map(refit).collect()
     };
+    fit_lanes(head, blocks, |lane, _| {
+        boxes.iter().find(|(l, _)| *l == lane)?.1
+    })
+}
+
+/// Sets every used lane of `node` to its padded box, a leaf's from
+/// `blocks`, a child node's unpadded box from `child_box(lane, child)`;
+/// returns the node's unpadded box (`None` when a child's box is missing).
+fn fit_lanes<const N: usize>(
+    node: &mut WideNode<N>,
+    blocks: &[Tri4],
+    child_box: impl Fn(usize, u32) -> Option<Aabb>,
+) -> Option<Aabb> {
     let mut node_box = Aabb::EMPTY;
     for lane in 0..N {
-        let child = head.child[lane];
+        let child = node.child[lane];
         if child == EMPTY {
             continue;
         }
@@ -134,10 +147,10 @@ fn refit_run<const N: usize>(
             });
             b
         } else {
-            boxes.iter().find(|(l, _)| *l == lane)?.1?
+            child_box(lane, child)?
         };
         node_box = node_box.union(b);
-        head.set_lane(lane, &padded(b), child);
+        node.set_lane(lane, &padded(b), child);
     }
     Some(node_box)
 }
@@ -261,27 +274,9 @@ impl<const N: usize> WideBvh<N> {
         }
         let mut raw = vec![Aabb::EMPTY; self.nodes.len()];
         for &i in preorder.iter().rev() {
-            let mut node_box = Aabb::EMPTY;
             let node = &mut self.nodes[i as usize];
-            for lane in 0..N {
-                let child = node.child[lane];
-                if child == EMPTY {
-                    continue;
-                }
-                let b = if child & LEAF != 0 {
-                    let mut b = Aabb::EMPTY;
-                    for_leaf_blocks(child, |block, lanes| {
-                        b = b.union(lanes_box(&self.blocks[block], lanes));
-                        false
-                    });
-                    b
-                } else {
-                    raw[child as usize]
-                };
-                node_box = node_box.union(b);
-                node.set_lane(lane, &padded(b), child);
-            }
-            raw[i as usize] = node_box;
+            raw[i as usize] = fit_lanes(node, &self.blocks, |_, child| Some(raw[child as usize]))
+                .expect("children come first");
         }
     }
 }
