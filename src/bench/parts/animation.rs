@@ -661,9 +661,10 @@ where
             .unwrap_or(0)
             + 1;
         let per_frame = ts.first().map_or(1.0, |t| t.rays / frames as f64);
-        // Rays per frame from a hundredth of one sample per pixel to 64.
-        let xs: Vec<f64> = (0..=40)
-            .map(|i| per_frame * 0.01 * 6400f64.powf(i as f64 / 40.0))
+        // Rays per frame from 10^-4 of one sample per pixel (where the
+        // updates weigh) to 64 samples.
+        let xs: Vec<f64> = (0..=60)
+            .map(|i| per_frame * 1e-4 * 640_000f64.powf(i as f64 / 60.0))
             .collect();
         let at = |t: &Totals, rays: f64| t.total_ms(rays / per_frame);
         let y = log_range(ts.iter().flat_map(|t| xs.iter().map(move |&x| at(t, x))));
