@@ -29,15 +29,6 @@ use super::wide::{WideBvh, WideNode};
 use crate::error::{Error, Result};
 use crate::geometry::Aabb;
 
-/// The box of a triangle.
-#[inline]
-fn triangle_box(t: &[glam::Vec3; 3]) -> Aabb {
-    Aabb {
-        min: t[0].min(t[1]).min(t[2]),
-        max: t[0].max(t[1]).max(t[2]),
-    }
-}
-
 /// The box of the triangles in `block`'s lanes set in `lanes` (a mask),
 /// four lanes at a time: the rows of the three vertices per axis, unused
 /// lanes replaced by +inf (for the minimum) and -inf (for the maximum).
@@ -202,7 +193,7 @@ impl Bvh {
                 let slots = node.offset as usize..(node.offset + node.count) as usize;
                 self.tris[slots]
                     .iter()
-                    .fold(Aabb::EMPTY, |b, t| b.union(triangle_box(t)))
+                    .fold(Aabb::EMPTY, |b, t| b.union(Aabb::from_points(t)))
             } else {
                 raw[i + 1].union(raw[node.offset as usize])
             };
@@ -262,16 +253,7 @@ impl<const N: usize> WideBvh<N> {
     /// Pass 2 on any layout: preorder from the root, whose reverse reaches
     /// every child before its parent whatever the builder's numbering.
     fn refit_nodes_any_layout(&mut self) {
-        let mut preorder = Vec::with_capacity(self.nodes.len());
-        let mut pending = vec![0u32];
-        while let Some(i) = pending.pop() {
-            preorder.push(i);
-            for &child in &self.nodes[i as usize].child {
-                if child != EMPTY && child & LEAF == 0 {
-                    pending.push(child);
-                }
-            }
-        }
+        let preorder = self.preorder();
         let mut raw = vec![Aabb::EMPTY; self.nodes.len()];
         for &i in preorder.iter().rev() {
             let node = &mut self.nodes[i as usize];

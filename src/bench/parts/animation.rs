@@ -19,6 +19,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::Serialize;
 
+use super::libraries::window;
 use super::ChartSection;
 use crate::accel::bvh::params::REBUILD_FACTOR;
 use crate::accel::bvh::BuildParams;
@@ -167,13 +168,6 @@ fn frame_rays(frame: &Scene, cfg: &BenchConfig, per_kind: usize) -> Result<Frame
         answers: fresh,
         whole: whole * scale,
     })
-}
-
-/// At most `n` consecutive rays from the middle of `rays` (neighbours, as
-/// packets trace them).
-fn window(rays: &[Ray], n: usize) -> Vec<Ray> {
-    let start = rays.len().saturating_sub(n) / 2;
-    rays[start..(start + n).min(rays.len())].to_vec()
 }
 
 /// `backend`'s answers to `rays`: closest hits, or (any-hit kinds) a

@@ -325,7 +325,7 @@ fn time_interleaved(
 /// packets trace together, and every 40th ray of a frame made raylab's and
 /// Embree's packet paths look 2.6x slower than they are (engine primary
 /// rays: 7.8 Mrays/s against 14.5 on the whole frame).
-fn window(rays: &[Ray], n: usize) -> Vec<Ray> {
+pub(crate) fn window(rays: &[Ray], n: usize) -> Vec<Ray> {
     let start = rays.len().saturating_sub(n) / 2;
     rays[start..(start + n).min(rays.len())].to_vec()
 }

@@ -280,6 +280,24 @@ impl<const N: usize> WideBvh<N> {
             + self.blocks.len() * std::mem::size_of::<Tri4>()
     }
 
+    /// The node indices in preorder from the root (empty for an empty tree).
+    pub(crate) fn preorder(&self) -> Vec<u32> {
+        let mut preorder = Vec::with_capacity(self.nodes.len());
+        if self.nodes.is_empty() {
+            return preorder;
+        }
+        let mut pending = vec![0u32];
+        while let Some(i) = pending.pop() {
+            preorder.push(i);
+            for &child in &self.nodes[i as usize].child {
+                if child != EMPTY && child & LEAF == 0 {
+                    pending.push(child);
+                }
+            }
+        }
+        preorder
+    }
+
     /// Triangles in the leaves.
     pub fn triangle_count(&self) -> usize {
         self.blocks.iter().map(Tri4::len).sum()

@@ -29,18 +29,9 @@ pub(crate) fn order_for_any_hit<const N: usize>(tree: &mut WideBvh<N>) {
     if tree.nodes.is_empty() {
         return;
     }
-    // Preorder from the root, so that its reverse reaches every child before
-    // its parent, whatever the builder's node numbering.
-    let mut preorder = Vec::with_capacity(tree.nodes.len());
-    let mut pending = vec![0u32];
-    while let Some(i) = pending.pop() {
-        preorder.push(i);
-        for &child in &tree.nodes[i as usize].child {
-            if child != EMPTY && child & LEAF == 0 {
-                pending.push(child);
-            }
-        }
-    }
+    // Its reverse reaches every child before its parent, whatever the
+    // builder's node numbering.
+    let preorder = tree.preorder();
     let mut cost = vec![0f32; tree.nodes.len()];
     for &i in preorder.iter().rev() {
         let node = &mut tree.nodes[i as usize];
