@@ -145,12 +145,17 @@ pub fn default_view(
     let (framed_eye, framed_look) = if scene.study_frame {
         (Vec3::new(0.0, 1.0, 3.0), Vec3::new(0.0, 1.0, 0.0))
     } else {
-        let points = scene
-            .triangles
-            .iter()
-            .flatten()
-            .map(|&i| scene.positions[i as usize]);
-        framing(points, up, fov, width, height)
+        match scene.framed_corners() {
+            Some(corners) => framing(corners.into_iter(), up, fov, width, height),
+            None => {
+                let points = scene
+                    .triangles
+                    .iter()
+                    .flatten()
+                    .map(|&i| scene.positions[i as usize]);
+                framing(points, up, fov, width, height)
+            }
+        }
     };
     match (eye, look) {
         (Some(e), Some(l)) => (e, l),

@@ -70,15 +70,21 @@ pub struct Hit {
     pub u: f32,
     pub v: f32,
     pub tri: u32,
+    /// The instance the triangle was hit through (0 in a scene without
+    /// instances): `tri` is an index into the scene's unique triangles, placed
+    /// by `scene.instancing`'s instance `inst`.
+    pub inst: u32,
 }
 
 impl Hit {
     /// The ordering every backend uses for closest hits: smaller `t` wins, and at
-    /// equal `t` the lower triangle index wins, so results never depend on the
-    /// order in which a backend happens to visit triangles.
+    /// equal `t` the lower instance, then the lower triangle index wins (the
+    /// order a flattened copy of the scene numbers its triangles in), so
+    /// results never depend on the order in which a backend happens to visit
+    /// triangles.
     #[inline]
     pub fn is_closer_than(&self, other: &Hit) -> bool {
-        self.t < other.t || (self.t == other.t && self.tri < other.tri)
+        self.t < other.t || (self.t == other.t && (self.inst, self.tri) < (other.inst, other.tri))
     }
 }
 
@@ -584,13 +590,22 @@ pub const SPAWN_MAX_STEP: f32 = 1.0 / 256.0;
 /// exactly.
 #[inline]
 pub fn spawn_origin(tri: &[Vec3; 3], u: f32, v: f32, n: Vec3) -> Vec3 {
-    spawn_origin_stepped(tri, u, v, n, SPAWN_MT_ULPS)
+    spawn_origin_stepped(tri, u, v, n, SPAWN_MT_ULPS, Vec3::ZERO)
+}
+
+/// [`spawn_origin`], moved further by the per-component error bound `pad`
+/// (an instance's transform round trip: the instanced scene's shader spawns
+/// in mesh space, and the instance's tree sees the origin moved to world
+/// space and back).
+#[inline]
+pub fn spawn_origin_padded(tri: &[Vec3; 3], u: f32, v: f32, n: Vec3, pad: Vec3) -> Vec3 {
+    spawn_origin_stepped(tri, u, v, n, SPAWN_MT_ULPS, pad)
 }
 
 /// [`spawn_origin`] with the Moller-Trumbore step in `mt_ulps` (the tests
 /// measure it).
 #[inline]
-fn spawn_origin_stepped(tri: &[Vec3; 3], u: f32, v: f32, n: Vec3, mt_ulps: f32) -> Vec3 {
+fn spawn_origin_stepped(tri: &[Vec3; 3], u: f32, v: f32, n: Vec3, mt_ulps: f32, pad: Vec3) -> Vec3 {
     let (p, err) = surface_point(tri, u, v);
     let (e1, e2, e3) = (tri[1] - tri[0], tri[2] - tri[0], tri[2] - tri[1]);
     let edge2 = e1
@@ -611,7 +626,7 @@ fn spawn_origin_stepped(tri: &[Vec3; 3], u: f32, v: f32, n: Vec3, mt_ulps: f32) 
     } else {
         edge * SPAWN_MAX_STEP
     };
-    let d = n.abs().dot(err) + step;
+    let d = n.abs().dot(err + pad) + step;
     let moved = p + n * d;
     let away = |q: f32, nc: f32| {
         if nc > 0.0 {
@@ -896,6 +911,7 @@ mod tests {
             u: 0.0,
             v: 0.0,
             tri: 3,
+            inst: 0,
         };
         let b = Hit { tri: 7, ..a };
         assert!(a.is_closer_than(&b));
@@ -936,7 +952,7 @@ mod tests {
             } else {
                 (u, v)
             };
-            let o = spawn_origin_stepped(&tri, u, v, n, step);
+            let o = spawn_origin_stepped(&tri, u, v, n, step, Vec3::ZERO);
             behind += !strictly_in_front(&tri, o, n) as usize;
             let cos = 0.01 + 0.99 * r();
             let t = n.any_orthonormal_vector();

@@ -242,6 +242,7 @@ impl Backend for DropsTriangle {
                     u,
                     v,
                     tri: i as u32,
+                    inst: 0,
                 };
                 if best.is_none_or(|b| h.is_closer_than(&b)) {
                     best = Some(h);

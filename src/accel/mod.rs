@@ -13,7 +13,9 @@ pub mod spec;
 pub mod update;
 
 pub use query::Query;
-pub use spec::{build_backend, parse_backend, BackendKind, BackendSpec, Built};
+pub use spec::{
+    build_backend, build_scene_backend, parse_backend, BackendKind, BackendSpec, Built,
+};
 
 use crate::geometry::{Hit, Ray};
 

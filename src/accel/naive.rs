@@ -49,6 +49,7 @@ impl Naive {
                     u,
                     v,
                     tri: i as u32,
+                    inst: 0,
                 });
             }
         }

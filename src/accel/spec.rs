@@ -13,7 +13,7 @@ use super::query::Query;
 use super::Backend;
 use crate::error::Error;
 use crate::geometry::Intersector;
-use crate::scene::MeshRef;
+use crate::scene::{MeshRef, Scene};
 
 /// The backends a user can pick with `--backend` (and `validate --against`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -679,6 +679,57 @@ pub fn build_backend<'a>(spec: &BackendSpec, mesh: impl Into<MeshRef<'a>>) -> cr
         #[cfg(not(feature = "embree"))]
         BackendSpec::Embree { .. } => return Err(super::embree::unavailable()),
         BackendSpec::Library { library, threads } => build_library(&library, &mesh, threads)?,
+    };
+    Ok(Built {
+        spec: *spec,
+        backend,
+        build_time: start.elapsed(),
+        build_threads,
+    })
+}
+
+/// Builds the backend `spec` names over `scene`, and times it: a flat
+/// scene as [`build_backend`]; an instanced scene with instances, where the
+/// backend has them (raylab's two-level tree for `bvh`, Embree's instance
+/// geometry for `embree`), else an error naming `--flatten`.
+pub fn build_scene_backend(spec: &BackendSpec, scene: &Scene) -> crate::Result<Built> {
+    if !scene.is_instanced() {
+        return build_backend(spec, scene);
+    }
+    let start = Instant::now();
+    let mut build_threads = spec.build_threads();
+    let backend: Box<dyn Backend> = match *spec {
+        BackendSpec::Bvh {
+            params,
+            intersector,
+            query,
+        } => Box::new(super::bvh::two_level::TwoLevel::new(
+            scene,
+            &params,
+            intersector,
+            query,
+        )?),
+        #[cfg(feature = "embree")]
+        BackendSpec::Embree {
+            quality,
+            robust,
+            threads,
+            query,
+        } => {
+            let embree = super::embree::EmbreeInstanced::new(scene, quality, robust, threads)?;
+            build_threads = embree.build_threads();
+            Box::new(embree.with_query(query)?)
+        }
+        _ => {
+            return Err(crate::Error::usage(
+                "--backend",
+                format!(
+                    "{} cannot trace instances ({} places meshes by instances): use bvh or embree, or --flatten to trace one triangle list",
+                    spec.name(),
+                    scene.name
+                ),
+            ))
+        }
     };
     Ok(Built {
         spec: *spec,

@@ -216,8 +216,16 @@ impl SceneFileArgs {
         Ok(())
     }
 
-    /// Loads `spec` under these flags.
+    /// Loads `spec` under these flags, an instanced scene baked into one
+    /// triangle list ([`Scene::flattened`]): for the commands that trace one
+    /// list (within the triangle budget, else an error naming it).
     pub fn load(&self, spec: &str) -> Result<Scene> {
+        load_scene_with(spec, self.policy())?.flattened()
+    }
+
+    /// Loads `spec` under these flags, its instances kept: for the commands
+    /// that trace instances with two-level trees.
+    pub fn load_instanced(&self, spec: &str) -> Result<Scene> {
         load_scene_with(spec, self.policy())
     }
 }

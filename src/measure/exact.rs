@@ -931,6 +931,7 @@ mod tests {
                 u: 0.5,
                 v: 0.5,
                 tri,
+                inst: 0,
             };
             assert_eq!(answer.judge_closest(Some(hit)), Verdict::Right);
         }
@@ -952,6 +953,7 @@ mod tests {
             u: 0.0,
             v: 0.0,
             tri,
+            inst: 0,
         })
     }
 
@@ -1055,6 +1057,7 @@ mod tests {
                 u: 0.0,
                 v: 0.0,
                 tri,
+                inst: 0,
             })
         };
         assert_eq!(a.judge_closest(hit(0, 2.0)), Verdict::Right);

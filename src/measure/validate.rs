@@ -674,6 +674,7 @@ mod tests {
             u: 0.3,
             v: 0.3,
             tri,
+            inst: 0,
         })
     }
 
@@ -778,6 +779,7 @@ mod tests {
             u: 0.5,
             v: 0.0,
             tri: 0,
+            inst: 0,
         });
         assert_eq!(classify(&r, edge, None, &tris), Agreement::Tie);
         // Barycentrics saying "edge" for a point well inside (overflowed,

@@ -28,7 +28,7 @@ use std::time::Instant;
 use glam::Vec3;
 
 use super::{AoMode, Rect, RenderSettings, RenderStats, Tracer};
-use crate::geometry::{spawn_origin, triangle_unit_normal, Hit, Ray};
+use crate::geometry::{triangle_unit_normal, Hit, Ray};
 use crate::rng::{Rng, STREAM_AO, STREAM_LIGHT};
 use crate::scene::light::Emitter;
 use crate::scene::Scene;
@@ -44,7 +44,7 @@ const SHADOW_END: f32 = 1e-3;
 /// diffuse bounces, start here.
 #[inline]
 pub fn secondary_origin(scene: &Scene, hit: &Hit, n: Vec3) -> Vec3 {
-    spawn_origin(&scene.triangle(hit.tri as usize), hit.u, hit.v, n)
+    scene.spawn_point(hit, n)
 }
 
 /// Where the secondary rays of one primary hit start, as [`Tracer::spawned`]
@@ -179,14 +179,14 @@ pub fn render_rect<T: Tracer + ?Sized>(
             continue;
         };
         let slot = ((y - rect.y0) * width + (x - rect.x0)) as usize;
-        let tri = scene.triangle(hit.tri as usize);
+        let tri = scene.hit_triangle(&hit);
         let wo = -ray.dir;
         let mut ng = triangle_unit_normal(&tri);
         let front = ng.dot(wo) >= 0.0;
         if !front {
             ng = -ng;
         }
-        let mut ns = scene.shading_normal(hit.tri, hit.u, hit.v).unwrap_or(ng);
+        let mut ns = scene.hit_shading_normal(&hit).unwrap_or(ng);
         if ns.dot(wo) < 0.0 {
             ns = -ns;
         }
@@ -347,8 +347,8 @@ fn light_samples(
                 } => (corner + edge_u * r1 + edge_v * r2, radiance, extra_normal),
             }
         } else {
-            let light = lights.triangles[lights.pick(u)];
-            let tri = scene.triangle(light as usize);
+            let k = lights.pick(u);
+            let (light, tri) = (lights.triangles[k], scene.light_triangle(k));
             // Uniform point on the triangle (square-root warp).
             let su = r1.sqrt();
             let q = tri[0] * (1.0 - su) + tri[1] * (su * (1.0 - r2)) + tri[2] * (su * r2);
@@ -529,7 +529,7 @@ mod tests {
                 c + Vec3::new(0.0, 0.0, 1.0),
             ];
             for n in [Vec3::Y, -Vec3::Y] {
-                let q = spawn_origin(&tri, 0.3, 0.3, n);
+                let q = crate::geometry::spawn_origin(&tri, 0.3, 0.3, n);
                 assert!((q.y - m) * n.y > 0.0, "{m}: {} leaves {n}", q.y);
                 // Small: well under a thousandth of the magnitude (or 1e-4 near 0).
                 assert!((q.y - m).abs() <= 1e-4 * m.abs().max(1.0), "{m}: {}", q.y);

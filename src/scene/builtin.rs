@@ -67,6 +67,10 @@ pub const PROCEDURAL_SCENES: &[(&str, &str)] = &[
         "mesh:N (its box included) moved 10^5 units from the origin along x and z, framed from its bounds: f32 coordinates 1/128 apart",
     ),
     (
+        "forest:N",
+        "N instances (1..=1e7) of three trees of about 10^4 triangles each, stored once, on a ground: an instanced scene (two-level trees; --flatten bakes it into one list), framed from its bounds",
+    ),
+    (
         "plane:N",
         "a field of about N triangles (2..=1e7), a jittered grid 100 units across, every one in the plane y = 0, under a square light: a flat export (floor plan, terrain tile, sports ground), framed from its bounds",
     ),
@@ -80,6 +84,10 @@ pub fn builtin(name: &str) -> Result<Scene> {
     // An animated built-in, as it stands at time 0.
     if let Some(animation) = super::motion::Animation::parse(name) {
         return Ok(animation?.rest().clone());
+    }
+    if name.starts_with("forest:") {
+        let n = parse_count(name, "forest", super::forest::INSTANCES)?;
+        return super::forest::forest(name, n as usize);
     }
     let mut b = Builder::default();
     // Scenes with no box, framed from their bounds as a file would be.
@@ -204,16 +212,16 @@ const RED: Vec3 = Vec3::new(0.63, 0.065, 0.05);
 const GREEN: Vec3 = Vec3::new(0.14, 0.45, 0.091);
 
 #[derive(Default)]
-struct Builder {
-    positions: Vec<Vec3>,
-    normals: Vec<Vec3>,
+pub(super) struct Builder {
+    pub(super) positions: Vec<Vec3>,
+    pub(super) normals: Vec<Vec3>,
     triangles: Vec<[u32; 3]>,
     material_ids: Vec<u32>,
     materials: Vec<Material>,
 }
 
 impl Builder {
-    fn into_scene(self, name: &str) -> Result<Scene> {
+    pub(super) fn into_scene(self, name: &str) -> Result<Scene> {
         Scene::new(
             name,
             self.positions,
@@ -224,7 +232,7 @@ impl Builder {
         )
     }
 
-    fn material(&mut self, m: Material) -> u32 {
+    pub(super) fn material(&mut self, m: Material) -> u32 {
         self.materials.push(m);
         self.materials.len() as u32 - 1
     }
@@ -236,7 +244,7 @@ impl Builder {
         self.positions.len() as u32 - 1
     }
 
-    fn quad(&mut self, corners: [Vec3; 4], material: u32) {
+    pub(super) fn quad(&mut self, corners: [Vec3; 4], material: u32) {
         let i = corners.map(|p| self.vertex(p, Vec3::ZERO));
         self.triangles.push([i[0], i[1], i[2]]);
         self.triangles.push([i[0], i[2], i[3]]);
@@ -318,7 +326,14 @@ impl Builder {
     }
 
     /// A UV sphere with smooth normals: `2 * slices * (stacks - 1)` triangles.
-    fn sphere(&mut self, center: Vec3, radius: f32, slices: u32, stacks: u32, material: u32) {
+    pub(super) fn sphere(
+        &mut self,
+        center: Vec3,
+        radius: f32,
+        slices: u32,
+        stacks: u32,
+        material: u32,
+    ) {
         let point = |stack: u32, slice: u32| {
             let theta = PI * stack as f32 / stacks as f32;
             let phi = 2.0 * PI * (slice % slices) as f32 / slices as f32;

@@ -5,8 +5,10 @@
 
 pub mod budget;
 pub mod builtin;
+pub mod forest;
 pub mod gltf;
 pub mod gltf_motion;
+pub mod instancing;
 pub mod light;
 pub mod load;
 pub mod motion;
@@ -14,6 +16,8 @@ pub mod obj;
 pub mod ply;
 pub mod polygon;
 pub mod refs;
+
+use std::sync::Arc;
 
 use glam::Vec3;
 
@@ -97,6 +101,9 @@ pub struct Lights {
     pub extra: Option<light::Emitter>,
     /// Indices of emissive triangles.
     pub triangles: Vec<u32>,
+    /// In an instanced scene, the instance each of `triangles` is placed by
+    /// (a light per emissive triangle per instance); empty otherwise.
+    pub instances: Vec<u32>,
     /// `cdf[i]` = (area of lights 0..=i) / total area; the last entry is 1.
     pub cdf: Vec<f32>,
     /// Summed area of all emissive triangles.
@@ -172,6 +179,15 @@ pub struct Scene {
     /// view (eye (0,1,3) looking at (0,1,0)) and AO distance (0.2) are its
     /// defaults. Other scenes are framed by their bounds ([`crate::camera::framing`]).
     pub study_frame: bool,
+    /// The meshes and their instances, for a scene that places meshes by
+    /// instances ([`instancing`]): then the arrays above hold each mesh once,
+    /// in its own space. `None`: the triangles are in world space, placed once.
+    pub instancing: Option<Arc<instancing::Instancing>>,
+    /// The bounds [`Scene::bounds`] reports instead of its vertices' own: a
+    /// flattened instanced scene keeps its instanced bounds (boxes of the
+    /// instances' boxes), so the camera and default light frame it as they
+    /// frame its instances and `--flatten` renders the same view.
+    pub framed_bounds: Option<Aabb>,
 }
 
 impl Scene {
@@ -245,6 +261,8 @@ impl Scene {
             dropped_degenerate: dropped,
             warnings: Vec::new(),
             study_frame: false,
+            instancing: None,
+            framed_bounds: None,
         };
         scene.lights = scene.find_lights();
         if dropped > 0 {
@@ -302,6 +320,7 @@ impl Scene {
         Lights {
             extra: None,
             triangles,
+            instances: Vec::new(),
             cdf,
             total_area: total as f32,
         }
@@ -325,8 +344,14 @@ impl Scene {
         self.triangles.len()
     }
 
-    /// Its geometry, as backends are built over it.
+    /// Its geometry, as backends are built over it: world-space triangles
+    /// only in a scene without instances (an instanced scene's are its
+    /// meshes, each in its own space; [`Scene::flattened`] places them).
     pub fn mesh(&self) -> MeshRef<'_> {
+        debug_assert!(
+            self.instancing.is_none(),
+            "a flat backend over an instanced scene's meshes"
+        );
         MeshRef {
             positions: &self.positions,
             triangles: &self.triangles,
@@ -336,7 +361,7 @@ impl Scene {
     /// The three vertex positions of triangle `i`.
     #[inline]
     pub fn triangle(&self, i: usize) -> [Vec3; 3] {
-        self.mesh().triangle(i)
+        self.triangles[i].map(|v| self.positions[v as usize])
     }
 
     /// All triangles' vertices gathered in index order: what backends intersect.
@@ -373,12 +398,36 @@ impl Scene {
         })
     }
 
-    /// Bounds of all referenced vertices.
+    /// Bounds of all referenced vertices, in world space (an instanced
+    /// scene's: every instance's mesh box, moved by its transform).
     pub fn bounds(&self) -> Aabb {
+        if let Some(b) = self.framed_bounds {
+            return b;
+        }
+        if let Some(inst) = &self.instancing {
+            return Scene::instanced_bounds(inst);
+        }
         self.triangles
             .iter()
             .flatten()
             .fold(Aabb::EMPTY, |b, &v| b.grown(self.positions[v as usize]))
+    }
+
+    /// The points the camera frames in an instanced scene (and its flattened
+    /// copy, which frames as it does): its bounds' corners; `None` for a
+    /// scene framed by its vertices.
+    pub fn framed_corners(&self) -> Option<[Vec3; 8]> {
+        if self.instancing.is_none() && self.framed_bounds.is_none() {
+            return None;
+        }
+        let b = self.bounds();
+        Some(std::array::from_fn(|c| {
+            Vec3::new(
+                if c & 1 == 0 { b.min.x } else { b.max.x },
+                if c & 2 == 0 { b.min.y } else { b.max.y },
+                if c & 4 == 0 { b.min.z } else { b.max.z },
+            )
+        }))
     }
 
     /// The interpolated vertex normal at barycentrics `(u, v)` of `tri`, if the

@@ -106,6 +106,7 @@ impl Hits4 {
                 u: self.u[lane],
                 v: self.v[lane],
                 tri: ids[lane],
+                inst: 0,
             };
             if best.is_none_or(|b| hit.is_closer_than(&b)) {
                 best = Some(hit);

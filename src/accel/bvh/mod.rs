@@ -29,6 +29,7 @@ pub mod simd_lanes;
 pub mod simd_packet;
 pub mod traverse;
 pub mod tree;
+pub mod two_level;
 pub mod wide;
 
 pub use backend::BvhBackend;

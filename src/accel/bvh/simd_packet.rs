@@ -223,6 +223,7 @@ impl<const R: usize> PacketHits<R> {
         u: 0.0,
         v: 0.0,
         tri: EMPTY_ID,
+        inst: 0,
     };
 
     /// No ray has a hit.
@@ -244,6 +245,7 @@ impl<const R: usize> PacketHits<R> {
             u: self.u[r],
             v: self.v[r],
             tri: self.tri[r],
+            inst: 0,
         }
     }
 
@@ -1118,6 +1120,7 @@ mod tests {
                     u: 0.1,
                     v: 0.2,
                     tri: r as u32 * 7,
+                    inst: 0,
                 };
                 hits.set(r, Some(hit));
             }

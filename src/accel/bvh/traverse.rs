@@ -77,6 +77,7 @@ pub(crate) fn closest_in_leaf<T: TriangleTest, C: Counter>(
                 u,
                 v,
                 tri: tri_ids[slot],
+                inst: 0,
             };
             if best.is_none_or(|b| hit.is_closer_than(&b)) {
                 *best = Some(hit);

@@ -11,8 +11,12 @@ pub mod builder;
 #[cfg(feature = "embree")]
 mod ffi;
 #[cfg(feature = "embree")]
+mod instances;
+#[cfg(feature = "embree")]
 mod wrapper;
 
+#[cfg(feature = "embree")]
+pub use instances::EmbreeInstanced;
 #[cfg(feature = "embree")]
 pub use wrapper::{
     native_packets, tasking_threads, version, Device, EmbreeBackend, EmbreeScene, EmbreeUpdate,

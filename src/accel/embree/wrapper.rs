@@ -224,7 +224,7 @@ pub enum EmbreeUpdate {
     Rebuild(Quality),
 }
 
-fn raw_quality(quality: Quality) -> ffi::RTCBuildQuality {
+pub(super) fn raw_quality(quality: Quality) -> ffi::RTCBuildQuality {
     match quality {
         Quality::Low => ffi::RTCBuildQuality_RTC_BUILD_QUALITY_LOW,
         Quality::Medium => ffi::RTCBuildQuality_RTC_BUILD_QUALITY_MEDIUM,
@@ -447,6 +447,11 @@ impl EmbreeScene {
         Ok(this)
     }
 
+    /// The scene's handle, for instances of it.
+    pub(super) fn raw(&self) -> ffi::RTCScene {
+        self.raw
+    }
+
     /// Bytes of the acceleration structure (nodes and leaf primitives), as
     /// Embree's own memory monitor reports what the build left allocated; the
     /// vertex and index buffers are not counted.
@@ -474,6 +479,7 @@ impl EmbreeScene {
             u: rh.hit.u,
             v: rh.hit.v,
             tri: rh.hit.primID,
+            inst: 0,
         })
     }
 
@@ -526,6 +532,7 @@ macro_rules! packet_queries {
                                 u: p.hit.u[lane],
                                 v: p.hit.v[lane],
                                 tri: p.hit.primID[lane],
+                                inst: 0,
                             },
                         );
                     }
@@ -612,6 +619,7 @@ impl EmbreeScene {
                 u: rh.hit.u,
                 v: rh.hit.v,
                 tri: rh.hit.primID,
+                inst: 0,
             });
         }
     }
@@ -661,7 +669,7 @@ pub fn embree_takes(ray: &Ray) -> bool {
 /// Our ray in Embree's layout: all mask bits set (Embree 4 gives geometries mask
 /// 1 by default), time 0.
 #[inline]
-fn embree_ray(ray: &Ray) -> ffi::RTCRay {
+pub(super) fn embree_ray(ray: &Ray) -> ffi::RTCRay {
     ffi::RTCRay {
         org_x: ray.origin.x,
         org_y: ray.origin.y,

@@ -126,6 +126,7 @@ impl Backend for BvhCrateBackend {
                     u: hit.u,
                     v: hit.v,
                     tri: shape.scene_index,
+                    inst: 0,
                 });
             }
         }

@@ -217,6 +217,7 @@ impl Backend for ObvhsBackend {
             u: r_vec.dot(e2) * inv_det,
             v: r_vec.dot(e1) * inv_det,
             tri: self.scene_index[id],
+            inst: 0,
         })
     }
 

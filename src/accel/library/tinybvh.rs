@@ -280,6 +280,7 @@ impl TinybvhBackend {
             u: hit.u,
             v: hit.v,
             tri: hit.prim,
+            inst: 0,
         })
     }
 }

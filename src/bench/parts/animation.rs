@@ -188,6 +188,7 @@ fn answers(backend: &dyn Backend, closest: bool, rays: &[Ray]) -> Vec<Option<Hit
                     u: 0.0,
                     v: 0.0,
                     tri: 0,
+                    inst: 0,
                 })
             })
             .collect()

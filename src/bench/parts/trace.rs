@@ -604,6 +604,7 @@ mod tests {
                 .then_some(hit.tri + 1);
             Some(Hit {
                 tri: wrong.unwrap_or(hit.tri),
+                inst: 0,
                 ..hit
             })
         }

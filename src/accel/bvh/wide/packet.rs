@@ -417,6 +417,7 @@ mod tests {
                 u: 0.0,
                 v: 0.0,
                 tri: 0,
+                inst: 0,
             }); 3];
             let mut occluded = [true; 3];
             tree.closest_packet_with::<MollerTrumbore>(PACKET, &rays, &mut hits);

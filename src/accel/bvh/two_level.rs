@@ -1,0 +1,341 @@
+//! raylab's two-level BVH over an instanced scene: one tree per mesh (the
+//! BLAS, any `--quality` rung and width, as a flat scene's tree), and a
+//! binary SAH tree over the instances' world boxes (the TLAS). A ray that
+//! reaches an instance's leaf moves into the mesh's space (the same `t`
+//! there: the transform is affine) and is traced through the mesh's tree.
+//!
+//! Closest hits follow the flattened scene's tie-break: at equal `t` the
+//! lower instance, then the lower triangle wins. An instance's tree is asked
+//! for hits up to and including the best `t` so far (its `tmax` one ulp
+//! above it), so a tie in a later-visited instance is still found.
+
+use std::sync::Arc;
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use super::backend::BvhBackend;
+use super::builder::build;
+use super::node::Bvh;
+use super::params::BuildParams;
+use super::tree::Tree;
+use crate::accel::{Backend, Query};
+use crate::error::Error;
+use crate::geometry::{Aabb, Hit, Intersector, Ray, SlabRay};
+use crate::scene::instancing::{Instance, Instancing};
+use crate::scene::{MeshRef, Scene};
+
+/// Instances per TLAS leaf at most.
+const TLAS_LEAF: usize = 2;
+
+/// The two-level tree.
+pub struct TwoLevel {
+    /// Binary tree over the instances; its leaf slots name instances.
+    tlas: Bvh,
+    /// One tree per mesh.
+    blas: Vec<BvhBackend>,
+    /// The first triangle of each mesh in the scene's arrays (BLAS hits are
+    /// numbered within their mesh).
+    mesh_start: Vec<u32>,
+    instancing: Arc<Instancing>,
+}
+
+impl TwoLevel {
+    /// Builds a tree per mesh as `params` say (the meshes one after another,
+    /// each on `params.threads`), then the TLAS over the instances' boxes.
+    /// Fails for a scene without instances or for any `query` but single
+    /// rays (the two-level tree has no packet path).
+    pub fn new(
+        scene: &Scene,
+        params: &BuildParams,
+        intersector: Intersector,
+        query: Query,
+    ) -> crate::Result<Self> {
+        let Some(instancing) = scene.instancing.clone() else {
+            return Err(Error::Scene {
+                name: scene.name.clone(),
+                msg: "a two-level tree needs an instanced scene".into(),
+            });
+        };
+        if query != Query::Single {
+            return Err(Error::usage(
+                "--query",
+                format!("the two-level tree over an instanced scene traces rays one at a time (single), not {query}; --flatten traces one tree"),
+            ));
+        }
+        let mut blas = Vec::with_capacity(instancing.meshes.len());
+        for range in &instancing.meshes {
+            let mesh = MeshRef {
+                positions: &scene.positions,
+                triangles: &scene.triangles[range.start as usize..range.end as usize],
+            };
+            blas.push(BvhBackend::new(&mesh, params)?.with_intersector(intersector));
+        }
+        let tlas = tlas(&instancing, params.threads)?;
+        Ok(TwoLevel {
+            tlas,
+            blas,
+            mesh_start: instancing.meshes.iter().map(|r| r.start).collect(),
+            instancing,
+        })
+    }
+
+    /// Nodes in the TLAS.
+    pub fn tlas_nodes(&self) -> usize {
+        self.tlas.nodes.len()
+    }
+
+    /// `ray` in instance `inst`'s mesh space, up to `tmax`.
+    #[inline]
+    fn local_ray(inst: &Instance, ray: &Ray, tmax: f32) -> Ray {
+        Ray::segment(
+            inst.to_local.transform_point3(ray.origin),
+            inst.to_local.transform_vector3(ray.dir),
+            ray.tmin,
+            tmax,
+        )
+    }
+
+    /// Visits the instances whose boxes the ray reaches, nearest box first,
+    /// until `visit` (given an instance and the current `tmax`) returns
+    /// `true`, or none is left; `visit` may lower the `tmax` it is handed.
+    #[inline]
+    fn walk(&self, ray: &Ray, mut visit: impl FnMut(u32, &mut f32) -> bool) {
+        let nodes = &self.tlas.nodes;
+        let slab = SlabRay::new(ray);
+        let mut tmax = ray.tmax;
+        let mut stack = [0u32; 64];
+        let mut top = 0usize;
+        let mut at = 0u32;
+        loop {
+            let node = &nodes[at as usize];
+            if node.is_leaf() {
+                for slot in node.offset..node.offset + node.count {
+                    if visit(self.tlas.tri_ids[slot as usize], &mut tmax) {
+                        return;
+                    }
+                }
+            } else {
+                let (l, r) = (at + 1, node.offset);
+                let hl = nodes[l as usize].bounds().intersect(&slab, ray.tmin, tmax);
+                let hr = nodes[r as usize].bounds().intersect(&slab, ray.tmin, tmax);
+                match (hl, hr) {
+                    (Some(a), Some(b)) => {
+                        let (near, far) = if a <= b { (l, r) } else { (r, l) };
+                        stack[top] = far;
+                        top += 1;
+                        at = near;
+                        continue;
+                    }
+                    (Some(_), None) => {
+                        at = l;
+                        continue;
+                    }
+                    (None, Some(_)) => {
+                        at = r;
+                        continue;
+                    }
+                    (None, None) => {}
+                }
+            }
+            // Pop the next subtree that the ray still reaches within tmax.
+            loop {
+                if top == 0 {
+                    return;
+                }
+                top -= 1;
+                at = stack[top];
+                if nodes[at as usize]
+                    .bounds()
+                    .intersect(&slab, ray.tmin, tmax)
+                    .is_some()
+                {
+                    break;
+                }
+            }
+        }
+    }
+}
+
+/// The binary SAH tree over the instances' world boxes, padded so that
+/// rounding never culls an instance its mesh's tree would hit: each box
+/// grows by 2^-20 of its largest coordinate, far above the transform's
+/// rounding (a few ulps) and far below any scene's detail.
+fn tlas(instancing: &Instancing, threads: usize) -> crate::Result<Bvh> {
+    // The builders read triangles: an instance's box is the triangle from its
+    // box's minimum to its maximum corner, whose box (and so centroid) it is.
+    let boxes: Vec<[Vec3; 3]> = (0..instancing.instances.len())
+        .into_par_iter()
+        .map(|i| {
+            let b = instancing.world_box(i);
+            let pad = Vec3::splat(b.min.abs().max(b.max.abs()).max_element() * (1.0 / 1_048_576.0));
+            let b = Aabb {
+                min: b.min - pad,
+                max: b.max + pad,
+            };
+            [b.min, b.max, b.min]
+        })
+        .collect();
+    let params = BuildParams {
+        max_leaf_size: TLAS_LEAF,
+        ..BuildParams::sah()
+    }
+    .with_threads(threads);
+    let Tree::Binary(mut bvh) = build(&boxes, &params)? else {
+        unreachable!("a width-2 build is binary")
+    };
+    // The leaves' vertex copies are the fake triangles: not needed.
+    bvh.tris = Vec::new();
+    Ok(bvh)
+}
+
+impl Backend for TwoLevel {
+    fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        if !ray.is_valid() {
+            return None;
+        }
+        let mut best: Option<Hit> = None;
+        self.walk(ray, |i, tmax| {
+            let inst = &self.instancing.instances[i as usize];
+            // Up to and including the best t so far: a tie there may belong
+            // to a lower instance, which the tie-break prefers.
+            let reach = if best.is_some() {
+                tmax.next_up()
+            } else {
+                *tmax
+            };
+            let local = Self::local_ray(inst, ray, reach);
+            if let Some(mut hit) = self.blas[inst.mesh as usize].intersect(&local) {
+                hit.tri += self.mesh_start[inst.mesh as usize];
+                hit.inst = i;
+                if best.is_none_or(|b| hit.is_closer_than(&b)) {
+                    best = Some(hit);
+                    *tmax = hit.t;
+                }
+            }
+            false
+        });
+        best
+    }
+
+    fn occluded(&self, ray: &Ray) -> bool {
+        if !ray.is_valid() {
+            return false;
+        }
+        let mut found = false;
+        self.walk(ray, |i, tmax| {
+            let inst = &self.instancing.instances[i as usize];
+            found = self.blas[inst.mesh as usize].occluded(&Self::local_ray(inst, ray, *tmax));
+            found
+        });
+        found
+    }
+
+    fn memory_bytes(&self) -> Option<usize> {
+        let blas: usize = self.blas.iter().filter_map(|b| b.memory_bytes()).sum();
+        Some(
+            blas + self.tlas.memory_bytes()
+                + self.instancing.instances.len() * std::mem::size_of::<Instance>(),
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::{Affine3A, Quat};
+
+    use super::*;
+    use crate::accel::naive::Naive;
+    use crate::rng::Rng;
+    use crate::scene::builtin::builtin;
+
+    /// Three meshes placed 60 times, rotated, scaled and overlapping.
+    fn scene() -> Scene {
+        let meshes = vec![
+            builtin("mesh:300").unwrap(),
+            builtin("cornell-sphere").unwrap(),
+            builtin("cornell-empty").unwrap(),
+        ];
+        let mut rng = Rng::for_pixel(3, 9, 0);
+        let placements = (0..60)
+            .map(|i| {
+                let m = Affine3A::from_scale_rotation_translation(
+                    Vec3::splat(0.3 + rng.next_f32()),
+                    Quat::from_rotation_y(7.0 * rng.next_f32())
+                        * Quat::from_rotation_x(rng.next_f32()),
+                    Vec3::new(
+                        6.0 * rng.next_f32(),
+                        3.0 * rng.next_f32(),
+                        -6.0 * rng.next_f32(),
+                    ),
+                );
+                (i % 3, m)
+            })
+            .collect();
+        Scene::instanced("t", meshes, placements).unwrap()
+    }
+
+    #[test]
+    fn hits_are_the_flattened_scenes_up_to_rounding() {
+        let s = scene();
+        let flat = s.flattened().unwrap();
+        let naive = Naive::from_triangles(flat.triangle_vertices());
+        let b = s.bounds();
+        let mut rng = Rng::for_pixel(5, 9, 0);
+        for width in [2, 8] {
+            let two = TwoLevel::new(
+                &s,
+                &BuildParams::sah().with_width(width),
+                Intersector::Mt,
+                Query::Single,
+            )
+            .unwrap();
+            let (mut same, mut total) = (0, 0);
+            for _ in 0..3000 {
+                let p = |rng: &mut Rng| {
+                    b.min
+                        + (b.max - b.min)
+                            * Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32())
+                };
+                let o = p(&mut rng) * 1.3 - (b.max - b.min) * 0.15;
+                let ray = Ray::new(o, p(&mut rng) - o);
+                let (want, got) = (naive.intersect(&ray), two.intersect(&ray));
+                assert_eq!(
+                    want.is_some(),
+                    two.occluded(&ray),
+                    "occluded must agree with naive"
+                );
+                total += 1;
+                match (want, got) {
+                    (None, None) => same += 1,
+                    (Some(w), Some(g)) => {
+                        assert!((w.t - g.t).abs() <= 1e-4 * w.t.max(1.0), "{w:?} {g:?}");
+                        if u64::from(w.tri) == s.flat_index(&g) {
+                            same += 1;
+                        }
+                    }
+                    (w, g) => panic!("naive {w:?}, two-level {g:?}"),
+                }
+            }
+            // Different triangles only where two lie at the same t (shared
+            // edges, coplanar instances), rounding apart.
+            assert!(same * 1000 >= total * 998, "{same} of {total}");
+        }
+    }
+
+    #[test]
+    fn packets_are_refused_and_flat_scenes_too() {
+        let s = scene();
+        let err = TwoLevel::new(
+            &s,
+            &BuildParams::sah().with_width(8),
+            Intersector::Mt,
+            Query::Packet(8),
+        )
+        .err()
+        .unwrap();
+        assert!(err.to_string().contains("--query"), "{err}");
+        let flat = builtin("cornell-sphere").unwrap();
+        assert!(TwoLevel::new(&flat, &BuildParams::sah(), Intersector::Mt, Query::Single).is_err());
+    }
+}
