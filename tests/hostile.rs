@@ -341,11 +341,14 @@ fn budgets_are_checked_before_allocating_and_name_their_flag() {
             .replace(r#""nodes":[0]"#, r#""nodes":[0,1]"#)
         }),
     );
+    // Placed twice, the mesh is stored once (an instanced scene): within
+    // a budget of 1; flattened, it expands to 2.
     let out = raylab(&[
         "render",
         gltf.to_str().unwrap(),
         "--max-triangles",
         "1",
+        "--flatten",
         "-o",
         png,
     ]);
@@ -354,6 +357,21 @@ fn budgets_are_checked_before_allocating_and_name_their_flag() {
     assert!(
         err.contains("expands to 2 triangles") && err.contains("--max-triangles"),
         "{err}"
+    );
+    let out = raylab(&[
+        "render",
+        gltf.to_str().unwrap(),
+        "--max-triangles",
+        "1",
+        "--size",
+        "16x12",
+        "-o",
+        png,
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
     );
     let out = raylab(&[
         "render",
@@ -369,6 +387,36 @@ fn budgets_are_checked_before_allocating_and_name_their_flag() {
         out.status.success(),
         "{}",
         String::from_utf8_lossy(&out.stderr)
+    );
+    // Instances are budgeted too: 1001 placements of the triangle, past
+    // the least any budget allows (1000), are refused before any is made.
+    let nodes = vec![r#"{"mesh":0}"#; 1001].join(",");
+    let roots = (0..1001)
+        .map(|i| i.to_string())
+        .collect::<Vec<_>>()
+        .join(",");
+    let many = write(
+        &d,
+        "many.gltf",
+        triangle_gltf(|j| {
+            j.replace(r#""nodes":[{"mesh":0}]"#, &format!(r#""nodes":[{nodes}]"#))
+                .replace(r#""nodes":[0]"#, &format!(r#""nodes":[{roots}]"#))
+        }),
+    );
+    let out = raylab(&[
+        "render",
+        many.to_str().unwrap(),
+        "--max-triangles",
+        "100",
+        "-o",
+        png,
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("places 1001 instances, over the budget of 1000")
+            && err.contains("--max-triangles"),
+        "{err}"
     );
     std::fs::remove_dir_all(&d).ok();
 }

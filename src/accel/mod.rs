@@ -6,6 +6,7 @@
 
 pub mod bvh;
 pub mod embree;
+pub mod flat_numbered;
 pub mod library;
 pub mod naive;
 pub mod query;

@@ -35,10 +35,12 @@ pub enum Part {
     Validate,
     /// Scenes that move: refit against rebuild, raylab's and Embree's.
     Animation,
+    /// Instanced scenes: two-level trees against flattening.
+    Instances,
 }
 
 impl Part {
-    pub const ALL: [Part; 11] = [
+    pub const ALL: [Part; 12] = [
         Part::Tables,
         Part::Trace,
         Part::Scaling,
@@ -50,6 +52,7 @@ impl Part {
         Part::Leaks,
         Part::Validate,
         Part::Animation,
+        Part::Instances,
     ];
 
     /// The name `--parts` takes.
@@ -66,6 +69,7 @@ impl Part {
             Part::Leaks => "leaks",
             Part::Validate => "validate",
             Part::Animation => "animation",
+            Part::Instances => "instances",
         }
     }
 }

@@ -57,6 +57,13 @@ pub struct ValidateArgs {
     view: ViewArgs,
     #[command(flatten)]
     files: SceneFileArgs,
+    /// For instanced scenes (forest:N, a glTF file placing a mesh more than
+    /// once): test the backend's two-level structure (raylab's two-level
+    /// tree for bvh, Embree's instances for embree), its hits numbered as
+    /// the flattened list numbers them, against the reference over the
+    /// flattened list. Without it both trace the flattened list.
+    #[arg(long)]
+    instances: bool,
     /// Print one JSON array with a report per scene on stdout.
     #[arg(long)]
     json: bool,
@@ -139,6 +146,40 @@ fn announce(args: &ValidateArgs, scene: &crate::scene::Scene, spec: &BackendSpec
             spec.name()
         ));
     }
+}
+
+/// The backend tested on `name` (loaded as `flat`): built over the
+/// flattened list, or with `--instances` the two-level structure over the
+/// instanced scene, answering in the flattened list's numbers.
+fn tested_backend(
+    args: &ValidateArgs,
+    name: &str,
+    spec: &BackendSpec,
+    flat: &crate::scene::Scene,
+) -> Result<crate::accel::Built> {
+    if !args.instances {
+        return build_backend(spec, flat);
+    }
+    let instanced = args.files.load_instanced(name)?;
+    if !instanced.is_instanced() {
+        return Err(Error::usage(
+            "--instances",
+            format!(
+                "{} has no instances (each mesh is placed once)",
+                instanced.name
+            ),
+        ));
+    }
+    // Instances are traced one ray at a time unless --query asked for more
+    // (which the two-level structures refuse).
+    let spec = match args.accel.query {
+        None => spec.with_query(crate::accel::Query::Single)?,
+        Some(_) => *spec,
+    };
+    crate::accel::flat_numbered::numbered_as_flattened(
+        crate::accel::build_scene_backend(&spec, &instanced)?,
+        &instanced,
+    )
 }
 
 /// The names `--rays` takes for sets of a render's rays (else it is a file).
@@ -259,7 +300,7 @@ pub fn run(args: &ValidateArgs) -> Result<()> {
         let mut scene = args.files.load(name)?;
         let settings = args.view.prepare(&mut scene)?;
         announce(args, &scene, &spec, &reference_spec.name());
-        let tested = build_backend(&spec, &scene)?;
+        let tested = tested_backend(args, name, &spec, &scene)?;
         let reference = build_backend(&reference_spec, &scene)?;
         let triangles = scene.triangle_vertices();
         // Record the render's rays with the faster of the two (naive is slow);
@@ -412,7 +453,7 @@ fn run_exact(
         let mut scene = args.files.load(name)?;
         let settings = args.view.prepare(&mut scene)?;
         announce(args, &scene, &spec, "the exact reference");
-        let tested = build_backend(&spec, &scene)?;
+        let tested = tested_backend(args, name, &spec, &scene)?;
         let reference = ExactReference::new(scene.triangle_vertices());
         let (set_rays, spawns) = match &file_rays {
             Some(rays) => (subsampled(rays, count), None),

@@ -63,6 +63,21 @@ pub fn vertices_over(count: u64) -> Option<String> {
     })
 }
 
+/// Instances any budget allows (a small `--max-triangles` still loads a
+/// file that places a few meshes a few times).
+pub const MIN_INSTANCES: u64 = 1000;
+
+/// The message for instances past the budget: one per 20 budgeted
+/// triangles, at least [`MIN_INSTANCES`] (an instance costs about 250 bytes
+/// with its share of the top-level trees, raylab's and Embree's, the price
+/// of 5 triangles; 10^7 instances at the default budget).
+pub fn instances_over(count: u64) -> Option<String> {
+    let max = (max_triangles() / 20).max(MIN_INSTANCES);
+    (count > max).then(|| {
+        format!("places {count} instances, over the budget of {max} (1 per 20 triangles of --max-triangles; raise it with --max-triangles)")
+    })
+}
+
 /// The message for an image past the pixel budget.
 pub fn pixels_over(width: u32, height: u32) -> Option<String> {
     let max = max_pixels();

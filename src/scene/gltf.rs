@@ -28,8 +28,11 @@ pub fn load_gltf_bytes(bytes: &[u8], path: &Path) -> Result<Scene> {
 }
 
 /// [`load_gltf_bytes`], external buffers read where `policy` allows.
+/// A file that places a mesh more than once loads as an instanced scene
+/// ([`Scene::instanced`]); `--flatten` and the commands that trace one list
+/// bake it ([`Scene::flattened`]).
 pub fn load_gltf_bytes_with(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Scene> {
-    Ok(load_parts(bytes, path, policy)?.scene)
+    load_instanced(bytes, path, policy)
 }
 
 /// A loaded glTF file: the flattened scene, and what its animations are
@@ -53,13 +56,38 @@ pub(super) struct Placement {
     pub count: usize,
 }
 
-/// [`load_gltf_bytes_with`], keeping what animations need.
+/// [`load_gltf_bytes_with`], keeping what animations need: the scene
+/// flattened, every placement its own vertices (animations move them).
 pub(super) fn load_parts(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Loaded> {
-    let err = |msg: String| Error::Parse {
+    let (doc, buffers) = read_document(bytes, path, policy)?;
+    let roots = root_nodes(&doc).map_err(|m| parse_error(path, m))?;
+    check_budget(&roots).map_err(|m| parse_error(path, m))?;
+    let (scene, placements) = flatten(&roots, &buffers, path)?;
+    drop(roots);
+    Ok(Loaded {
+        scene,
+        doc,
+        buffers,
+        placements,
+    })
+}
+
+/// One line naming the file.
+fn parse_error(path: &Path, msg: String) -> Error {
+    Error::Parse {
         path: path.to_path_buf(),
         line: 0,
         msg,
-    };
+    }
+}
+
+/// The document, validated, and its buffers, read and checked.
+fn read_document(
+    bytes: &[u8],
+    path: &Path,
+    policy: RefPolicy,
+) -> Result<(gltf::Document, Vec<Vec<u8>>)> {
+    let err = |msg: String| parse_error(path, msg);
     let gltf = gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| {
         if is_gltf1(bytes) {
             err(format!("a glTF 1.0 file: {}", super::READS))
@@ -81,32 +109,24 @@ pub(super) fn load_parts(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result
     };
     let buffers = load_buffers(&gltf, path, &Refs::new(path, policy))?;
     check_accessors(&gltf.document, &buffers).map_err(err)?;
-    let doc = &gltf.document;
-    let roots = root_nodes(doc).map_err(err)?;
-    check_budget(&roots).map_err(err)?;
+    Ok((gltf.document, buffers))
+}
 
+/// Every mesh placed by every node, in world space, as one triangle list.
+fn flatten(
+    roots: &[gltf::Node],
+    buffers: &[Vec<u8>],
+    path: &Path,
+) -> Result<(Scene, Vec<Placement>)> {
+    let err = |msg: String| parse_error(path, msg);
     let mut out = Flattened::default();
     for node in roots {
-        out.node(&node, Mat4::IDENTITY, &buffers, 0).map_err(err)?;
+        out.node(node, Mat4::IDENTITY, buffers, 0).map_err(err)?;
     }
     if out.triangles.is_empty() {
-        let mut msg = "no triangles: nothing to render".to_string();
-        if out.skipped_primitives > 0 {
-            msg.push_str(&format!(
-                " ({} point or line primitives skipped)",
-                out.skipped_primitives
-            ));
-        }
-        return Err(err(msg));
+        return Err(err(no_triangles(out.skipped_primitives)));
     }
-    let mut warnings = Vec::new();
-    if out.skipped_primitives > 0 {
-        warnings.push(format!(
-            "{}: skipped {} point and line primitives (not surfaces)",
-            path.display(),
-            out.skipped_primitives
-        ));
-    }
+    let warnings = skipped_warning(path, out.skipped_primitives);
     let any_normals = out.normals.iter().any(|n| *n != Vec3::ZERO);
     let scene = Scene::from_file(
         path,
@@ -117,13 +137,157 @@ pub(super) fn load_parts(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result
         out.materials,
         warnings,
     )?;
-    let gltf::Gltf { document, .. } = gltf;
-    Ok(Loaded {
-        scene,
-        doc: document,
-        buffers,
-        placements: out.placements,
-    })
+    Ok((scene, out.placements))
+}
+
+fn no_triangles(skipped_primitives: usize) -> String {
+    let mut msg = "no triangles: nothing to render".to_string();
+    if skipped_primitives > 0 {
+        msg.push_str(&format!(
+            " ({skipped_primitives} point or line primitives skipped)"
+        ));
+    }
+    msg
+}
+
+fn skipped_warning(path: &Path, skipped_primitives: usize) -> Vec<String> {
+    if skipped_primitives == 0 {
+        return Vec::new();
+    }
+    vec![format!(
+        "{}: skipped {skipped_primitives} point and line primitives (not surfaces)",
+        path.display()
+    )]
+}
+
+/// A glTF file as an instanced scene when a mesh is placed by more than
+/// one node (each mesh stored once, in its own space; each node placing it
+/// an instance), else flattened as [`load_parts`] does.
+fn load_instanced(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Scene> {
+    let (doc, buffers) = read_document(bytes, path, policy)?;
+    let err = |msg: String| parse_error(path, msg);
+    let roots = root_nodes(&doc).map_err(err)?;
+    // Every node placing a mesh, with its world transform (the node graph
+    // is a tree: each node is reached once).
+    let mut placed: Vec<(usize, Mat4)> = Vec::new();
+    // Depth first, roots and children in order (as the flattened list is).
+    let mut stack: Vec<(gltf::Node, Mat4, usize)> = roots
+        .iter()
+        .rev()
+        .map(|n| (n.clone(), Mat4::IDENTITY, 0))
+        .collect();
+    while let Some((node, parent, depth)) = stack.pop() {
+        if depth > MAX_DEPTH {
+            return Err(err(format!(
+                "node {} is nested over {MAX_DEPTH} deep (a cycle?)",
+                node.index()
+            )));
+        }
+        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+        if let Some(mesh) = node.mesh() {
+            placed.push((mesh.index(), world));
+        }
+        // Children in reverse, so they pop in order.
+        let children: Vec<gltf::Node> = node.children().collect();
+        stack.extend(children.into_iter().rev().map(|c| (c, world, depth + 1)));
+    }
+    let mut uses = vec![0usize; doc.meshes().count()];
+    for &(m, _) in &placed {
+        uses[m] += 1;
+    }
+    if uses.iter().all(|&u| u <= 1) {
+        check_budget(&roots).map_err(err)?;
+        return Ok(flatten(&roots, &buffers, path)?.0);
+    }
+    // Budgets: the unique triangles and vertices, and the instances.
+    let (mut triangles, mut vertices) = (0u64, 0u64);
+    for mesh in doc.meshes().filter(|m| uses[m.index()] > 0) {
+        for prim in mesh.primitives() {
+            let (t, v) = primitive_size(&prim);
+            triangles = triangles.saturating_add(t);
+            vertices = vertices.saturating_add(v);
+        }
+    }
+    if let Some(msg) = super::budget::triangles_over(triangles)
+        .or_else(|| super::budget::vertices_over(vertices))
+        .or_else(|| super::budget::instances_over(placed.len() as u64))
+    {
+        return Err(err(msg));
+    }
+    // Each placed mesh once, in its own space, numbered by first placement.
+    let mut slot: Vec<Option<u32>> = vec![None; uses.len()];
+    let mut meshes = Vec::new();
+    let mut skipped_primitives = 0;
+    let mut empty = 0;
+    let mut placements = Vec::with_capacity(placed.len());
+    for &(m, world) in &placed {
+        if slot[m].is_none() {
+            let mesh = doc.meshes().nth(m).expect("a mesh the nodes name");
+            let mut out = Flattened::default();
+            for prim in mesh.primitives() {
+                out.primitive(&prim, Mat4::IDENTITY, &buffers)
+                    .map_err(err)?;
+            }
+            // Counted as placed, as the flattened file counts them.
+            skipped_primitives += out.skipped_primitives * uses[m];
+            let any_normals = out.normals.iter().any(|n| *n != Vec3::ZERO);
+            // A mesh of points, lines or only degenerate triangles places
+            // nothing to trace: its instances are left out.
+            let has_area = out.triangles.iter().any(|t| {
+                crate::geometry::triangle_unit_normal(&t.map(|i| out.positions[i as usize]))
+                    != Vec3::ZERO
+            });
+            let scene = if has_area {
+                let mesh = Scene::new(
+                    format!("mesh {m}"),
+                    out.positions,
+                    any_normals.then_some(out.normals),
+                    out.triangles,
+                    out.material_ids,
+                    out.materials,
+                )
+                .map_err(|e| match e {
+                    Error::Scene { msg, .. } => err(format!("mesh {m}: {msg}")),
+                    other => other,
+                })?;
+                Some(mesh)
+            } else {
+                None
+            };
+            match scene {
+                Some(scene) => {
+                    meshes.push(scene);
+                    slot[m] = Some(meshes.len() as u32 - 1);
+                }
+                None => {
+                    empty += 1;
+                    slot[m] = Some(u32::MAX);
+                }
+            }
+        }
+        match slot[m] {
+            Some(u32::MAX) | None => {}
+            Some(s) => placements.push((s, glam::Affine3A::from_mat4(world))),
+        }
+    }
+    if placements.is_empty() {
+        return Err(err(no_triangles(skipped_primitives)));
+    }
+    let mut scene =
+        Scene::instanced(path.display().to_string(), meshes, placements).map_err(|e| match e {
+            Error::Scene { msg, .. } => err(msg),
+            other => other,
+        })?;
+    let mut warnings = skipped_warning(path, skipped_primitives);
+    if empty > 0 {
+        warnings.push(format!(
+            "{}: {empty} meshes have no triangles with area: their instances place nothing",
+            path.display()
+        ));
+    }
+    warnings.append(&mut scene.warnings);
+    scene.warnings = warnings;
+    Ok(scene)
 }
 
 /// Whether `bytes` declare glTF 1.0 (`"version": "1.0"` in the asset, or a
@@ -849,8 +1013,15 @@ mod tests {
         out
     }
 
-    fn check_fixture_scene(s: &Scene) {
-        // Two instances of the 2-triangle mesh and a 4-index strip (2 triangles).
+    fn check_fixture_scene(instanced: &Scene) {
+        // Two instances of the 2-triangle mesh and a 4-index strip (2
+        // triangles): an instanced scene of two meshes, flattened as the
+        // nodes place them.
+        assert!(instanced.is_instanced());
+        assert_eq!(instanced.instance_count(), 3);
+        assert_eq!(instanced.triangle_count(), 4);
+        let flat = instanced.flattened().unwrap();
+        let s = &flat;
         assert_eq!(s.triangle_count(), 6, "{:?}", s.warnings);
         let bounds = s.bounds();
         assert_eq!(bounds.min, Vec3::new(-11.0, 0.0, -3.0));
@@ -1018,13 +1189,13 @@ mod tests {
     fn expansion_past_the_triangle_budget_is_refused_before_allocating() {
         // An index accessor of 2 * 10^8 + 1000 triangles, view-less and
         // sparse, instanced twice (plus the strip's 2): a few hundred bytes
-        // that would take gigabytes.
+        // that would take gigabytes. Instanced, the mesh counts once.
         let huge = r#"{"bufferView":1,"componentType":5123,"count":6,"type":"SCALAR"}"#;
         let sparse = r#"{"componentType":5125,"count":600003000,"type":"SCALAR",
             "sparse":{"count":1,"indices":{"bufferView":2,"componentType":5123},"values":{"bufferView":2}}}"#;
         let e = fixture_error(huge, sparse);
         assert!(
-            e.contains("expands to 400002002 triangles") && e.contains("--max-triangles"),
+            e.contains("expands to 200001002 triangles") && e.contains("--max-triangles"),
             "{e}"
         );
     }
@@ -1050,7 +1221,10 @@ mod tests {
                         "values":{"bufferView":0,"byteOffset":12}}}"#,
             1,
         );
-        let s = load_gltf_bytes(&glb(&json, &fixture_buffer()), Path::new("s.glb")).unwrap();
+        let s = load_gltf_bytes(&glb(&json, &fixture_buffer()), Path::new("s.glb"))
+            .unwrap()
+            .flattened()
+            .unwrap();
         // Seen through the first instance's translation by 5 in x.
         assert_eq!(s.positions[0], Vec3::new(6.0, 0.0, 0.0));
         assert_eq!(s.positions[1], Vec3::new(6.0, 1.0, 0.0));

@@ -31,6 +31,10 @@ pub struct Instance {
     pub to_world: Affine3A,
     /// World space to mesh space (the inverse, computed once).
     pub to_local: Affine3A,
+    /// The transform mirrors (negative determinant): the world triangle's
+    /// winding is the mesh's reversed, so the scene turns it back (a glTF
+    /// mirrored node's triangles keep their front faces, as when flattened).
+    pub mirrored: bool,
 }
 
 impl Instance {
@@ -59,6 +63,7 @@ impl Instance {
             mesh,
             to_world,
             to_local,
+            mirrored: det < 0.0,
         })
     }
 
@@ -99,6 +104,12 @@ impl Instancing {
             }
             None => 0,
         }
+    }
+
+    /// The index `hit` has in the flattened scene's triangle list.
+    pub fn flat_index(&self, hit: &Hit) -> u64 {
+        let placed = &self.instances[hit.inst as usize];
+        self.first[hit.inst as usize] + u64::from(hit.tri - self.meshes[placed.mesh as usize].start)
     }
 
     /// Instance `i`'s box in world space (its mesh's box, transformed).
@@ -156,7 +167,7 @@ impl Scene {
         let mut ranges = Vec::with_capacity(meshes.len());
         let mut mesh_bounds = Vec::with_capacity(meshes.len());
         let mut warnings = Vec::new();
-        let mut dropped = 0;
+        let mut mesh_dropped = Vec::with_capacity(meshes.len());
         for mesh in meshes {
             let (v0, m0, t0) = (
                 positions.len() as u32,
@@ -175,11 +186,15 @@ impl Scene {
             material_ids.extend(mesh.material_ids.iter().map(|m| m + m0));
             materials.extend(mesh.materials);
             ranges.push(t0..triangles.len() as u32);
-            dropped += mesh.dropped_degenerate;
-            warnings.extend(mesh.warnings);
+            mesh_dropped.push(mesh.dropped_degenerate);
+            // Its dropped triangles are counted once for the scene, as placed.
+            let own = super::dropped_warning(mesh.dropped_degenerate);
+            warnings.extend(mesh.warnings.into_iter().filter(|w| *w != own));
         }
         let mut instances = Vec::with_capacity(placements.len());
         let mut first = Vec::with_capacity(placements.len());
+        // Counted as placed, as a flattened copy would have dropped them.
+        let mut dropped = 0;
         let mut placed = 0u64;
         for (i, (mesh, to_world)) in placements.into_iter().enumerate() {
             let Some(range) = ranges.get(mesh as usize) else {
@@ -191,10 +206,18 @@ impl Scene {
                 Instance::new(mesh, to_world).map_err(|e| fail(format!("instance {i}: {e}")))?;
             first.push(placed);
             placed += range.len() as u64;
+            dropped += mesh_dropped[mesh as usize];
             instances.push(inst);
         }
         if placed == 0 {
             return Err(fail("its instances place no triangles".into()));
+        }
+        if dropped > 0 {
+            warnings.push(format!(
+                "{} (as placed by the instances; {} in the meshes)",
+                super::dropped_warning(dropped),
+                mesh_dropped.iter().sum::<usize>()
+            ));
         }
         let mut scene = Scene {
             name,
@@ -244,8 +267,13 @@ impl Scene {
         let tri = self.triangle(hit.tri as usize);
         match &self.instancing {
             Some(i) => {
-                let m = &i.instances[hit.inst as usize].to_world;
-                tri.map(|p| m.transform_point3(p))
+                let inst = &i.instances[hit.inst as usize];
+                let [a, b, c] = tri.map(|p| inst.to_world.transform_point3(p));
+                if inst.mirrored {
+                    [a, c, b]
+                } else {
+                    [a, b, c]
+                }
             }
             None => tri,
         }
@@ -315,9 +343,13 @@ impl Scene {
         let mut total = 0.0f64;
         for (i, placed) in inst.instances.iter().enumerate() {
             for &t in &emissive[placed.mesh as usize] {
-                let world = self
-                    .triangle(t as usize)
-                    .map(|p| placed.to_world.transform_point3(p));
+                let world = self.hit_triangle(&Hit {
+                    t: 0.0,
+                    u: 0.0,
+                    v: 0.0,
+                    tri: t,
+                    inst: i as u32,
+                });
                 total += triangle_area(&world) as f64;
                 triangles.push(t);
                 instances.push(i as u32);
@@ -373,7 +405,11 @@ impl Scene {
                         out.push(Vec3::from(normal_matrix * Vec3A::from(n)).normalize_or_zero());
                     }
                 }
-                triangles.push([v0, v0 + 1, v0 + 2]);
+                triangles.push(if placed.mirrored {
+                    [v0, v0 + 2, v0 + 1]
+                } else {
+                    [v0, v0 + 1, v0 + 2]
+                });
                 material_ids.push(self.material_ids[t as usize]);
             }
         }
@@ -399,11 +435,7 @@ impl Scene {
     /// The index `hit` has in [`Scene::flattened`]'s triangle list.
     pub fn flat_index(&self, hit: &Hit) -> u64 {
         match &self.instancing {
-            Some(i) => {
-                let placed = &i.instances[hit.inst as usize];
-                i.first[hit.inst as usize]
-                    + u64::from(hit.tri - i.meshes[placed.mesh as usize].start)
-            }
+            Some(i) => i.flat_index(hit),
             None => u64::from(hit.tri),
         }
     }

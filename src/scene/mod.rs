@@ -157,6 +157,11 @@ impl<'a> From<&'a Scene> for MeshRef<'a> {
     }
 }
 
+/// The warning for `n` degenerate triangles dropped.
+pub(crate) fn dropped_warning(n: usize) -> String {
+    format!("dropped {n} degenerate (zero-area) triangles")
+}
+
 /// A triangle scene in flat arrays.
 #[derive(Clone, Debug)]
 pub struct Scene {
@@ -266,9 +271,7 @@ impl Scene {
         };
         scene.lights = scene.find_lights();
         if dropped > 0 {
-            scene.warnings.push(format!(
-                "dropped {dropped} degenerate (zero-area) triangles"
-            ));
+            scene.warnings.push(dropped_warning(dropped));
         }
         Ok(scene)
     }

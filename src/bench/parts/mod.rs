@@ -13,6 +13,7 @@ pub mod ao_error;
 pub mod builders;
 pub mod cliffs;
 pub mod growth;
+pub mod instances;
 pub mod ladder;
 pub mod leaks;
 pub mod libraries;
@@ -99,6 +100,12 @@ plain_part!(
     Animation,
     animation,
     animation::AnimationPoint
+);
+plain_part!(
+    InstancesPart,
+    Instances,
+    instances,
+    instances::InstancesPoint
 );
 
 /// The `libraries` part, led by the cliff table (which reads its points;
@@ -262,6 +269,7 @@ reports! {
     Leaks(LeaksPart) = "leaks" as leaks,
     Validate(ValidatePart) = "validation" as validation,
     Animation(AnimationPart) = "animation" as animation,
+    Instances(InstancesPart) = "instances" as instances,
 }
 
 /// The reports of the parts that ran, in the order they ran. In
