@@ -455,6 +455,94 @@ fn packet_avx512<Q: PacketQuery, T: BlockTest>(
     bvh.packet_simd::<Q, T, _, PACKET16>(avx512, rays, out)
 }
 
+impl WideBvh<8> {
+    /// Walks the tree as a top level over other structures: visits the ids
+    /// of the leaf slots (what the leaves' `ids` hold: instance indices in a
+    /// TLAS) whose lanes' boxes the ray reaches within `(tmin, tmax)`,
+    /// nearest node first, until `visit` returns `true`. `visit` is handed
+    /// the id and the distance beyond which nothing is wanted any more (the
+    /// ray's `tmax`, then whatever `visit` lowers it to: the best hit), and
+    /// boxes beyond it are skipped. The node tests use AVX2 where the tree's
+    /// kernel is AVX2.
+    pub(crate) fn walk_ids(&self, ray: &Ray, visit: &mut dyn FnMut(u32, &mut f32) -> bool) {
+        if self.nodes.is_empty() || !ray.is_valid() {
+            return;
+        }
+        match self.kernel {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: the kernel value proves the CPU has AVX2, BMI1 and POPCNT.
+            Kernel::Avx2(k) => unsafe { walk_ids_avx2(k, self, ray, visit) },
+            _ => self.walk_ids_with(Portable, ray, visit),
+        }
+    }
+
+    #[inline(always)]
+    fn walk_ids_with<K: NodeKernel<8>>(
+        &self,
+        kernel: K,
+        ray: &Ray,
+        visit: &mut dyn FnMut(u32, &mut f32) -> bool,
+    ) {
+        let wray = WideRay::new(&SlabRay::new(ray));
+        let tmin = ray.tmin * (1.0 - SLAB_SLACK);
+        let mut tmax = ray.tmax;
+        let mut cut = tmax * (1.0 + CULL_SLACK);
+        let mut stack: ArrayVec<(u32, f32), DEEP_STACK> = ArrayVec::new();
+        let mut current = 0u32;
+        loop {
+            if current & LEAF != 0 {
+                let stop = for_leaf_blocks(current, |b, lanes| {
+                    let ids = &self.blocks[b].ids;
+                    for lane in bits(lanes) {
+                        if visit(ids[lane], &mut tmax) {
+                            return true;
+                        }
+                    }
+                    false
+                });
+                if stop {
+                    return;
+                }
+                cut = tmax * (1.0 + CULL_SLACK);
+            } else {
+                let node = &self.nodes[current as usize];
+                let (mask, near) = kernel.intersect(node, &wray, tmin, cut);
+                if mask != 0 {
+                    let next = nearest_lane(mask, &near);
+                    let base = stack.len();
+                    for lane in bits(mask & !(1 << next)) {
+                        let entry = (node.child[lane], near[lane]);
+                        self.prefetch_child(entry.0);
+                        push_sorted(&mut stack, base, entry, |e| e.1);
+                    }
+                    current = node.child[next];
+                    continue;
+                }
+            }
+            loop {
+                let Some((child, near)) = stack.pop() else {
+                    return;
+                };
+                if near <= cut {
+                    current = child;
+                    break;
+                }
+            }
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,popcnt")]
+fn walk_ids_avx2(
+    kernel: Avx2,
+    bvh: &WideBvh<8>,
+    ray: &Ray,
+    visit: &mut dyn FnMut(u32, &mut f32) -> bool,
+) {
+    bvh.walk_ids_with(kernel, ray, visit)
+}
+
 /// The wide trees' queries compiled with AVX2 enabled: the generic traversal
 /// is `#[inline(always)]`, so it is compiled into these functions and every
 /// operation in it (node tests, triangle tests, bit scans) uses AVX2 and VEX
