@@ -324,6 +324,15 @@ impl Drop for FlushDenormals {
     }
 }
 
+/// The process's peak resident memory in bytes (Linux's `VmHWM` in
+/// /proc/self/status); `None` where the system does not say.
+pub fn peak_memory_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -422,13 +431,4 @@ mod tests {
             );
         }
     }
-}
-
-/// The process's peak resident memory in bytes (Linux's `VmHWM` in
-/// /proc/self/status); `None` where the system does not say.
-pub fn peak_memory_bytes() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
 }

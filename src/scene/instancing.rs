@@ -75,10 +75,9 @@ impl Instance {
         let abs = |m: Mat3A| Mat3A::from_cols(m.x_axis.abs(), m.y_axis.abs(), m.z_axis.abs());
         let (m, inv) = (abs(self.to_world.matrix3), abs(self.to_local.matrix3));
         let p = Vec3A::from(p).abs();
-        let world = m * p + Vec3A::from(self.to_world.translation).abs();
+        let world = m * p + self.to_world.translation.abs();
         let out = world * (1.0 + GAMMA3);
-        let back = inv * (out * GAMMA3)
-            + (inv * out + Vec3A::from(self.to_local.translation).abs()) * GAMMA3;
+        let back = inv * (out * GAMMA3) + (inv * out + self.to_local.translation.abs()) * GAMMA3;
         Vec3::from(back * 2.0)
     }
 }
