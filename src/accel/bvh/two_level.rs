@@ -33,6 +33,9 @@ use crate::scene::{MeshRef, Scene};
 /// tested (eight at once) before its tree is entered.
 const TLAS_LEAF: usize = 1;
 
+/// Whether occlusion queries visit instances nearest box first.
+const OCCLUSION_NEAREST_FIRST: bool = false;
+
 /// The two-level tree.
 pub struct TwoLevel {
     /// 8-wide tree over the instances; its leaf slots' ids name instances.
@@ -90,12 +93,13 @@ impl TwoLevel {
         self.tlas.nodes.len()
     }
 
-    /// Visits the instances whose boxes the ray reaches, nearest box first,
-    /// until `visit` (given an instance and the current `tmax`) returns
-    /// `true`, or none is left; `visit` may lower the `tmax` it is handed.
+    /// Visits the instances whose boxes the ray reaches (nearest box first
+    /// when `nearest_first`, else in the any-hit traversal's order) until
+    /// `visit` (given an instance and the current `tmax`) returns `true`,
+    /// or none is left; `visit` may lower the `tmax` it is handed.
     #[inline]
-    fn walk(&self, ray: &Ray, mut visit: impl FnMut(u32, &mut f32) -> bool) {
-        self.tlas.walk_ids(ray, &mut visit);
+    fn walk(&self, ray: &Ray, nearest_first: bool, mut visit: impl FnMut(u32, &mut f32) -> bool) {
+        self.tlas.walk_ids(ray, nearest_first, &mut visit);
     }
 
     /// `ray` in instance `inst`'s mesh space, up to `tmax`.
@@ -153,7 +157,7 @@ impl Backend for TwoLevel {
             return None;
         }
         let mut best: Option<Hit> = None;
-        self.walk(ray, |i, tmax| {
+        self.walk(ray, true, |i, tmax| {
             let inst = &self.instancing.instances[i as usize];
             // Up to and including the best t so far: a tie there may belong
             // to a lower instance, which the tie-break prefers.
@@ -181,7 +185,7 @@ impl Backend for TwoLevel {
             return false;
         }
         let mut found = false;
-        self.walk(ray, |i, tmax| {
+        self.walk(ray, OCCLUSION_NEAREST_FIRST, |i, tmax| {
             let inst = &self.instancing.instances[i as usize];
             found = self.blas[inst.mesh as usize].occluded(&Self::local_ray(inst, ray, *tmax));
             found

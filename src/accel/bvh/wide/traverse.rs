@@ -463,16 +463,23 @@ impl WideBvh<8> {
     /// the id and the distance beyond which nothing is wanted any more (the
     /// ray's `tmax`, then whatever `visit` lowers it to: the best hit), and
     /// boxes beyond it are skipped. The node tests use AVX2 where the tree's
-    /// kernel is AVX2.
-    pub(crate) fn walk_ids(&self, ray: &Ray, visit: &mut dyn FnMut(u32, &mut f32) -> bool) {
+    /// kernel is AVX2. With `nearest_first` false the children are visited
+    /// as the any-hit traversal visits them (the first hit lane, then the
+    /// others as pushed), which is what an occlusion query wants.
+    pub(crate) fn walk_ids(
+        &self,
+        ray: &Ray,
+        nearest_first: bool,
+        visit: &mut dyn FnMut(u32, &mut f32) -> bool,
+    ) {
         if self.nodes.is_empty() || !ray.is_valid() {
             return;
         }
         match self.kernel {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: the kernel value proves the CPU has AVX2, BMI1 and POPCNT.
-            Kernel::Avx2(k) => unsafe { walk_ids_avx2(k, self, ray, visit) },
-            _ => self.walk_ids_with(Portable, ray, visit),
+            Kernel::Avx2(k) => unsafe { walk_ids_avx2(k, self, ray, nearest_first, visit) },
+            _ => self.walk_ids_with(Portable, ray, nearest_first, visit),
         }
     }
 
@@ -481,6 +488,7 @@ impl WideBvh<8> {
         &self,
         kernel: K,
         ray: &Ray,
+        nearest_first: bool,
         visit: &mut dyn FnMut(u32, &mut f32) -> bool,
     ) {
         let wray = WideRay::new(&SlabRay::new(ray));
@@ -508,12 +516,20 @@ impl WideBvh<8> {
                 let node = &self.nodes[current as usize];
                 let (mask, near) = kernel.intersect(node, &wray, tmin, cut);
                 if mask != 0 {
-                    let next = nearest_lane(mask, &near);
+                    let next = if nearest_first {
+                        nearest_lane(mask, &near)
+                    } else {
+                        mask.trailing_zeros() as usize
+                    };
                     let base = stack.len();
                     for lane in bits(mask & !(1 << next)) {
                         let entry = (node.child[lane], near[lane]);
                         self.prefetch_child(entry.0);
-                        push_sorted(&mut stack, base, entry, |e| e.1);
+                        if nearest_first {
+                            push_sorted(&mut stack, base, entry, |e| e.1);
+                        } else {
+                            stack.push(entry);
+                        }
                     }
                     current = node.child[next];
                     continue;
@@ -538,9 +554,10 @@ fn walk_ids_avx2(
     kernel: Avx2,
     bvh: &WideBvh<8>,
     ray: &Ray,
+    nearest_first: bool,
     visit: &mut dyn FnMut(u32, &mut f32) -> bool,
 ) {
-    bvh.walk_ids_with(kernel, ray, visit)
+    bvh.walk_ids_with(kernel, ray, nearest_first, visit)
 }
 
 /// The wide trees' queries compiled with AVX2 enabled: the generic traversal
