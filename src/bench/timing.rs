@@ -10,7 +10,8 @@ use std::time::Instant;
 
 use crate::accel::Backend;
 use crate::bench::config::BenchConfig;
-use crate::geometry::Ray;
+use crate::bench::measure::Stat;
+use crate::geometry::{Hit, Ray};
 use crate::os::FlushDenormals;
 
 /// Rays handed to a thread at a time: small enough to balance two threads,
@@ -62,6 +63,51 @@ pub const MIN_RUN_S: f64 = 0.02;
 
 /// How many passes over its rays make a run last `min_run_s` (the bench's
 /// [`MIN_RUN_S`], 0 for `--quick`), from one pass's `seconds`.
+/// `backend`'s median Mrays/s over `reps` runs on `rays` (closest hits, or
+/// any hit), each run long enough to take `min_run` seconds on `threads`.
+pub fn median_mrays(
+    backend: &dyn Backend,
+    closest: bool,
+    rays: &[Ray],
+    threads: usize,
+    reps: usize,
+    min_run: f64,
+) -> f64 {
+    let passes = passes_for(trace(backend, closest, rays, threads, 1).0, min_run);
+    let rates: Vec<f64> = (0..reps.max(1))
+        .map(|_| {
+            let secs = trace(backend, closest, rays, threads, passes).0.max(1e-12);
+            (rays.len() * passes) as f64 / secs / 1e6
+        })
+        .collect();
+    Stat::of(&rates).median
+}
+
+/// `backend`'s answers to `rays` as hits: closest hits, or (any-hit kinds)
+/// a placeholder hit for each occluded ray ([`answers`] keeps only what
+/// compares bit for bit; the parts that judge answers need the hits).
+pub fn hits_or_occluded(backend: &dyn Backend, closest: bool, rays: &[Ray]) -> Vec<Option<Hit>> {
+    if closest {
+        let mut hits = vec![None; rays.len()];
+        backend.intersect_stream(rays, &mut hits);
+        return hits;
+    }
+    let mut occluded = vec![false; rays.len()];
+    backend.occluded_stream(rays, &mut occluded);
+    occluded
+        .into_iter()
+        .map(|o| {
+            o.then_some(Hit {
+                t: 0.0,
+                u: 0.0,
+                v: 0.0,
+                tri: 0,
+                inst: 0,
+            })
+        })
+        .collect()
+}
+
 pub fn passes_for(seconds: f64, min_run_s: f64) -> usize {
     (min_run_s / seconds.max(1e-9)).ceil().clamp(1.0, 10_000.0) as usize
 }

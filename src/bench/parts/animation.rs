@@ -24,14 +24,14 @@ use super::ChartSection;
 use crate::accel::bvh::params::REBUILD_FACTOR;
 use crate::accel::bvh::BuildParams;
 use crate::accel::update::{fresh_cost, Follower, Strategy};
-use crate::accel::{build_backend, Backend, BackendSpec, Query};
+use crate::accel::{build_backend, BackendSpec, Query};
 use crate::bench::charts::{
     color, distinct, legend, line_with_points, log_axis, log_label, log_range, save_chart,
     DrawResult, FONT,
 };
 use crate::bench::config::BenchConfig;
 use crate::bench::measure::Stat;
-use crate::bench::timing::{min_run_s, passes_for, trace};
+use crate::bench::timing::{hits_or_occluded, median_mrays, min_run_s};
 use crate::error::Result;
 use crate::geometry::{Hit, Ray};
 use crate::measure::exact::ExactReference;
@@ -161,38 +161,13 @@ fn frame_rays(frame: &Scene, cfg: &BenchConfig, per_kind: usize) -> Result<Frame
     let fresh = rays
         .iter()
         .enumerate()
-        .map(|(k, rays)| answers(recorder.backend.as_ref(), k == 0, rays))
+        .map(|(k, rays)| hits_or_occluded(recorder.backend.as_ref(), k == 0, rays))
         .collect();
     Ok(FrameRays {
         rays,
         answers: fresh,
         whole: whole * scale,
     })
-}
-
-/// `backend`'s answers to `rays`: closest hits, or (any-hit kinds) a
-/// placeholder hit for each occluded ray.
-fn answers(backend: &dyn Backend, closest: bool, rays: &[Ray]) -> Vec<Option<Hit>> {
-    if closest {
-        let mut hits = vec![None; rays.len()];
-        backend.intersect_stream(rays, &mut hits);
-        hits
-    } else {
-        let mut occluded = vec![false; rays.len()];
-        backend.occluded_stream(rays, &mut occluded);
-        occluded
-            .into_iter()
-            .map(|o| {
-                o.then_some(Hit {
-                    t: 0.0,
-                    u: 0.0,
-                    v: 0.0,
-                    tri: 0,
-                    inst: 0,
-                })
-            })
-            .collect()
-    }
 }
 
 /// Wrong answers of `follower` (and answers checked): for raylab's
@@ -211,7 +186,7 @@ fn count_wrong(
     let mut checked = 0;
     for (k, (rays, want)) in rays.iter().zip(want).enumerate() {
         let closest = k == 0;
-        let got = answers(follower.backend(), closest, rays);
+        let got = hits_or_occluded(follower.backend(), closest, rays);
         checked += rays.len();
         for ((ray, g), w) in rays.iter().zip(&got).zip(want) {
             let differs = if closest {
@@ -261,15 +236,7 @@ fn time_kinds(
         let mut best = (f64::NEG_INFINITY, Query::Single);
         for &q in &paths {
             follower.set_query(q)?;
-            let backend = follower.backend();
-            let passes = passes_for(trace(backend, closest, rays, threads, 1).0, min_run);
-            let rates: Vec<f64> = (0..reps.max(1))
-                .map(|_| {
-                    let secs = trace(backend, closest, rays, threads, passes).0.max(1e-12);
-                    (rays.len() * passes) as f64 / secs / 1e6
-                })
-                .collect();
-            let m = Stat::of(&rates).median;
+            let m = median_mrays(follower.backend(), closest, rays, threads, reps, min_run);
             if m > best.0 {
                 best = (m, q);
             }

@@ -20,14 +20,13 @@ use serde::Serialize;
 
 use super::libraries::window;
 use super::ChartSection;
-use crate::accel::{build_backend, build_scene_backend, Backend, BackendSpec, Built, Query};
+use crate::accel::{build_backend, build_scene_backend, BackendSpec, Built, Query};
 use crate::bench::charts::{
     color, distinct, legend, line_with_points, log_axis, log_label, log_range, save_chart,
     DrawResult, FONT,
 };
 use crate::bench::config::BenchConfig;
-use crate::bench::measure::Stat;
-use crate::bench::timing::{min_run_s, passes_for, trace};
+use crate::bench::timing::{hits_or_occluded, median_mrays, min_run_s};
 use crate::error::Result;
 use crate::geometry::{Hit, Ray};
 use crate::measure::exact::ExactReference;
@@ -115,30 +114,6 @@ pub fn steps(cfg: &BenchConfig, _scenes: &[Scene]) -> u64 {
     scene_names(cfg).len() as u64
 }
 
-/// `backend`'s answers to `rays`: closest hits, or (any-hit kinds) a
-/// placeholder hit for each occluded ray.
-fn answers(backend: &dyn Backend, closest: bool, rays: &[Ray]) -> Vec<Option<Hit>> {
-    if closest {
-        let mut hits = vec![None; rays.len()];
-        backend.intersect_stream(rays, &mut hits);
-        return hits;
-    }
-    let mut occluded = vec![false; rays.len()];
-    backend.occluded_stream(rays, &mut occluded);
-    occluded
-        .into_iter()
-        .map(|o| {
-            o.then_some(Hit {
-                t: 0.0,
-                u: 0.0,
-                v: 0.0,
-                tri: 0,
-                inst: 0,
-            })
-        })
-        .collect()
-}
-
 /// A hit as the flattened scene numbers it.
 fn as_flat(scene: &Scene, hit: Option<Hit>, two_level: bool) -> Option<(u64, f32)> {
     hit.map(|h| {
@@ -183,15 +158,7 @@ fn rates(
         let closest = k == 0;
         let mut best = (f64::NEG_INFINITY, Query::Single);
         for (q, b) in built.iter() {
-            let backend = b.backend.as_ref();
-            let passes = passes_for(trace(backend, closest, rays, threads, 1).0, min_run);
-            let runs: Vec<f64> = (0..reps.max(1))
-                .map(|_| {
-                    let secs = trace(backend, closest, rays, threads, passes).0.max(1e-12);
-                    (rays.len() * passes) as f64 / secs / 1e6
-                })
-                .collect();
-            let m = Stat::of(&runs).median;
+            let m = median_mrays(b.backend.as_ref(), closest, rays, threads, reps, min_run);
             if m > best.0 {
                 best = (m, *q);
             }
@@ -248,7 +215,7 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<In
             .iter()
             .enumerate()
             .map(|(k, r)| {
-                answers(recorder.as_ref(), k == 0, r)
+                hits_or_occluded(recorder.as_ref(), k == 0, r)
                     .into_iter()
                     .map(|h| as_flat(&scene, h, true))
                     .collect()
@@ -298,7 +265,7 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<In
             let mut checked = 0;
             for (k, (rays, want)) in rays.iter().zip(&reference).enumerate() {
                 let closest = k == 0;
-                let got = answers(first.as_ref(), closest, rays);
+                let got = hits_or_occluded(first.as_ref(), closest, rays);
                 checked += rays.len();
                 for ((ray, g), w) in rays.iter().zip(got).zip(want) {
                     let g_flat = as_flat(&scene, g, two_level);
