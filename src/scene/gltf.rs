@@ -120,8 +120,8 @@ fn flatten(
 ) -> Result<(Scene, Vec<Placement>)> {
     let err = |msg: String| parse_error(path, msg);
     let mut out = Flattened::default();
-    for node in roots {
-        out.node(node, Mat4::IDENTITY, buffers, 0).map_err(err)?;
+    for (node, mesh, world) in mesh_nodes(roots).map_err(err)? {
+        out.place(&node, &mesh, world, buffers).map_err(err)?;
     }
     if out.triangles.is_empty() {
         return Err(err(no_triangles(out.skipped_primitives)));
@@ -160,17 +160,15 @@ fn skipped_warning(path: &Path, skipped_primitives: usize) -> Vec<String> {
     )]
 }
 
-/// A glTF file as an instanced scene when a mesh is placed by more than
-/// one node (each mesh stored once, in its own space; each node placing it
-/// an instance), else flattened as [`load_parts`] does.
-fn load_instanced(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Scene> {
-    let (doc, buffers) = read_document(bytes, path, policy)?;
-    let err = |msg: String| parse_error(path, msg);
-    let roots = root_nodes(&doc).map_err(err)?;
-    // Every node placing a mesh, with its world transform (the node graph
-    // is a tree: each node is reached once).
-    let mut placed: Vec<(usize, Mat4)> = Vec::new();
-    // Depth first, roots and children in order (as the flattened list is).
+/// The nodes that place a mesh, with the mesh and their world transforms (composed
+/// down the node tree), depth first with roots and children in order: the
+/// order of the flattened triangle list. The node graph is a tree
+/// ([`root_nodes`]), so each node is reached once; nesting past
+/// [`MAX_DEPTH`] is refused.
+fn mesh_nodes<'a>(
+    roots: &[gltf::Node<'a>],
+) -> std::result::Result<Vec<(gltf::Node<'a>, gltf::Mesh<'a>, Mat4)>, String> {
+    let mut out = Vec::new();
     let mut stack: Vec<(gltf::Node, Mat4, usize)> = roots
         .iter()
         .rev()
@@ -178,19 +176,35 @@ fn load_instanced(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Scene>
         .collect();
     while let Some((node, parent, depth)) = stack.pop() {
         if depth > MAX_DEPTH {
-            return Err(err(format!(
+            return Err(format!(
                 "node {} is nested over {MAX_DEPTH} deep (a cycle?)",
                 node.index()
-            )));
+            ));
         }
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
-        if let Some(mesh) = node.mesh() {
-            placed.push((mesh.index(), world));
-        }
         // Children in reverse, so they pop in order.
         let children: Vec<gltf::Node> = node.children().collect();
         stack.extend(children.into_iter().rev().map(|c| (c, world, depth + 1)));
+        if let Some(mesh) = node.mesh() {
+            out.push((node, mesh, world));
+        }
     }
+    Ok(out)
+}
+
+/// A glTF file as an instanced scene when a mesh is placed by more than
+/// one node (each mesh stored once, in its own space; each node placing it
+/// an instance), else flattened as [`load_parts`] does.
+fn load_instanced(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Scene> {
+    let (doc, buffers) = read_document(bytes, path, policy)?;
+    let err = |msg: String| parse_error(path, msg);
+    let roots = root_nodes(&doc).map_err(err)?;
+    // Every node placing a mesh, with its world transform.
+    let placed: Vec<(usize, Mat4)> = mesh_nodes(&roots)
+        .map_err(err)?
+        .into_iter()
+        .map(|(_, mesh, world)| (mesh.index(), world))
+        .collect();
     let mut uses = vec![0usize; doc.meshes().count()];
     for &(m, _) in &placed {
         uses[m] += 1;
@@ -765,37 +779,26 @@ struct Flattened {
 const MAX_DEPTH: usize = 256;
 
 impl Flattened {
-    fn node(
+    /// Every primitive of `mesh`, placed by `node` at `world`.
+    fn place(
         &mut self,
         node: &gltf::Node,
-        parent: Mat4,
+        mesh: &gltf::Mesh,
+        world: Mat4,
         buffers: &[Vec<u8>],
-        depth: usize,
     ) -> std::result::Result<(), String> {
-        if depth > MAX_DEPTH {
-            return Err(format!(
-                "node {} is nested over {MAX_DEPTH} deep (a cycle?)",
-                node.index()
-            ));
-        }
-        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
-        if let Some(mesh) = node.mesh() {
-            for prim in mesh.primitives() {
-                let base = self.positions.len();
-                self.primitive(&prim, world, buffers)?;
-                if self.positions.len() > base {
-                    self.placements.push(Placement {
-                        node: node.index(),
-                        mesh: mesh.index(),
-                        primitive: prim.index(),
-                        base,
-                        count: self.positions.len() - base,
-                    });
-                }
+        for prim in mesh.primitives() {
+            let base = self.positions.len();
+            self.primitive(&prim, world, buffers)?;
+            if self.positions.len() > base {
+                self.placements.push(Placement {
+                    node: node.index(),
+                    mesh: mesh.index(),
+                    primitive: prim.index(),
+                    base,
+                    count: self.positions.len() - base,
+                });
             }
-        }
-        for child in node.children() {
-            self.node(&child, world, buffers, depth + 1)?;
         }
         Ok(())
     }

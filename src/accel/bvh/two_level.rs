@@ -42,9 +42,6 @@ pub struct TwoLevel {
     tlas: Bvh8,
     /// One tree per mesh.
     blas: Vec<BvhBackend>,
-    /// The first triangle of each mesh in the scene's arrays (BLAS hits are
-    /// numbered within their mesh).
-    mesh_start: Vec<u32>,
     instancing: Arc<Instancing>,
 }
 
@@ -83,7 +80,6 @@ impl TwoLevel {
         Ok(TwoLevel {
             tlas,
             blas,
-            mesh_start: instancing.meshes.iter().map(|r| r.start).collect(),
             instancing,
         })
     }
@@ -168,7 +164,8 @@ impl Backend for TwoLevel {
             };
             let local = Self::local_ray(inst, ray, reach);
             if let Some(mut hit) = self.blas[inst.mesh as usize].intersect(&local) {
-                hit.tri += self.mesh_start[inst.mesh as usize];
+                // BLAS hits are numbered within their mesh.
+                hit.tri += self.instancing.meshes[inst.mesh as usize].start;
                 hit.inst = i;
                 if best.is_none_or(|b| hit.is_closer_than(&b)) {
                     best = Some(hit);

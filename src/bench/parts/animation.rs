@@ -19,7 +19,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::Serialize;
 
-use super::libraries::window;
+use super::libraries::{frame_ms, recorded_windows};
 use super::ChartSection;
 use crate::accel::bvh::params::REBUILD_FACTOR;
 use crate::accel::bvh::BuildParams;
@@ -35,9 +35,7 @@ use crate::bench::timing::{hits_or_occluded, median_mrays, min_run_s};
 use crate::error::Result;
 use crate::geometry::{Hit, Ray};
 use crate::measure::exact::ExactReference;
-use crate::measure::validate::recorded_rays;
 use crate::progress::StepBar;
-use crate::render::AoMode;
 use crate::scene::motion::Animation;
 use crate::scene::Scene;
 use crate::table::{
@@ -141,21 +139,11 @@ struct FrameRays {
 
 /// The frame's [`FrameRays`], `per_kind` of each kind at most.
 fn frame_rays(frame: &Scene, cfg: &BenchConfig, per_kind: usize) -> Result<FrameRays> {
-    let size = cfg.smaller(2);
-    let settings = cfg
-        .first_view(frame, size)
-        .settings(size, AoMode::Paper, 1)?;
     let recorder = build_backend(
         &BackendSpec::bvh(BuildParams::sah().with_width(8)).with_fastest_query(),
         frame,
     )?;
-    let recorded = recorded_rays(frame, recorder.as_ref(), &settings)?;
-    let scale = (cfg.size.0 as f64 * cfg.size.1 as f64) / (size.0 as f64 * size.1 as f64);
-    let whole = (recorded.primary.len() + recorded.shadow.len() + recorded.ao.len()) as f64;
-    let rays: Vec<Vec<Ray>> = [&recorded.primary, &recorded.shadow, &recorded.ao]
-        .into_iter()
-        .map(|r| window(r, per_kind))
-        .collect();
+    let (rays, whole) = recorded_windows(frame, recorder.as_ref(), cfg, per_kind)?;
     // The fresh build's answers (closest hit for primary, any hit for the
     // others, as hit/miss), what every strategy is checked against.
     let fresh = rays
@@ -166,7 +154,7 @@ fn frame_rays(frame: &Scene, cfg: &BenchConfig, per_kind: usize) -> Result<Frame
     Ok(FrameRays {
         rays,
         answers: fresh,
-        whole: whole * scale,
+        whole,
     })
 }
 
@@ -324,14 +312,7 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<An
                 let (mrays, paths) = time_kinds(follower, &rays, threads, reps, min_run)?;
                 let (wrong, checked) = count_wrong(follower, &rays, &want, &mut exact, &triangles);
                 // Each kind's share of a whole frame's rays, as recorded.
-                let shares: Vec<f64> = rays.iter().map(|r| r.len() as f64).collect();
-                let total: f64 = shares.iter().sum::<f64>().max(1.0);
-                let frame_trace_ms = shares
-                    .iter()
-                    .zip(&mrays)
-                    .filter(|(s, _)| **s > 0.0)
-                    .map(|(s, m)| frame_rays * s / total / (m * 1e3))
-                    .sum();
+                let frame_trace_ms = frame_ms(&rays, &mrays, frame_rays);
                 out.push(AnimationPoint {
                     scene: name.clone(),
                     triangles: frame.triangle_count(),

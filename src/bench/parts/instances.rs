@@ -18,7 +18,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::Serialize;
 
-use super::libraries::window;
+use super::libraries::{frame_ms, recorded_windows};
 use super::ChartSection;
 use crate::accel::{build_backend, build_scene_backend, BackendSpec, Built, Query};
 use crate::bench::charts::{
@@ -30,9 +30,7 @@ use crate::bench::timing::{hits_or_occluded, median_mrays, min_run_s};
 use crate::error::Result;
 use crate::geometry::{Hit, Ray};
 use crate::measure::exact::ExactReference;
-use crate::measure::validate::recorded_rays;
 use crate::progress::StepBar;
-use crate::render::AoMode;
 use crate::scene::load::load_scene_with;
 use crate::scene::Scene;
 use crate::table::{
@@ -198,19 +196,8 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<In
         bar.set_message(format!("instances: {name}"));
         let mut scene = load_scene_with(&name, cfg.ref_policy)?;
         scene.set_extra_light(None, glam::Vec3::Y);
-        let size = cfg.smaller(2);
-        let settings = cfg
-            .first_view(&scene, size)
-            .settings(size, AoMode::Paper, 1)?;
         let recorder = build_scene_backend(&raylab.with_query(Query::Single)?, &scene)?;
-        let recorded = recorded_rays(&scene, recorder.as_ref(), &settings)?;
-        let scale = (cfg.size.0 as f64 * cfg.size.1 as f64) / (size.0 as f64 * size.1 as f64);
-        let frame_rays =
-            (recorded.primary.len() + recorded.shadow.len() + recorded.ao.len()) as f64 * scale;
-        let rays: Vec<Vec<Ray>> = [&recorded.primary, &recorded.shadow, &recorded.ao]
-            .into_iter()
-            .map(|r| window(r, per_kind))
-            .collect();
+        let (rays, frame_rays) = recorded_windows(&scene, recorder.as_ref(), cfg, per_kind)?;
         let reference: Vec<Vec<Option<(u64, f32)>>> = rays
             .iter()
             .enumerate()
@@ -313,14 +300,7 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<In
                     }
                 }
             }
-            let shares: Vec<f64> = rays.iter().map(|r| r.len() as f64).collect();
-            let total: f64 = shares.iter().sum::<f64>().max(1.0);
-            let frame_trace_ms = shares
-                .iter()
-                .zip(&mrays)
-                .filter(|(s, _)| **s > 0.0)
-                .map(|(s, m)| frame_rays * s / total / (m * 1e3))
-                .sum();
+            let frame_trace_ms = frame_ms(&rays, &mrays, frame_rays);
             let two_level_reference = label == "raylab two-level";
             points.push(InstancesPoint {
                 scene: name.clone(),

@@ -330,6 +330,43 @@ pub(crate) fn window(rays: &[Ray], n: usize) -> Vec<Ray> {
     rays[start..(start + n).min(rays.len())].to_vec()
 }
 
+/// The rays of one frame of `scene`, recorded through `recorder` at half
+/// the bench's size with the paper's AO: per kind (primary, shadow, AO) a
+/// [`window`] of `per_kind`, and how many rays a whole frame at the bench's
+/// size casts (the recorded count scaled by the pixels).
+pub(crate) fn recorded_windows(
+    scene: &Scene,
+    recorder: &dyn crate::accel::Backend,
+    cfg: &BenchConfig,
+    per_kind: usize,
+) -> Result<(Vec<Vec<Ray>>, f64)> {
+    let size = cfg.smaller(2);
+    let settings = cfg
+        .first_view(scene, size)
+        .settings(size, crate::render::AoMode::Paper, 1)?;
+    let recorded = crate::measure::validate::recorded_rays(scene, recorder, &settings)?;
+    let scale = (cfg.size.0 as f64 * cfg.size.1 as f64) / (size.0 as f64 * size.1 as f64);
+    let whole = (recorded.primary.len() + recorded.shadow.len() + recorded.ao.len()) as f64;
+    let rays = [&recorded.primary, &recorded.shadow, &recorded.ao]
+        .into_iter()
+        .map(|r| window(r, per_kind))
+        .collect();
+    Ok((rays, whole * scale))
+}
+
+/// The ms a frame of `frame_rays` rays takes at `mrays` (Mrays/s per kind),
+/// the kinds in the proportions of `rays` (a kind with none counts nothing).
+pub(crate) fn frame_ms(rays: &[Vec<Ray>], mrays: &[f64], frame_rays: f64) -> f64 {
+    let shares: Vec<f64> = rays.iter().map(|r| r.len() as f64).collect();
+    let total: f64 = shares.iter().sum::<f64>().max(1.0);
+    shares
+        .iter()
+        .zip(mrays)
+        .filter(|(s, _)| **s > 0.0)
+        .map(|(s, m)| frame_rays * s / total / (m * 1e3))
+        .sum()
+}
+
 /// `built`'s point: its timings, and the exact reference's verdicts on its
 /// answers (the query each kind asks; both queries on the edge rays).
 fn judged(
