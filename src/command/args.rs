@@ -13,8 +13,9 @@ use crate::error::{Error, Result};
 use crate::geometry::Intersector;
 use crate::render::default_ao_dist;
 use crate::render::{AoMode, RenderSettings};
+use crate::scene::is_scene_file;
 use crate::scene::light::LightArg;
-use crate::scene::load::{is_scene_file, load_scene_with};
+use crate::scene::load::load_scene_with;
 use crate::scene::refs::RefPolicy;
 use crate::scene::Scene;
 

@@ -7,7 +7,7 @@
 
 use glam::{Affine3A, Quat, Vec3};
 
-use super::builtin::Builder;
+use super::shapes::Builder;
 use super::{Material, Scene};
 use crate::error::Result;
 use crate::rng::Rng;

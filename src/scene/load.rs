@@ -6,7 +6,7 @@
 use std::path::Path;
 
 use super::refs::RefPolicy;
-use super::{gltf, obj, ply, Scene, EXTENSIONS, READS};
+use super::{gltf, is_scene_file, obj, ply, Scene, READS};
 use crate::error::{Error, Result};
 
 /// Extensions of 3D formats raylab does not read, with their names.
@@ -78,16 +78,6 @@ pub fn load_scene_with(spec: &str, policy: RefPolicy) -> Result<Scene> {
     } else {
         super::builtin::builtin(spec)
     }
-}
-
-/// Whether [`load_scene`] takes `spec` for a file rather than a built-in name.
-pub fn is_scene_file(spec: &str) -> bool {
-    let path = Path::new(spec);
-    let has_scene_extension = path.extension().is_some_and(|e| {
-        let e = e.to_string_lossy().to_ascii_lowercase();
-        EXTENSIONS.contains(&e.as_str())
-    });
-    has_scene_extension || spec.contains(std::path::MAIN_SEPARATOR) || path.is_file()
 }
 
 /// The reader for `bytes` read from `path`, or an error naming what it is.

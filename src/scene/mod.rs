@@ -13,9 +13,11 @@ pub mod light;
 pub mod load;
 pub mod motion;
 pub mod obj;
+pub mod placement;
 pub mod ply;
 pub mod polygon;
 pub mod refs;
+mod shapes;
 
 use std::sync::Arc;
 
@@ -29,6 +31,16 @@ pub const READS: &str = "raylab reads OBJ (.obj), PLY (.ply) and glTF 2.0 (.gltf
 
 /// File extensions of scene formats raylab reads, in lower case.
 pub const EXTENSIONS: &[&str] = &["obj", "ply", "gltf", "glb"];
+
+/// Whether [`load::load_scene`] takes `spec` for a file rather than a built-in name.
+pub fn is_scene_file(spec: &str) -> bool {
+    let path = std::path::Path::new(spec);
+    let has_scene_extension = path.extension().is_some_and(|e| {
+        let e = e.to_string_lossy().to_ascii_lowercase();
+        EXTENSIONS.contains(&e.as_str())
+    });
+    has_scene_extension || spec.contains(std::path::MAIN_SEPARATOR) || path.is_file()
+}
 
 /// The largest coordinate a scene may have to be rendered: Moller-Trumbore
 /// and the watertight test multiply three coordinates (edge x edge . offset),
@@ -187,7 +199,7 @@ pub struct Scene {
     /// The meshes and their instances, for a scene that places meshes by
     /// instances ([`instancing`]): then the arrays above hold each mesh once,
     /// in its own space. `None`: the triangles are in world space, placed once.
-    pub instancing: Option<Arc<instancing::Instancing>>,
+    pub instancing: Option<Arc<placement::Instancing>>,
     /// The bounds [`Scene::bounds`] reports instead of its vertices' own: a
     /// flattened instanced scene keeps its instanced bounds (boxes of the
     /// instances' boxes), so the camera and default light frame it as they

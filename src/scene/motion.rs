@@ -21,7 +21,7 @@ use std::f32::consts::TAU;
 
 use glam::{Quat, Vec3};
 
-use super::builtin::{builtin, MESH_TRIANGLES};
+use super::shapes::{parse_count, still, MESH_TRIANGLES};
 use super::{Material, Scene};
 use crate::error::{Error, Result};
 
@@ -82,6 +82,11 @@ const CLOTH_TRIANGLES: std::ops::RangeInclusive<u64> = 100..=10_000_000;
 
 /// A small hash of `k` to `[0, 1)`, so each fragment moves its own way and
 /// every run the same way.
+/// The still built-in `name`, which an animation starts from.
+fn shape(name: &str) -> Result<Scene> {
+    still(name)?.ok_or_else(|| Error::Other(format!("no still built-in scene {name}")))
+}
+
 fn unit_hash(k: u32, salt: u32) -> f32 {
     let mut x = k.wrapping_mul(0x9E37_79B9) ^ salt.wrapping_mul(0x85EB_CA6B);
     x ^= x >> 16;
@@ -109,7 +114,7 @@ impl Animation {
     /// animations (read where `policy` allows); an error for any other file
     /// or name, saying which scenes move.
     pub fn load(spec: &str, policy: super::refs::RefPolicy, flag: &str) -> Result<Animation> {
-        if super::load::is_scene_file(spec) {
+        if super::is_scene_file(spec) {
             let path = std::path::Path::new(spec);
             let is_gltf = path
                 .extension()
@@ -156,9 +161,9 @@ impl Animation {
     }
 
     fn explode(name: &str) -> Result<Animation> {
-        let n = super::builtin::parse_count(name, "explode", MESH_TRIANGLES)?;
-        let box_only = builtin("cornell-empty")?;
-        let mesh = builtin(&format!("mesh:{n}"))?;
+        let n = parse_count(name, "explode", MESH_TRIANGLES)?;
+        let box_only = shape("cornell-empty")?;
+        let mesh = shape(&format!("mesh:{n}"))?;
         // The box's triangles come first in every built-in: the rest is the
         // sphere, whose vertices are unshared here so its triangles can part.
         let keep = box_only.triangle_count();
@@ -214,8 +219,8 @@ impl Animation {
     }
 
     fn cloth(name: &str) -> Result<Animation> {
-        let n = super::builtin::parse_count(name, "cloth", CLOTH_TRIANGLES)? as usize;
-        let base = builtin("cornell-empty")?;
+        let n = parse_count(name, "cloth", CLOTH_TRIANGLES)? as usize;
+        let base = shape("cornell-empty")?;
         // A grid of (cols - 1) x (rows - 1) quads, two triangles each, about
         // as wide as tall.
         let quads = (n / 2).max(1);

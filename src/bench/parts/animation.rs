@@ -95,7 +95,7 @@ fn animations(cfg: &BenchConfig) -> Vec<String> {
         .iter()
         .filter(|s| {
             Animation::names_one(s)
-                || (crate::scene::load::is_scene_file(s)
+                || (crate::scene::is_scene_file(s)
                     && Animation::load(s, cfg.ref_policy, "SCENE").is_ok())
         })
         .cloned()
