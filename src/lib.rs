@@ -2,29 +2,35 @@
 //!
 //! Data flows one way: [`scene`] -> [`accel`] (a [`accel::Backend`]) -> [`render`]
 //! (the shared shading/AO loop and its schedules) -> image and report. The binary
-//! is a thin wrapper over [`cli`], which dispatches to one module per command in
-//! [`command`].
+//! is a thin wrapper over [`main`], which parses the command line and runs one
+//! command.
 
 // `!(x > 0.0)` is how this crate rejects NaN together with the out-of-range values;
 // clippy's suggested `partial_cmp` form hides that intent.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+// The pipeline's stages and what they are made of: the library's API, which
+// the tests, the criterion benches and a program built on raylab use.
 pub mod accel;
 pub mod bench;
 pub mod camera;
-pub mod cli;
-pub mod command;
-pub mod console;
-pub mod error;
 pub mod geometry;
 pub mod measure;
-pub mod names;
 pub mod os;
-pub mod output;
 pub mod progress;
 pub mod render;
-pub mod rng;
 pub mod scene;
-pub mod table;
 
+// The command line and the plumbing of its reports: the binary's, reached
+// through [`main`].
+mod cli;
+mod command;
+mod console;
+mod error;
+mod names;
+mod output;
+mod rng;
+mod table;
+
+pub use cli::main;
 pub use error::{Error, Result};

@@ -6,11 +6,11 @@
 
 pub mod bvh;
 pub mod embree;
-pub mod flat_numbered;
+pub(crate) mod flat_numbered;
 pub mod library;
 pub mod naive;
-pub mod query;
-pub mod spec;
+pub(crate) mod query;
+pub(crate) mod spec;
 pub mod update;
 
 pub use query::Query;

@@ -12,15 +12,15 @@
 //! How the matrix measures and what each part does: `docs/design.md`, "The
 //! bench"; results of full runs: `docs/results.md`.
 
-pub mod charts;
-pub mod config;
-pub mod family;
+pub(crate) mod charts;
+pub(crate) mod config;
+pub(crate) mod family;
 pub mod html;
-pub mod measure;
-pub mod metrics;
-pub mod parts;
-pub mod summary;
-pub mod timing;
+pub(crate) mod measure;
+pub(crate) mod metrics;
+pub(crate) mod parts;
+pub(crate) mod summary;
+pub(crate) mod timing;
 pub mod variants;
 
 use std::path::Path;

@@ -173,18 +173,6 @@ impl ExactAnswer {
         }
     }
 
-    /// The triangles that can be the closest hit: every hit whose interval
-    /// starts before the nearest sure hit's ends.
-    pub fn closest_candidates(&self) -> impl Iterator<Item = &ExactHit> {
-        let nearest_sure = self
-            .hits
-            .iter()
-            .filter(|h| h.sure)
-            .map(|h| h.t_hi)
-            .fold(f64::INFINITY, f64::min);
-        self.hits.iter().filter(move |h| h.t_lo <= nearest_sure)
-    }
-
     /// A miss of every sure hit is an edge tie when each is (see
     /// [`ExactHit::tie_if_missed`]).
     fn miss_is_edge_tie(&self) -> bool {
@@ -924,7 +912,7 @@ mod tests {
         assert!(hit_of(&other, &r).unwrap().2);
         let reference = ExactReference::new(vec![TRI, other]);
         let answer = reference.answer(&r);
-        assert_eq!(answer.closest_candidates().count(), 2);
+        assert_eq!(answer.hits.iter().filter(|h| h.sure).count(), 2);
         for tri in [0, 1] {
             let hit = Hit {
                 t: 3.0,

@@ -4,8 +4,8 @@
 //! where intersection methods fail, and `rayfile` records rays so that every
 //! backend can be judged on the same ones.
 
-pub mod exact;
+pub(crate) mod exact;
 pub mod rayfile;
-pub mod stats;
+pub(crate) mod stats;
 pub mod stress;
 pub mod validate;

@@ -5,8 +5,8 @@
 //! [`Backend`] go in, a linear-radiance [`Frame`] and
 //! [`RenderStats`] come out, and [`output`] turns the frame into 8-bit sRGB.
 
-pub mod schedule;
-pub mod shade;
+pub(crate) mod schedule;
+pub(crate) mod shade;
 pub mod srgb;
 
 use std::ops::AddAssign;

@@ -22,12 +22,14 @@ use super::{Material, Scene};
 use crate::error::{Error, Result};
 
 /// Loads a glTF file's bytes (JSON or GLB); external buffers are read from
-/// `path`'s folder, never outside it.
-pub fn load_gltf_bytes(bytes: &[u8], path: &Path) -> Result<Scene> {
+/// `path`'s folder, never outside it (the unit tests' entry).
+#[cfg(test)]
+fn load_gltf_bytes(bytes: &[u8], path: &Path) -> Result<Scene> {
     load_gltf_bytes_with(bytes, path, RefPolicy::default())
 }
 
-/// [`load_gltf_bytes`], external buffers read where `policy` allows.
+/// Loads a glTF file's bytes (JSON or GLB), external buffers read where
+/// `policy` allows.
 /// A file that places a mesh more than once loads as an instanced scene
 /// ([`Scene::instanced`]); `--flatten` and the commands that trace one list
 /// bake it ([`Scene::flattened`]).

@@ -17,7 +17,7 @@ use std::sync::Arc;
 use glam::{Affine3A, Vec3, Vec3A};
 use rayon::prelude::*;
 
-pub use super::placement::{transformed_box, Instance, Instancing};
+pub use super::placement::{Instance, Instancing};
 use super::{budget, Lights, Scene};
 use crate::error::{Error, Result};
 use crate::geometry::{spawn_origin_padded, triangle_area, Aabb, Hit};

@@ -3,20 +3,20 @@
 //! material table (only what MTL files give and the shader uses) and the emissive
 //! triangles with their areas for light sampling. No scene graph.
 
-pub mod budget;
+pub(crate) mod budget;
 pub mod builtin;
-pub mod forest;
-pub mod gltf;
-pub mod gltf_motion;
-pub mod instancing;
-pub mod light;
+pub(crate) mod forest;
+pub(crate) mod gltf;
+pub(crate) mod gltf_motion;
+pub(crate) mod instancing;
+pub(crate) mod light;
 pub mod load;
 pub mod motion;
 pub mod obj;
-pub mod placement;
-pub mod ply;
-pub mod polygon;
-pub mod refs;
+pub(crate) mod placement;
+pub(crate) mod ply;
+pub(crate) mod polygon;
+pub(crate) mod refs;
 mod shapes;
 
 use std::sync::Arc;

@@ -15,22 +15,22 @@
 //! - [`backend`]: the tree as a render backend; [`quality`]: the metrics that
 //!   explain a tree's speed.
 
-pub mod backend;
+pub(crate) mod backend;
 mod builder;
 pub mod leaf;
-pub mod node;
+pub(crate) mod node;
 pub mod params;
-pub mod prim;
+pub(crate) mod prim;
 pub mod quality;
-pub mod refit;
+pub(crate) mod refit;
 pub mod simd;
 #[cfg(target_arch = "x86_64")]
-pub mod simd_lanes;
-pub mod simd_packet;
-pub mod traverse;
-pub mod tree;
-pub mod two_level;
-pub mod wide;
+pub(crate) mod simd_lanes;
+pub(crate) mod simd_packet;
+pub(crate) mod traverse;
+pub(crate) mod tree;
+pub(crate) mod two_level;
+pub(crate) mod wide;
 
 pub use backend::BvhBackend;
 pub use builder::build;

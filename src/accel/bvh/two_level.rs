@@ -84,11 +84,6 @@ impl TwoLevel {
         })
     }
 
-    /// Nodes in the TLAS.
-    pub fn tlas_nodes(&self) -> usize {
-        self.tlas.nodes.len()
-    }
-
     /// Visits the instances whose boxes the ray reaches (nearest box first
     /// when `nearest_first`, else in the any-hit traversal's order) until
     /// `visit` (given an instance and the current `tmax`) returns `true`,

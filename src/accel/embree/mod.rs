@@ -7,7 +7,7 @@
 #[cfg(feature = "embree")]
 pub mod api;
 #[cfg(feature = "embree")]
-pub mod builder;
+pub(crate) mod builder;
 #[cfg(feature = "embree")]
 mod ffi;
 #[cfg(feature = "embree")]

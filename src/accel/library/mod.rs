@@ -11,11 +11,11 @@
 use crate::accel::embree::Quality;
 
 #[cfg(feature = "bvh-crate")]
-pub mod bvh_crate;
+pub(crate) mod bvh_crate;
 #[cfg(feature = "obvhs")]
-pub mod obvhs;
+pub(crate) mod obvhs;
 #[cfg(feature = "tinybvh")]
-pub mod tinybvh;
+pub(crate) mod tinybvh;
 
 /// tinybvh's CPU layouts that tinybvh-rs can traverse.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

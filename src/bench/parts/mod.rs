@@ -8,19 +8,19 @@
 //! below and its line in `reports!` (the tables part, the matrix, is run and
 //! reported by `bench` itself).
 
-pub mod animation;
-pub mod ao_error;
-pub mod builders;
-pub mod cliffs;
-pub mod growth;
-pub mod instances;
-pub mod ladder;
-pub mod leaks;
-pub mod libraries;
-pub mod scaling;
-pub mod tables;
-pub mod trace;
-pub mod validate;
+pub(crate) mod animation;
+pub(crate) mod ao_error;
+pub(crate) mod builders;
+pub(crate) mod cliffs;
+pub(crate) mod growth;
+pub(crate) mod instances;
+pub(crate) mod ladder;
+pub(crate) mod leaks;
+pub(crate) mod libraries;
+pub(crate) mod scaling;
+pub(crate) mod tables;
+pub(crate) mod trace;
+pub(crate) mod validate;
 
 use std::path::Path;
 

@@ -9,14 +9,14 @@
 //! `docs/design.md`, "Wide trees".
 
 mod collapse;
-pub mod cost;
-pub mod node;
+pub(crate) mod cost;
+pub(crate) mod node;
 mod order;
 mod packet;
 mod traverse;
 
 pub use cost::TraversalCosts;
-pub use node::{Bvh4, Bvh8, WideBvh, WideNode, EMPTY, MAX_LEAF, MAX_SLOTS};
+pub use node::{Bvh4, Bvh8, WideBvh, WideNode, EMPTY, MAX_SLOTS};
 pub(crate) use order::order_for_any_hit;
 
 #[cfg(test)]
