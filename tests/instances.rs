@@ -191,7 +191,19 @@ fn instanced_flags_get_one_line_errors() {
         "--backend",
     );
     assert_one_line_error(
-        &["render", "forest:10", "-q", "--query", "packet8"],
+        &["render", "forest:10", "-q", "--query", "stream"],
+        "--query",
+    );
+    assert_one_line_error(
+        &[
+            "render",
+            "forest:10",
+            "-q",
+            "--backend",
+            "embree",
+            "--query",
+            "stream",
+        ],
         "--query",
     );
     assert_one_line_error(
@@ -223,4 +235,60 @@ fn validate_judges_the_two_level_tree_on_its_flattened_numbers() {
     let text = String::from_utf8_lossy(&r.stdout);
     assert!(text.contains("\"wrong\": 0,"), "{text}");
     assert!(text.contains("\"pass\": true"), "{text}");
+}
+
+#[test]
+fn packets_through_instances_answer_as_single_rays() {
+    let s = scene();
+    let flat = s.flattened().unwrap();
+    let triangles = flat.triangle_vertices();
+    let naive = Naive::from_triangles(triangles.clone());
+    let rays = rays(&s, &flat, 6000);
+    let mut specs = vec![BackendSpec::DEFAULT];
+    if raylab::accel::embree::AVAILABLE {
+        specs.push(BackendSpec::embree(1));
+    }
+    for spec in specs {
+        let single = build_scene_backend(&spec.with_query(Query::Single).unwrap(), &s).unwrap();
+        for n in [4, 8, 16] {
+            let Ok(packets) = spec.with_query(Query::Packet(n)) else {
+                continue;
+            };
+            let Ok(packets) = build_scene_backend(&packets, &s) else {
+                continue;
+            };
+            let mut hits = vec![None; rays.len()];
+            let mut occluded = vec![false; rays.len()];
+            packets.intersect_stream(&rays, &mut hits);
+            packets.occluded_stream(&rays, &mut occluded);
+            let is_raylab = spec.kind() != raylab::accel::BackendKind::Embree;
+            let mut genuine = 0;
+            for (k, ray) in rays.iter().enumerate() {
+                if is_raylab {
+                    // raylab's packets are its single rays, bit for bit.
+                    assert_eq!(hits[k], single.intersect(ray), "{} ray {k}", packets.name());
+                    assert_eq!(
+                        occluded[k],
+                        single.occluded(ray),
+                        "{} ray {k}",
+                        packets.name()
+                    );
+                    continue;
+                }
+                // Embree's packets round as they do: judged as its single rays are.
+                let want = naive.intersect(ray);
+                let got = hits[k].map(|h| raylab::geometry::Hit {
+                    tri: s.flat_index(&h) as u32,
+                    inst: 0,
+                    ..h
+                });
+                if classify(ray, want, got, &triangles) == Agreement::Genuine {
+                    let same = matches!((want, got), (Some(w), Some(g)) if w.tri == g.tri && (w.t - g.t).abs() <= 1e-4 * w.t);
+                    genuine += !same as usize;
+                }
+                genuine += (occluded[k] != want.is_some()) as usize;
+            }
+            assert!(genuine <= 12, "{}: {genuine} genuine", packets.name());
+        }
+    }
 }

@@ -317,13 +317,7 @@ fn render_scene(
         )),
     }
 
-    // Instances are traced one ray at a time (no packet path reaches into
-    // them): the fastest path there, unless --query asked for another.
-    let spec = match args.accel.query {
-        None if scene.is_instanced() => spec.with_query(crate::accel::Query::Single)?,
-        _ => *spec,
-    };
-    let backend = build_scene_backend(&spec, &scene)?;
+    let backend = build_scene_backend(spec, &scene)?;
     say(format!(
         "backend {}: built in {:.1} ms",
         backend.name(),

@@ -170,14 +170,8 @@ fn tested_backend(
             ),
         ));
     }
-    // Instances are traced one ray at a time unless --query asked for more
-    // (which the two-level structures refuse).
-    let spec = match args.accel.query {
-        None => spec.with_query(crate::accel::Query::Single)?,
-        Some(_) => *spec,
-    };
     crate::accel::flat_numbered::numbered_as_flattened(
-        crate::accel::build_scene_backend(&spec, &instanced)?,
+        crate::accel::build_scene_backend(spec, &instanced)?,
         &instanced,
     )
 }

@@ -11,6 +11,13 @@
 //! lower instance, then the lower triangle wins. An instance's tree is asked
 //! for hits up to and including the best `t` so far (its `tmax` one ulp
 //! above it), so a tie in a later-visited instance is still found.
+//!
+//! Packets (`--query packet8|packet16`) walk the TLAS together (the BLAS
+//! packets' node tests, one shared stack), and an instance the packet
+//! reaches is traced for the rays that reached it: as one packet through the
+//! mesh's tree where [`PACKET_MIN_RAYS`] rays or more did, else one by one.
+//! Each ray's box tests are its single-ray tests, so it reaches every
+//! instance its single walk would before its answer, and gets the same one.
 
 use std::sync::Arc;
 
@@ -20,7 +27,8 @@ use rayon::prelude::*;
 use super::backend::BvhBackend;
 use super::builder::build;
 use super::params::BuildParams;
-use super::params::DEEP_STACK;
+use super::params::{CULL_SLACK, DEEP_STACK};
+use super::simd_packet::bits;
 use super::tree::Tree;
 use super::wide::Bvh8;
 use crate::accel::{Backend, Query};
@@ -36,6 +44,13 @@ const TLAS_LEAF: usize = 1;
 /// Whether occlusion queries visit instances nearest box first.
 const OCCLUSION_NEAREST_FIRST: bool = false;
 
+/// The fewest rays an instance is traced for as a packet through its mesh's
+/// tree; fewer go one at a time.
+const PACKET_MIN_RAYS: usize = 2;
+
+/// The widest packet (raylab's packets hold 8 or 16 rays).
+const MAX_PACKET: usize = 16;
+
 /// The two-level tree.
 pub struct TwoLevel {
     /// 8-wide tree over the instances; its leaf slots' ids name instances.
@@ -43,13 +58,14 @@ pub struct TwoLevel {
     /// One tree per mesh.
     blas: Vec<BvhBackend>,
     instancing: Arc<Instancing>,
+    query: Query,
 }
 
 impl TwoLevel {
     /// Builds a tree per mesh as `params` say (the meshes one after another,
     /// each on `params.threads`), then the TLAS over the instances' boxes.
-    /// Fails for a scene without instances or for any `query` but single
-    /// rays (the two-level tree has no packet path).
+    /// Fails for a scene without instances, or for a `query` the meshes'
+    /// trees have no path for (packets need 8-wide trees).
     pub fn new(
         scene: &Scene,
         params: &BuildParams,
@@ -62,10 +78,10 @@ impl TwoLevel {
                 msg: "a two-level tree needs an instanced scene".into(),
             });
         };
-        if query != Query::Single {
+        if !matches!(query, Query::Single | Query::Packet(_)) {
             return Err(Error::usage(
                 "--query",
-                format!("the two-level tree over an instanced scene traces rays one at a time (single), not {query}; --flatten traces one tree"),
+                format!("the two-level tree over an instanced scene traces single rays or packets, not {query}"),
             ));
         }
         let mut blas = Vec::with_capacity(instancing.meshes.len());
@@ -74,13 +90,18 @@ impl TwoLevel {
                 positions: &scene.positions,
                 triangles: &scene.triangles[range.start as usize..range.end as usize],
             };
-            blas.push(BvhBackend::new(&mesh, params)?.with_intersector(intersector));
+            blas.push(
+                BvhBackend::new(&mesh, params)?
+                    .with_intersector(intersector)
+                    .with_query(query)?,
+            );
         }
         let tlas = tlas(&instancing, params.threads)?;
         Ok(TwoLevel {
             tlas,
             blas,
             instancing,
+            query,
         })
     }
 
@@ -102,6 +123,127 @@ impl TwoLevel {
             ray.tmin,
             tmax,
         )
+    }
+
+    /// Closest hits of one packet (at most [`MAX_PACKET`] rays, the
+    /// query's width `n`) into `out`: the packet walks the TLAS together,
+    /// and each instance it reaches is traced for the rays that reached it.
+    fn closest_packet(&self, n: usize, rays: &[Ray], out: &mut [Option<Hit>]) {
+        debug_assert!(rays.len() <= MAX_PACKET && out.len() == rays.len());
+        let mut best = [None::<Hit>; MAX_PACKET];
+        let mut tmax = [0.0f32; MAX_PACKET];
+        for (t, ray) in tmax.iter_mut().zip(rays) {
+            *t = ray.tmax;
+        }
+        let mut scratch = Scratch::new();
+        self.tlas
+            .walk_ids_packet_with(n, rays, true, &mut |i, reached, cut| {
+                // Up to and including each ray's best t so far, as `intersect`.
+                let reach = |q: usize| {
+                    if best[q].is_some() {
+                        tmax[q].next_up()
+                    } else {
+                        tmax[q]
+                    }
+                };
+                let (mesh, count) = scratch.gather(self, i, reached, rays, reach);
+                let blas = &self.blas[mesh];
+                let (local, lanes) = (&scratch.local[..count], &scratch.lanes);
+                let hits = &mut scratch.hits[..count];
+                if count >= PACKET_MIN_RAYS {
+                    blas.intersect_stream(local, hits);
+                } else {
+                    for (hit, ray) in hits.iter_mut().zip(local) {
+                        *hit = blas.intersect(ray);
+                    }
+                }
+                for (k, hit) in hits.iter().enumerate() {
+                    if let Some(mut hit) = *hit {
+                        let q = lanes[k] as usize;
+                        hit.tri += self.instancing.meshes[mesh].start;
+                        hit.inst = i;
+                        if best[q].is_none_or(|b| hit.is_closer_than(&b)) {
+                            best[q] = Some(hit);
+                            tmax[q] = hit.t;
+                            cut[q] = hit.t * (1.0 + CULL_SLACK);
+                        }
+                    }
+                }
+                0
+            });
+        out.copy_from_slice(&best[..rays.len()]);
+    }
+
+    /// Occlusion of one packet into `out`, as [`Self::closest_packet`]: a
+    /// ray is done when any instance's tree says it is occluded.
+    fn any_packet(&self, n: usize, rays: &[Ray], out: &mut [bool]) {
+        debug_assert!(rays.len() <= MAX_PACKET && out.len() == rays.len());
+        let mut occluded = 0u32;
+        let mut scratch = Scratch::new();
+        self.tlas
+            .walk_ids_packet_with(n, rays, OCCLUSION_NEAREST_FIRST, &mut |i, reached, _| {
+                let (mesh, count) = scratch.gather(self, i, reached, rays, |q| rays[q].tmax);
+                let blas = &self.blas[mesh];
+                let local = &scratch.local[..count];
+                let answers = &mut scratch.occluded[..count];
+                if count >= PACKET_MIN_RAYS {
+                    blas.occluded_stream(local, answers);
+                } else {
+                    for (o, ray) in answers.iter_mut().zip(local) {
+                        *o = blas.occluded(ray);
+                    }
+                }
+                let mut done = 0;
+                for (k, &o) in answers.iter().enumerate() {
+                    done |= u32::from(o) << scratch.lanes[k];
+                }
+                occluded |= done;
+                done
+            });
+        for (r, o) in out.iter_mut().enumerate() {
+            *o = occluded >> r & 1 == 1;
+        }
+    }
+}
+
+/// The rays of a packet that reached one instance, moved into its mesh's
+/// space, and what its tree answered them.
+struct Scratch {
+    local: [Ray; MAX_PACKET],
+    lanes: [u8; MAX_PACKET],
+    hits: [Option<Hit>; MAX_PACKET],
+    occluded: [bool; MAX_PACKET],
+}
+
+impl Scratch {
+    fn new() -> Self {
+        Scratch {
+            local: [Ray::segment(Vec3::ZERO, Vec3::X, 0.0, 0.0); MAX_PACKET],
+            lanes: [0; MAX_PACKET],
+            hits: [None; MAX_PACKET],
+            occluded: [false; MAX_PACKET],
+        }
+    }
+
+    /// Gathers the rays of `reached` (a bit per ray of `rays`) into `local`,
+    /// each moved into instance `i`'s mesh space with `tmax` its `reach`.
+    /// Returns the mesh and the number gathered.
+    fn gather(
+        &mut self,
+        two: &TwoLevel,
+        i: u32,
+        reached: u32,
+        rays: &[Ray],
+        reach: impl Fn(usize) -> f32,
+    ) -> (usize, usize) {
+        let inst = &two.instancing.instances[i as usize];
+        let mut count = 0;
+        for q in bits(reached) {
+            self.local[count] = TwoLevel::local_ray(inst, &rays[q], reach(q));
+            self.lanes[count] = q as u8;
+            count += 1;
+        }
+        (inst.mesh as usize, count)
     }
 }
 
@@ -183,6 +325,36 @@ impl Backend for TwoLevel {
             found
         });
         found
+    }
+
+    fn intersect_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
+        match self.query {
+            Query::Packet(n) => {
+                for (rays, hits) in rays.chunks(n).zip(hits.chunks_mut(n)) {
+                    self.closest_packet(n, rays, hits);
+                }
+            }
+            _ => {
+                for (ray, hit) in rays.iter().zip(hits) {
+                    *hit = self.intersect(ray);
+                }
+            }
+        }
+    }
+
+    fn occluded_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
+        match self.query {
+            Query::Packet(n) => {
+                for (rays, out) in rays.chunks(n).zip(occluded.chunks_mut(n)) {
+                    self.any_packet(n, rays, out);
+                }
+            }
+            _ => {
+                for (ray, o) in rays.iter().zip(occluded) {
+                    *o = self.occluded(ray);
+                }
+            }
+        }
     }
 
     fn memory_bytes(&self) -> Option<usize> {
@@ -278,11 +450,74 @@ mod tests {
     }
 
     #[test]
-    fn packets_are_refused_and_flat_scenes_too() {
+    fn packets_answer_as_single_rays_do() {
+        let s = scene();
+        let b = s.bounds();
+        let mut rng = Rng::for_pixel(11, 4, 0);
+        // Coherent bundles (neighbouring origins and directions, as a
+        // render's packets), scattered rays, and rays from inside the
+        // instances' boxes with short and long reaches.
+        let mut rays = Vec::new();
+        for bundle in 0..120 {
+            let o = b.min
+                + (b.max - b.min) * Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 1.4
+                - (b.max - b.min) * 0.2;
+            let target =
+                b.min + (b.max - b.min) * Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+            let spread = if bundle % 3 == 0 { 2.0 } else { 0.05 };
+            for _ in 0..16 {
+                let jitter = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
+                let tmax = if bundle % 4 == 1 {
+                    0.5 + rng.next_f32()
+                } else {
+                    f32::INFINITY
+                };
+                rays.push(Ray::segment(o, target - o + jitter * spread, 1e-4, tmax));
+            }
+        }
+        // Invalid rays keep their lanes empty.
+        rays[5] = Ray::segment(Vec3::ZERO, Vec3::ZERO, 0.0, 1.0);
+        rays[40].dir.x = f32::NAN;
+        for n in [8, 16] {
+            let single = TwoLevel::new(
+                &s,
+                &BuildParams::sah().with_width(8),
+                Intersector::Mt,
+                Query::Single,
+            )
+            .unwrap();
+            let packets = TwoLevel::new(
+                &s,
+                &BuildParams::sah().with_width(8),
+                Intersector::Mt,
+                Query::Packet(n),
+            );
+            let Ok(packets) = packets else {
+                // packet16 needs AVX-512.
+                assert_eq!(n, 16);
+                continue;
+            };
+            let mut hits = vec![None; rays.len()];
+            let mut occluded = vec![false; rays.len()];
+            packets.intersect_stream(&rays, &mut hits);
+            packets.occluded_stream(&rays, &mut occluded);
+            let mut hit_count = 0;
+            for (k, ray) in rays.iter().enumerate() {
+                let want = single.intersect(ray);
+                assert_eq!(hits[k], want, "packet{n}, ray {k}");
+                assert_eq!(occluded[k], single.occluded(ray), "packet{n}, ray {k}");
+                hit_count += usize::from(want.is_some());
+            }
+            assert!(hit_count > rays.len() / 4, "{hit_count} hits");
+        }
+    }
+
+    #[test]
+    fn binary_trees_refuse_packets_and_flat_scenes_are_refused() {
         let s = scene();
         let err = TwoLevel::new(
             &s,
-            &BuildParams::sah().with_width(8),
+            &BuildParams::sah().with_width(2),
             Intersector::Mt,
             Query::Packet(8),
         )

@@ -8,7 +8,10 @@ use std::sync::Arc;
 
 use super::api;
 use super::ffi;
-use super::wrapper::{embree_ray, embree_takes, raw_quality, tasking_threads, Device, EmbreeScene};
+use super::wrapper::{
+    embree_ray, embree_takes, intersect_packets, occluded_packets, raw_quality, tasking_threads,
+    Device, EmbreeScene,
+};
 use super::Quality;
 use crate::accel::{Backend, Query};
 use crate::error::{Error, Result};
@@ -26,6 +29,7 @@ pub struct EmbreeInstanced {
     first_tri: Vec<u32>,
     bvh_bytes: usize,
     build_threads: usize,
+    query: Query,
     /// Held, never read: the device must outlive every scene made on it.
     _device: Arc<Device>,
 }
@@ -84,6 +88,7 @@ impl EmbreeInstanced {
             first_tri: Vec::with_capacity(inst.instances.len()),
             bvh_bytes: 0,
             build_threads,
+            query: Query::Single,
             _device: device.clone(),
         };
         // SAFETY: a live scene; plain setters.
@@ -144,15 +149,17 @@ impl EmbreeInstanced {
         self.build_threads
     }
 
-    /// Traces streams with `query`: single rays only (Embree's packets
-    /// through instances are not wired).
-    pub fn with_query(self, query: Query) -> Result<Self> {
-        if query != Query::Single {
+    /// Traces streams with `query`: single rays or packets of 4, 8 or 16
+    /// (`rtcIntersect{N}` on the top scene; Embree takes the packet through
+    /// the instances). Embree 3's stream API is not wired for instances.
+    pub fn with_query(mut self, query: Query) -> Result<Self> {
+        if !matches!(query, Query::Single | Query::Packet(4 | 8 | 16)) {
             return Err(Error::usage(
                 "--query",
-                format!("Embree's instanced scene is traced one ray at a time here (single), not {query}; --flatten traces one scene"),
+                format!("Embree's instanced scene is traced as single rays or packets of 4, 8 or 16 here, not {query}"),
             ));
         }
+        self.query = query;
         Ok(self)
     }
 }
@@ -203,6 +210,32 @@ impl Backend for EmbreeInstanced {
         // SAFETY: as in `intersect`.
         unsafe { api::occluded1(self.top, &mut r) };
         r.tfar == f32::NEG_INFINITY
+    }
+
+    fn intersect_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
+        match self.query {
+            // SAFETY: `self.top` is a committed scene kept alive by `self`.
+            Query::Packet(n) => unsafe {
+                intersect_packets(self.top, n, rays, hits, Some(&self.first_tri))
+            },
+            _ => {
+                for (ray, hit) in rays.iter().zip(hits) {
+                    *hit = self.intersect(ray);
+                }
+            }
+        }
+    }
+
+    fn occluded_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
+        match self.query {
+            // SAFETY: as above.
+            Query::Packet(n) => unsafe { occluded_packets(self.top, n, rays, occluded) },
+            _ => {
+                for (ray, o) in rays.iter().zip(occluded) {
+                    *o = self.occluded(ray);
+                }
+            }
+        }
     }
 
     fn flushes_denormals(&self) -> bool {

@@ -503,58 +503,76 @@ struct Valid<const N: usize>([i32; N]);
 /// The closest-hit and any-hit queries over a stream in packets of one width:
 /// consecutive rays fill a packet's lanes, the last packet partly; invalid
 /// rays ([`embree_takes`]) are left out of the valid mask and answer a miss,
-/// as the single-ray queries do.
+/// as the single-ray queries do. Over an instanced scene (`first_tri` given:
+/// each instance's first triangle in the scene's numbering) a hit names its
+/// instance, and its triangle is numbered as the scene numbers it.
 macro_rules! packet_queries {
     ($intersect:ident, $occluded:ident, $n:literal, $ray_hit:ident, $ray:ident, $api_intersect:ident, $api_occluded:ident) => {
-        impl EmbreeScene {
-            fn $intersect(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
-                for (rays, hits) in rays.chunks($n).zip(hits.chunks_mut($n)) {
-                    let mut valid = Valid([0i32; $n]);
-                    // SAFETY: the packet is plain f32 and u32 arrays, for which
-                    // all-zero bits are valid values (fields of newer Embree
-                    // versions included).
-                    let mut p: ffi::$ray_hit = unsafe { std::mem::zeroed() };
-                    p.hit.geomID = [api::INVALID_ID; $n];
-                    p.hit.primID = [api::INVALID_ID; $n];
-                    for (lane, ray) in rays.iter().enumerate() {
-                        if embree_takes(ray) {
-                            valid.0[lane] = -1;
-                            set_lane!(p.ray, lane, ray);
-                        }
-                    }
-                    // SAFETY: `self.raw` is a committed scene kept alive by
-                    // `self`; `valid` has one aligned i32 per lane.
-                    unsafe { api::$api_intersect(valid.0.as_ptr(), self.raw, &mut p) };
-                    for (lane, hit) in hits.iter_mut().enumerate() {
-                        *hit = (valid.0[lane] != 0 && p.hit.geomID[lane] != api::INVALID_ID).then(
-                            || Hit {
-                                t: p.ray.tfar[lane],
-                                u: p.hit.u[lane],
-                                v: p.hit.v[lane],
-                                tri: p.hit.primID[lane],
-                                inst: 0,
-                            },
-                        );
+        /// # Safety
+        /// `scene` must be a committed scene that outlives the call.
+        pub(super) unsafe fn $intersect(
+            scene: ffi::RTCScene,
+            rays: &[Ray],
+            hits: &mut [Option<Hit>],
+            first_tri: Option<&[u32]>,
+        ) {
+            for (rays, hits) in rays.chunks($n).zip(hits.chunks_mut($n)) {
+                let mut valid = Valid([0i32; $n]);
+                // SAFETY: the packet is plain f32 and u32 arrays, for which
+                // all-zero bits are valid values (fields of newer Embree
+                // versions included).
+                let mut p: ffi::$ray_hit = unsafe { std::mem::zeroed() };
+                p.hit.geomID = [api::INVALID_ID; $n];
+                p.hit.primID = [api::INVALID_ID; $n];
+                p.hit.instID = [[api::INVALID_ID; $n]; 1];
+                for (lane, ray) in rays.iter().enumerate() {
+                    if embree_takes(ray) {
+                        valid.0[lane] = -1;
+                        set_lane!(p.ray, lane, ray);
                     }
                 }
-            }
-
-            fn $occluded(&self, rays: &[Ray], occluded: &mut [bool]) {
-                for (rays, occluded) in rays.chunks($n).zip(occluded.chunks_mut($n)) {
-                    let mut valid = Valid([0i32; $n]);
-                    // SAFETY: as above.
-                    let mut p: ffi::$ray = unsafe { std::mem::zeroed() };
-                    for (lane, ray) in rays.iter().enumerate() {
-                        if embree_takes(ray) {
-                            valid.0[lane] = -1;
-                            set_lane!(p, lane, ray);
+                // SAFETY: the caller guarantees `scene`; `valid` has one
+                // aligned i32 per lane.
+                unsafe { api::$api_intersect(valid.0.as_ptr(), scene, &mut p) };
+                for (lane, hit) in hits.iter_mut().enumerate() {
+                    let (prim, inst) = (p.hit.primID[lane], p.hit.instID[0][lane]);
+                    let found = valid.0[lane] != 0 && p.hit.geomID[lane] != api::INVALID_ID;
+                    let (tri, inst) = match first_tri {
+                        None => (prim, 0),
+                        Some(_) if inst == api::INVALID_ID => {
+                            *hit = None;
+                            continue;
                         }
+                        Some(first) => (first[inst as usize] + prim, inst),
+                    };
+                    *hit = found.then(|| Hit {
+                        t: p.ray.tfar[lane],
+                        u: p.hit.u[lane],
+                        v: p.hit.v[lane],
+                        tri,
+                        inst,
+                    });
+                }
+            }
+        }
+
+        /// # Safety
+        /// As for the closest-hit query beside it.
+        pub(super) unsafe fn $occluded(scene: ffi::RTCScene, rays: &[Ray], occluded: &mut [bool]) {
+            for (rays, occluded) in rays.chunks($n).zip(occluded.chunks_mut($n)) {
+                let mut valid = Valid([0i32; $n]);
+                // SAFETY: as above.
+                let mut p: ffi::$ray = unsafe { std::mem::zeroed() };
+                for (lane, ray) in rays.iter().enumerate() {
+                    if embree_takes(ray) {
+                        valid.0[lane] = -1;
+                        set_lane!(p, lane, ray);
                     }
-                    // SAFETY: as above.
-                    unsafe { api::$api_occluded(valid.0.as_ptr(), self.raw, &mut p) };
-                    for (lane, o) in occluded.iter_mut().enumerate() {
-                        *o = valid.0[lane] != 0 && p.tfar[lane] == f32::NEG_INFINITY;
-                    }
+                }
+                // SAFETY: as above.
+                unsafe { api::$api_occluded(valid.0.as_ptr(), scene, &mut p) };
+                for (lane, o) in occluded.iter_mut().enumerate() {
+                    *o = valid.0[lane] != 0 && p.tfar[lane] == f32::NEG_INFINITY;
                 }
             }
         }
@@ -589,6 +607,50 @@ packet_queries!(
     intersect16,
     occluded16
 );
+
+/// Closest hits of `rays` in Embree packets of `n` (4, 8 or 16) lanes; see
+/// [`packet_queries`] for `first_tri`.
+///
+/// # Safety
+/// `scene` must be a committed scene that outlives the call.
+pub(super) unsafe fn intersect_packets(
+    scene: ffi::RTCScene,
+    n: usize,
+    rays: &[Ray],
+    hits: &mut [Option<Hit>],
+    first_tri: Option<&[u32]>,
+) {
+    // SAFETY: the caller's guarantee, passed on.
+    unsafe {
+        match n {
+            4 => intersect4(scene, rays, hits, first_tri),
+            8 => intersect8(scene, rays, hits, first_tri),
+            16 => intersect16(scene, rays, hits, first_tri),
+            _ => unreachable!("Embree's packets are 4, 8 or 16 rays"),
+        }
+    }
+}
+
+/// Occlusion of `rays` in Embree packets of `n` (4, 8 or 16) lanes.
+///
+/// # Safety
+/// As for [`intersect_packets`].
+pub(super) unsafe fn occluded_packets(
+    scene: ffi::RTCScene,
+    n: usize,
+    rays: &[Ray],
+    occluded: &mut [bool],
+) {
+    // SAFETY: the caller's guarantee, passed on.
+    unsafe {
+        match n {
+            4 => occluded4(scene, rays, occluded),
+            8 => occluded8(scene, rays, occluded),
+            16 => occluded16(scene, rays, occluded),
+            _ => unreachable!("Embree's packets are 4, 8 or 16 rays"),
+        }
+    }
+}
 
 #[cfg(embree3)]
 impl EmbreeScene {
@@ -808,11 +870,10 @@ impl Backend for EmbreeBackend {
     fn intersect_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
         let s = &self.scene;
         match self.query {
-            Query::Packet(4) => s.intersect4(rays, hits),
-            Query::Packet(8) => s.intersect8(rays, hits),
-            Query::Packet(16) => s.intersect16(rays, hits),
             #[cfg(embree3)]
             Query::Stream => s.intersect_1m(rays, hits),
+            // SAFETY: `s` is a committed scene kept alive by `self`.
+            Query::Packet(n) => unsafe { intersect_packets(s.raw, n, rays, hits, None) },
             _ => {
                 for (ray, hit) in rays.iter().zip(hits) {
                     *hit = s.intersect(ray);
@@ -824,11 +885,10 @@ impl Backend for EmbreeBackend {
     fn occluded_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
         let s = &self.scene;
         match self.query {
-            Query::Packet(4) => s.occluded4(rays, occluded),
-            Query::Packet(8) => s.occluded8(rays, occluded),
-            Query::Packet(16) => s.occluded16(rays, occluded),
             #[cfg(embree3)]
             Query::Stream => s.occluded_1m(rays, occluded),
+            // SAFETY: as above.
+            Query::Packet(n) => unsafe { occluded_packets(s.raw, n, rays, occluded) },
             _ => {
                 for (ray, o) in rays.iter().zip(occluded) {
                     *o = s.occluded(ray);

@@ -167,12 +167,11 @@ fn rates(
     (mrays, names)
 }
 
-/// The query paths a structure is timed on: single rays for the two-level
-/// structures (no packet path reaches into instances), and the fastest
-/// packets besides for the flattened ones.
-fn queries(spec: &BackendSpec, two_level: bool) -> Vec<Query> {
+/// The query paths a structure is timed on: single rays, and its fastest
+/// packets besides (raylab's and Embree's packets walk the instances too).
+fn queries(spec: &BackendSpec) -> Vec<Query> {
     let fastest = spec.with_fastest_query().query();
-    if two_level || fastest == Query::Single {
+    if fastest == Query::Single {
         vec![Query::Single]
     } else {
         vec![Query::Single, fastest]
@@ -233,7 +232,7 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<In
         let mut points: Vec<InstancesPoint> = Vec::new();
         for (label, spec, two_level) in structures {
             let mut built = Vec::new();
-            for q in queries(&spec, two_level) {
+            for q in queries(&spec) {
                 let spec = spec.with_query(q)?;
                 let b = match (&flat, two_level) {
                     (Some(flat), false) => build_backend(&spec, flat)?,

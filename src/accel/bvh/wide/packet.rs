@@ -25,7 +25,9 @@
 use arrayvec::ArrayVec;
 
 use super::super::leaf::BlockTest;
-use super::super::params::{CULL_SLACK, PACKET_MIN_RAYS, PACKET_MIN_RAYS_INCOHERENT, SLAB_SLACK};
+use super::super::params::{
+    CULL_SLACK, DEEP_STACK, PACKET_MIN_RAYS, PACKET_MIN_RAYS_INCOHERENT, SLAB_SLACK,
+};
 use super::super::simd::NodeKernel;
 use super::super::simd_packet::{bits, PacketHits, PacketKernel};
 use super::super::traverse::NoCount;
@@ -220,6 +222,99 @@ impl WideBvh<8> {
         }
         for (r, o) in occluded.iter_mut().enumerate() {
             *o = (valid & !alive) >> r & 1 == 1;
+        }
+    }
+}
+
+/// What a packet walk over a top level hands its visitor: an id (an
+/// instance), the rays that reached it (a bit per ray), and each ray's cut,
+/// which the visitor lowers to its best hit's `t` widened by [`CULL_SLACK`].
+/// The visitor returns the rays that are done (occluded), which walk no
+/// further.
+pub(crate) type PacketVisit<'a> = dyn FnMut(u32, u32, &mut [f32]) -> u32 + 'a;
+
+impl WideBvh<8> {
+    /// The packet form of [`Self::walk_ids`]: up to `R` rays walk the tree
+    /// together (node tests `P`, one shared stack whose entries carry the
+    /// rays that entered them, as [`Self::closest_packet`]), and `visit` is
+    /// handed each leaf slot's id with the rays that reached its leaf. With
+    /// `nearest_first` the nearest child goes first and an entry is skipped
+    /// for the rays whose cut it starts beyond; else the any-hit order.
+    /// Every ray's box tests are its single-ray tests with its own cut, so
+    /// each ray reaches every id its single walk would reach before its
+    /// answer (the order differs).
+    #[inline(always)]
+    pub(crate) fn walk_ids_packet<P: PacketKernel<R>, const R: usize>(
+        &self,
+        packet: P,
+        rays: &[Ray],
+        nearest_first: bool,
+        visit: &mut PacketVisit<'_>,
+    ) {
+        debug_assert!(rays.len() <= R && R <= 32);
+        if self.nodes.is_empty() {
+            return;
+        }
+        let (prepared, valid) = packet.prepare(rays);
+        let mut alive = valid;
+        let mut cut = [0f32; R];
+        for (r, ray) in rays.iter().enumerate() {
+            cut[r] = ray.tmax * (1.0 + CULL_SLACK);
+        }
+        let mut stack: ArrayVec<(u32, u32, f32), DEEP_STACK> = ArrayVec::new();
+        let (mut current, mut mask) = (0u32, alive);
+        while mask != 0 {
+            if current & LEAF != 0 {
+                for_leaf_blocks(current, |b, in_leaf| {
+                    let ids = &self.blocks[b].ids;
+                    for lane in bits(in_leaf) {
+                        alive &= !visit(ids[lane], mask & alive, &mut cut);
+                        if mask & alive == 0 {
+                            return true;
+                        }
+                    }
+                    false
+                });
+            } else {
+                let node = &self.nodes[current as usize];
+                let found = if nearest_first {
+                    packet.node::<true>(node, &prepared, mask, &cut)
+                } else {
+                    packet.node::<false>(node, &prepared, mask, &cut)
+                };
+                let any = found.lanes;
+                if any != 0 {
+                    let next = if nearest_first {
+                        nearest_lane(any, &found.near)
+                    } else {
+                        any.trailing_zeros() as usize
+                    };
+                    let base = stack.len();
+                    for c in bits(any & !(1 << next)) {
+                        let entry = (node.child[c], found.rays[c], found.near[c]);
+                        self.prefetch_child(entry.0);
+                        if nearest_first {
+                            push_sorted(&mut stack, base, entry, |e| e.2);
+                        } else {
+                            stack.push(entry);
+                        }
+                    }
+                    current = node.child[next];
+                    mask = found.rays[next] & alive;
+                    continue;
+                }
+            }
+            mask = 0;
+            while let Some((child, entered, near)) = stack.pop() {
+                mask = entered & alive;
+                if nearest_first {
+                    mask &= packet.reach(near, &cut);
+                }
+                if mask != 0 {
+                    current = child;
+                    break;
+                }
+            }
         }
     }
 }

@@ -428,6 +428,69 @@ impl WideBvh<8> {
     }
 }
 
+impl WideBvh<8> {
+    /// [`Self::walk_ids_packet`] of up to `width` rays ([`PACKET`] or
+    /// [`PACKET16`]), its node tests chosen as [`Self::packet_query`]
+    /// chooses them: AVX2 lanes for 8 rays, AVX-512 lanes for 16 where the
+    /// CPU has them, else each ray's portable test.
+    pub(crate) fn walk_ids_packet_with(
+        &self,
+        width: usize,
+        rays: &[Ray],
+        nearest_first: bool,
+        visit: &mut super::packet::PacketVisit<'_>,
+    ) {
+        debug_assert!(width == PACKET || width == PACKET16);
+        debug_assert!(rays.len() <= width);
+        #[cfg(target_arch = "x86_64")]
+        if let Kernel::Avx2(avx2) = self.kernel {
+            if width == PACKET {
+                // SAFETY: an `Avx2` is made only by `Avx2::detect`, which
+                // checked that the CPU has AVX2, BMI1 and POPCNT.
+                return unsafe { walk_packet_avx2(avx2, self, rays, nearest_first, visit) };
+            }
+            if let Some(avx512) = Avx512::detect() {
+                // SAFETY: an `Avx512` is made only by `Avx512::detect`,
+                // which checked AVX-512F besides AVX2, BMI1 and POPCNT.
+                return unsafe { walk_packet_avx512(avx512, self, rays, nearest_first, visit) };
+            }
+        }
+        let per_ray = PerRay::<_, crate::geometry::MollerTrumbore>::new(Portable);
+        if width == PACKET16 {
+            self.walk_ids_packet::<_, PACKET16>(per_ray, rays, nearest_first, visit)
+        } else {
+            self.walk_ids_packet::<_, PACKET>(per_ray, rays, nearest_first, visit)
+        }
+    }
+}
+
+/// [`WideBvh::walk_ids_packet`] of 8 rays compiled with AVX2 enabled, as
+/// [`packet_avx2`].
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,popcnt")]
+fn walk_packet_avx2(
+    avx2: Avx2,
+    bvh: &WideBvh<8>,
+    rays: &[Ray],
+    nearest_first: bool,
+    visit: &mut super::packet::PacketVisit<'_>,
+) {
+    bvh.walk_ids_packet::<_, PACKET>(SimdPacket(avx2), rays, nearest_first, visit)
+}
+
+/// [`WideBvh::walk_ids_packet`] of 16 rays compiled with AVX-512F enabled.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,bmi1,popcnt")]
+fn walk_packet_avx512(
+    avx512: Avx512,
+    bvh: &WideBvh<8>,
+    rays: &[Ray],
+    nearest_first: bool,
+    visit: &mut super::packet::PacketVisit<'_>,
+) {
+    bvh.walk_ids_packet::<_, PACKET16>(SimdPacket(avx512), rays, nearest_first, visit)
+}
+
 /// [`WideBvh::packet_query`] of 8 rays compiled with AVX2 enabled: the
 /// generic traversal and kernels are `#[inline(always)]`, so they are
 /// compiled into this function with every intrinsic inlined.
