@@ -2,8 +2,8 @@
 //!
 //! Data flows one way: [`scene`] -> [`accel`] (a [`accel::Backend`]) -> [`render`]
 //! (the shared shading/AO loop and its schedules) -> image and report. The binary
-//! is a thin wrapper over [`main`], which parses the command line and runs one
-//! command.
+//! is a thin wrapper over [`cli::main`], which parses the command line and runs
+//! one command.
 
 // `!(x > 0.0)` is how this crate rejects NaN together with the out-of-range values;
 // clippy's suggested `partial_cmp` form hides that intent.
@@ -21,9 +21,9 @@ pub mod progress;
 pub mod render;
 pub mod scene;
 
-// The command line and the plumbing of its reports: the binary's, reached
-// through [`main`].
-mod cli;
+// The binary's entry (`cli::main`), and behind it the command line and the
+// plumbing of its reports, crate-private.
+pub mod cli;
 mod command;
 mod console;
 mod error;
@@ -32,5 +32,4 @@ mod output;
 mod rng;
 mod table;
 
-pub use cli::main;
 pub use error::{Error, Result};

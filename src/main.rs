@@ -1,3 +1,3 @@
 fn main() {
-    std::process::exit(raylab::main());
+    std::process::exit(raylab::cli::main());
 }

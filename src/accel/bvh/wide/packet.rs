@@ -32,7 +32,7 @@ use super::super::simd::NodeKernel;
 use super::super::simd_packet::{bits, PacketHits, PacketKernel};
 use super::super::traverse::NoCount;
 use super::node::{for_leaf_blocks, WideBvh, LEAF};
-use super::traverse::{nearest_lane, push_sorted};
+use super::traverse::{nearest_lane, push_sorted, PacketVisit};
 use crate::geometry::{Hit, Ray};
 
 /// Below how many rays an entry of the packet `prepared` finishes ray by
@@ -225,13 +225,6 @@ impl WideBvh<8> {
         }
     }
 }
-
-/// What a packet walk over a top level hands its visitor: an id (an
-/// instance), the rays that reached it (a bit per ray), and each ray's cut,
-/// which the visitor lowers to its best hit's `t` widened by [`CULL_SLACK`].
-/// The visitor returns the rays that are done (occluded), which walk no
-/// further.
-pub(crate) type PacketVisit<'a> = dyn FnMut(u32, u32, &mut [f32]) -> u32 + 'a;
 
 impl WideBvh<8> {
     /// The packet form of [`Self::walk_ids`]: up to `R` rays walk the tree

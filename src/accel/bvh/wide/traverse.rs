@@ -428,6 +428,13 @@ impl WideBvh<8> {
     }
 }
 
+/// What a packet walk over a top level hands its visitor: an id (an
+/// instance), the rays that reached it (a bit per ray), and each ray's cut,
+/// which the visitor lowers to its best hit's `t` widened by `CULL_SLACK`.
+/// The visitor returns the rays that are done (occluded), which walk no
+/// further.
+pub(crate) type PacketVisit<'a> = dyn FnMut(u32, u32, &mut [f32]) -> u32 + 'a;
+
 impl WideBvh<8> {
     /// [`Self::walk_ids_packet`] of up to `width` rays ([`PACKET`] or
     /// [`PACKET16`]), its node tests chosen as [`Self::packet_query`]
@@ -438,7 +445,7 @@ impl WideBvh<8> {
         width: usize,
         rays: &[Ray],
         nearest_first: bool,
-        visit: &mut super::packet::PacketVisit<'_>,
+        visit: &mut PacketVisit<'_>,
     ) {
         debug_assert!(width == PACKET || width == PACKET16);
         debug_assert!(rays.len() <= width);
@@ -473,7 +480,7 @@ fn walk_packet_avx2(
     bvh: &WideBvh<8>,
     rays: &[Ray],
     nearest_first: bool,
-    visit: &mut super::packet::PacketVisit<'_>,
+    visit: &mut PacketVisit<'_>,
 ) {
     bvh.walk_ids_packet::<_, PACKET>(SimdPacket(avx2), rays, nearest_first, visit)
 }
@@ -486,7 +493,7 @@ fn walk_packet_avx512(
     bvh: &WideBvh<8>,
     rays: &[Ray],
     nearest_first: bool,
-    visit: &mut super::packet::PacketVisit<'_>,
+    visit: &mut PacketVisit<'_>,
 ) {
     bvh.walk_ids_packet::<_, PACKET16>(SimdPacket(avx512), rays, nearest_first, visit)
 }
