@@ -62,13 +62,39 @@ fn rays(scene: &Scene, flat: &Scene, n: usize) -> Vec<Ray> {
     out
 }
 
-#[test]
-fn two_level_structures_answer_as_the_flattened_naive_scan() {
+/// The instanced fixture, its flattened triangles, the naive scan over them
+/// and 6000 rays (aimed at vertices, edges and at random).
+fn fixture() -> (Scene, Vec<[Vec3; 3]>, Naive, Vec<Ray>) {
     let s = scene();
     let flat = s.flattened().unwrap();
     let triangles = flat.triangle_vertices();
     let naive = Naive::from_triangles(triangles.clone());
     let rays = rays(&s, &flat, 6000);
+    (s, triangles, naive, rays)
+}
+
+/// Whether an instanced structure's `got` (in instance numbering)
+/// genuinely disagrees with the naive scan's `want` on the flattened list:
+/// the same triangle at a `t` off by rounding is no disagreement.
+fn genuine(
+    s: &Scene,
+    triangles: &[[Vec3; 3]],
+    ray: &Ray,
+    want: Option<raylab::geometry::Hit>,
+    got: Option<raylab::geometry::Hit>,
+) -> bool {
+    let got = got.map(|h| raylab::geometry::Hit {
+        tri: s.flat_index(&h) as u32,
+        inst: 0,
+        ..h
+    });
+    let same = matches!((want, got), (Some(w), Some(g)) if w.tri == g.tri && (w.t - g.t).abs() <= 1e-4 * w.t);
+    classify(ray, want, got, triangles) == Agreement::Genuine && !same
+}
+
+#[test]
+fn two_level_structures_answer_as_the_flattened_naive_scan() {
+    let (s, triangles, naive, rays) = fixture();
     let mut specs = vec![
         BackendSpec::DEFAULT,
         BackendSpec::bvh(raylab::accel::bvh::BuildParams::sah()),
@@ -81,16 +107,7 @@ fn two_level_structures_answer_as_the_flattened_naive_scan() {
         let (mut genuine, mut any_hit) = (0, 0);
         for ray in &rays {
             let want = naive.intersect(ray);
-            let got = built.intersect(ray).map(|h| raylab::geometry::Hit {
-                tri: s.flat_index(&h) as u32,
-                inst: 0,
-                ..h
-            });
-            if classify(ray, want, got, &triangles) == Agreement::Genuine {
-                // The same triangle at a t off by rounding is no disagreement.
-                let same = matches!((want, got), (Some(w), Some(g)) if w.tri == g.tri && (w.t - g.t).abs() <= 1e-4 * w.t);
-                genuine += !same as usize;
-            }
+            genuine += self::genuine(&s, &triangles, ray, want, built.intersect(ray)) as usize;
             any_hit += (built.occluded(ray) != want.is_some()) as usize;
         }
         // Rays aimed at vertices touch edges; the transform's rounding moves
@@ -239,11 +256,7 @@ fn validate_judges_the_two_level_tree_on_its_flattened_numbers() {
 
 #[test]
 fn packets_through_instances_answer_as_single_rays() {
-    let s = scene();
-    let flat = s.flattened().unwrap();
-    let triangles = flat.triangle_vertices();
-    let naive = Naive::from_triangles(triangles.clone());
-    let rays = rays(&s, &flat, 6000);
+    let (s, triangles, naive, rays) = fixture();
     let mut specs = vec![BackendSpec::DEFAULT];
     if raylab::accel::embree::AVAILABLE {
         specs.push(BackendSpec::embree(1));
@@ -277,15 +290,7 @@ fn packets_through_instances_answer_as_single_rays() {
                 }
                 // Embree's packets round as they do: judged as its single rays are.
                 let want = naive.intersect(ray);
-                let got = hits[k].map(|h| raylab::geometry::Hit {
-                    tri: s.flat_index(&h) as u32,
-                    inst: 0,
-                    ..h
-                });
-                if classify(ray, want, got, &triangles) == Agreement::Genuine {
-                    let same = matches!((want, got), (Some(w), Some(g)) if w.tri == g.tri && (w.t - g.t).abs() <= 1e-4 * w.t);
-                    genuine += !same as usize;
-                }
+                genuine += self::genuine(&s, &triangles, ray, want, hits[k]) as usize;
                 genuine += (occluded[k] != want.is_some()) as usize;
             }
             assert!(genuine <= 12, "{}: {genuine} genuine", packets.name());
