@@ -150,8 +150,13 @@ impl EmbreeInstanced {
 
     /// Traces streams with `query`: single rays or packets of 4, 8 or 16
     /// (`rtcIntersect{N}` on the top scene; Embree takes the packet through
-    /// the instances) for closest hits; occlusion goes ray by ray (see
-    /// `occluded_stream`). Embree 3's stream API is not wired for instances.
+    /// the instances) for closest hits. Occlusion goes ray by ray
+    /// (`rtcOccluded1`, the trait's default stream) on every path: Embree
+    /// 3.13.5 once never returned from `rtcOccluded16` through the
+    /// instances (16 coherent shadow rays of forest:10, inside `bench
+    /// --parts instances`), which the same rays, scene and calls outside
+    /// the bench did not repeat. Embree 3's stream API is not wired for
+    /// instances.
     pub fn with_query(mut self, query: Query) -> Result<Self> {
         if !matches!(query, Query::Single | Query::Packet(4 | 8 | 16)) {
             return Err(Error::usage(
@@ -223,17 +228,6 @@ impl Backend for EmbreeInstanced {
                     *hit = self.intersect(ray);
                 }
             }
-        }
-    }
-
-    /// Occlusion is asked ray by ray (`rtcOccluded1`) on every query path:
-    /// Embree 3.13.5 once never returned from `rtcOccluded16` through the
-    /// instances (16 coherent shadow rays of forest:10, inside `bench
-    /// --parts instances`), which the same rays, scene and calls outside
-    /// the bench did not repeat. Closest hits take the packets.
-    fn occluded_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
-        for (ray, o) in rays.iter().zip(occluded) {
-            *o = self.occluded(ray);
         }
     }
 
