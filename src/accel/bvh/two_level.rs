@@ -125,6 +125,15 @@ impl TwoLevel {
         )
     }
 
+    /// A hit of mesh `mesh`'s tree (numbered within the mesh) as a hit of
+    /// the scene through instance `i`.
+    #[inline]
+    fn placed(&self, mut hit: Hit, i: u32, mesh: usize) -> Hit {
+        hit.tri += self.instancing.meshes[mesh].start;
+        hit.inst = i;
+        hit
+    }
+
     /// Closest hits of one packet (at most [`MAX_PACKET`] rays, the
     /// query's width `n`) into `out`: the packet walks the TLAS together,
     /// and each instance it reaches is traced for the rays that reached it.
@@ -158,10 +167,9 @@ impl TwoLevel {
                     }
                 }
                 for (k, hit) in hits.iter().enumerate() {
-                    if let Some(mut hit) = *hit {
+                    if let Some(hit) = *hit {
                         let q = lanes[k] as usize;
-                        hit.tri += self.instancing.meshes[mesh].start;
-                        hit.inst = i;
+                        let hit = self.placed(hit, i, mesh);
                         if best[q].is_none_or(|b| hit.is_closer_than(&b)) {
                             best[q] = Some(hit);
                             tmax[q] = hit.t;
@@ -300,10 +308,8 @@ impl Backend for TwoLevel {
                 *tmax
             };
             let local = Self::local_ray(inst, ray, reach);
-            if let Some(mut hit) = self.blas[inst.mesh as usize].intersect(&local) {
-                // BLAS hits are numbered within their mesh.
-                hit.tri += self.instancing.meshes[inst.mesh as usize].start;
-                hit.inst = i;
+            if let Some(hit) = self.blas[inst.mesh as usize].intersect(&local) {
+                let hit = self.placed(hit, i, inst.mesh as usize);
                 if best.is_none_or(|b| hit.is_closer_than(&b)) {
                     best = Some(hit);
                     *tmax = hit.t;
