@@ -219,3 +219,170 @@ fn bad_animation_flags_get_one_line_errors() {
         "--rebuild-factor",
     );
 }
+
+/// Rays from above and beside the belt of rocks towards points in it, in
+/// runs of neighbours, over a scene's `bounds`.
+fn belt_rays(n: usize, seed: u64, min: Vec3, max: Vec3) -> Vec<Ray> {
+    let mut rng = TestRng(seed);
+    let mut out = Vec::with_capacity(n);
+    let size = max - min;
+    while out.len() < n {
+        let o = rng.vec_in(min - size * 0.1, max + Vec3::new(0.0, 6.0, 0.0));
+        let target = rng.vec_in(min, max);
+        for k in 0..8 {
+            let jitter = Vec3::new(k as f32 * 0.02, 0.0, -(k as f32) * 0.02);
+            out.push(Ray::new(o, (target + jitter - o).normalize()));
+        }
+    }
+    out.truncate(n);
+    out
+}
+
+#[test]
+fn moving_instances_every_strategy_answers_as_a_fresh_two_level_tree() {
+    use raylab::accel::bvh::BuildParams;
+    use raylab::accel::{build_scene_backend, BackendSpec};
+    let animation = Animation::parse("asteroids:80").unwrap().unwrap();
+    assert!(animation.moves_instances());
+    let rest = animation.rest();
+    let b = rest.bounds();
+    let rays = belt_rays(3000, 29, b.min, b.max);
+    let mut followers: Vec<Follower> = Strategy::compared(&[1.1, 1.5])
+        .into_iter()
+        .map(|s| Follower::new(s, rest, 2).unwrap())
+        .collect();
+    let mut hits = 0;
+    for t in [0.0, 0.5, 1.0, 1.5, 2.0] {
+        let frame = animation.frame(t).unwrap();
+        // The meshes stay; every rock but the ground leaves the box it had
+        // at rest by the end (a stale TLAS box would lose its hits).
+        assert_eq!(frame.positions, rest.positions);
+        if t == 2.0 {
+            let (a, z) = (
+                rest.instancing.as_ref().unwrap(),
+                frame.instancing.as_ref().unwrap(),
+            );
+            let left = (1..a.instances.len())
+                .filter(|&i| {
+                    let (p, q) = (a.world_box(i), z.world_box(i));
+                    p.union(q).extent().length() > p.extent().length() + q.extent().length()
+                })
+                .count();
+            assert!(left * 10 > a.instances.len() * 9, "{left} rocks left");
+        }
+        let fresh =
+            build_scene_backend(&BackendSpec::bvh(BuildParams::sah().with_width(8)), &frame)
+                .unwrap();
+        let want = closest(fresh.backend.as_ref(), &rays);
+        let want_any = occluded(fresh.backend.as_ref(), &rays);
+        hits += want.iter().flatten().count();
+        let flat = frame.flattened().unwrap();
+        let triangles = flat.triangle_vertices();
+        let numbered = |h: Option<Hit>| {
+            h.map(|h| Hit {
+                tri: frame.flat_index(&h) as u32,
+                inst: 0,
+                ..h
+            })
+        };
+        for f in &mut followers {
+            f.update(&frame).unwrap();
+            let who = format!("asteroids:80 at {t} s, {}", f.strategy.name());
+            for q in [Query::Single, Query::Packet(8), Query::Packet(16)] {
+                if f.set_query(q).is_err() {
+                    // packet16 needs AVX-512.
+                    assert_eq!(q, Query::Packet(16), "{who}");
+                    continue;
+                }
+                let got = closest(f.backend(), &rays);
+                let got_any = occluded(f.backend(), &rays);
+                if f.strategy.is_embree() {
+                    let genuine = rays
+                        .iter()
+                        .zip(got.iter().zip(&want))
+                        .filter(|(r, (g, w))| {
+                            classify(r, numbered(**g), numbered(**w), &triangles)
+                                == Agreement::Genuine
+                        })
+                        .count();
+                    assert_eq!(genuine, 0, "{who} {q}");
+                } else {
+                    assert_eq!(got, want, "{who} {q}");
+                    assert_eq!(got_any, want_any, "{who} {q}");
+                }
+            }
+        }
+    }
+    assert!(hits > 3000, "{hits} hits over five frames");
+}
+
+#[test]
+fn a_refitted_tlas_swells_as_the_belt_shears_and_the_policy_rebuilds_it() {
+    let animation = Animation::parse("asteroids:400").unwrap().unwrap();
+    let rest = animation.rest();
+    let mut refit = Follower::new(Strategy::Refit(Quality::Medium), rest, 1).unwrap();
+    let built = refit.policy_cost().unwrap();
+    let mut policy = Follower::new(
+        Strategy::Policy {
+            rung: Quality::Medium,
+            factor: 1.1,
+        },
+        rest,
+        1,
+    )
+    .unwrap();
+    let mut rebuilds = 0;
+    for step in 1..=8 {
+        let frame = animation.frame(0.25 * step as f32).unwrap();
+        assert!(!refit.update(&frame).unwrap().rebuilt);
+        rebuilds += policy.update(&frame).unwrap().rebuilt as usize;
+    }
+    let swollen = refit.policy_cost().unwrap();
+    assert!(
+        swollen > 1.2 * built,
+        "{swollen} against {built} when built"
+    );
+    assert!(rebuilds >= 1, "the policy never rebuilt");
+    assert!(policy.policy_cost().unwrap() < swollen);
+}
+
+#[test]
+fn render_moves_the_instances_and_flatten_traces_them_as_one_list() {
+    let dir = temp_dir("animation-instances");
+    let hash = |args: &[&str]| {
+        let r = raylab(args);
+        assert_success(&r);
+        let text = String::from_utf8_lossy(&r.stdout).into_owned();
+        text.split("\"image_hash\":\"")
+            .nth(1)
+            .unwrap()
+            .split('"')
+            .next()
+            .unwrap()
+            .to_string()
+    };
+    let out = dir.join("a.png");
+    let o = out.to_str().unwrap();
+    let at = |t: &str, extra: &[&str]| {
+        let mut args = vec![
+            "render",
+            "asteroids:40",
+            "--time",
+            t,
+            "--size",
+            "96x64",
+            "-q",
+            "-o",
+            o,
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        hash(&args)
+    };
+    let (start, later) = (at("0", &[]), at("1.5", &[]));
+    assert_ne!(start, later, "the rocks move");
+    assert!(out.exists());
+    // Flattened, the frame is the same picture up to the transforms'
+    // rounding: it renders (the hashes may differ by rounding).
+    at("1.5", &["--flatten"]);
+}

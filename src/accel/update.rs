@@ -4,11 +4,19 @@
 //! a factor of the cost it had when last built (the policy); Embree's scene
 //! refitted or rebuilt at a quality. What each frame costs and how fast the
 //! result traces is the `animation` bench part's question.
+//!
+//! A scene whose instances move (and whose meshes do not) is followed by the
+//! two-level structures: raylab's refits or rebuilds its instances' tree
+//! (the TLAS) alone, the meshes' trees built once on the first frame;
+//! Embree's moves its instances and commits the top scene, which it builds
+//! anew (it has no refit of instances).
 
 use super::bvh::params::{Quality, PARALLEL_CUTOFF, REBUILD_FACTOR, REFIT_POLICY_COSTS};
+use super::bvh::two_level::{fresh_tlas_cost, TwoLevel};
 use super::bvh::{BuildParams, BvhBackend, Tree};
 use super::{Backend, Query};
 use crate::error::Result;
+use crate::geometry::Intersector;
 use crate::scene::Scene;
 
 /// How a backend follows the frames of an animation.
@@ -118,8 +126,17 @@ enum Inner {
         /// The SAH cost right after the last build (the policy's reference).
         built_cost: f64,
     },
+    /// raylab's two-level tree over a scene whose instances move.
+    TwoLevel {
+        tree: TwoLevel,
+        rung: Quality,
+        /// The TLAS's SAH cost right after its last build.
+        built_cost: f64,
+    },
     #[cfg(feature = "embree")]
     Embree(crate::accel::embree::EmbreeBackend),
+    #[cfg(feature = "embree")]
+    EmbreeInstanced(crate::accel::embree::EmbreeInstanced),
 }
 
 /// A backend following an animation's frames.
@@ -163,7 +180,59 @@ impl Follower {
     /// Builds the structure on `first` (the first frame) with `threads`
     /// build threads.
     pub fn new(strategy: Strategy, first: &Scene, threads: usize) -> Result<Follower> {
-        let inner = match strategy {
+        let inner = if first.is_instanced() {
+            Self::instanced(strategy, first, threads)?
+        } else {
+            Self::flat(strategy, first, threads)?
+        };
+        Ok(Follower {
+            strategy,
+            threads,
+            inner,
+        })
+    }
+
+    /// The structure over a scene whose instances move: a two-level tree,
+    /// its meshes' trees and its TLAS at the strategy's rung.
+    fn instanced(strategy: Strategy, first: &Scene, threads: usize) -> Result<Inner> {
+        Ok(match strategy {
+            Strategy::Refit(q) | Strategy::Rebuild(q) | Strategy::Policy { rung: q, .. } => {
+                let params = BuildParams::for_quality(q)
+                    .with_width(8)
+                    .with_threads(threads);
+                let tree = TwoLevel::with_tlas_rung(
+                    first,
+                    &params,
+                    q,
+                    Intersector::default(),
+                    Query::Single,
+                )?;
+                let built_cost = tree.tlas_cost(&REFIT_POLICY_COSTS);
+                Inner::TwoLevel {
+                    tree,
+                    rung: q,
+                    built_cost,
+                }
+            }
+            #[cfg(feature = "embree")]
+            Strategy::EmbreeRefit | Strategy::EmbreeRebuild(_) => {
+                use crate::accel::embree::{EmbreeInstanced, EmbreeUpdate};
+                let update = match strategy {
+                    Strategy::EmbreeRebuild(q) => EmbreeUpdate::Rebuild(q),
+                    _ => EmbreeUpdate::Refit,
+                };
+                Inner::EmbreeInstanced(EmbreeInstanced::for_updates(first, update, threads)?)
+            }
+            #[cfg(not(feature = "embree"))]
+            Strategy::EmbreeRefit | Strategy::EmbreeRebuild(_) => {
+                return Err(crate::accel::embree::unavailable())
+            }
+        })
+    }
+
+    /// The structure over a scene whose vertices move.
+    fn flat(strategy: Strategy, first: &Scene, threads: usize) -> Result<Inner> {
+        Ok(match strategy {
             Strategy::Refit(q) | Strategy::Rebuild(q) | Strategy::Policy { rung: q, .. } => {
                 let params = BuildParams::for_quality(q)
                     .with_width(8)
@@ -189,11 +258,6 @@ impl Follower {
             Strategy::EmbreeRefit | Strategy::EmbreeRebuild(_) => {
                 return Err(crate::accel::embree::unavailable())
             }
-        };
-        Ok(Follower {
-            strategy,
-            threads,
-            inner,
         })
     }
 
@@ -224,6 +288,47 @@ impl Follower {
                 }
                 Ok(Updated { rebuilt: rebuild })
             }
+            Inner::TwoLevel {
+                tree,
+                rung,
+                built_cost,
+            } => {
+                let rebuild = match self.strategy {
+                    Strategy::Rebuild(_) => true,
+                    _ => {
+                        let parallel = threads > 1 && frame.instance_count() >= PARALLEL_CUTOFF;
+                        if parallel {
+                            crate::accel::bvh::in_pool(threads, || {
+                                tree.refit_instances(frame, true)
+                            })?;
+                        } else {
+                            tree.refit_instances(frame, false)?;
+                        }
+                        match self.strategy {
+                            Strategy::Policy { factor, .. } => {
+                                tree.tlas_cost(&REFIT_POLICY_COSTS) > factor as f64 * *built_cost
+                            }
+                            _ => false,
+                        }
+                    }
+                };
+                if rebuild {
+                    tree.rebuild_instances(frame, *rung, threads)?;
+                    *built_cost = tree.tlas_cost(&REFIT_POLICY_COSTS);
+                }
+                Ok(Updated { rebuilt: rebuild })
+            }
+            #[cfg(feature = "embree")]
+            Inner::EmbreeInstanced(e) => {
+                let Some(instancing) = &frame.instancing else {
+                    return Err(crate::Error::Other(format!(
+                        "{}: a frame without instances for Embree's instanced scene",
+                        frame.name
+                    )));
+                };
+                e.move_instances(instancing)?;
+                Ok(Updated { rebuilt: true })
+            }
             #[cfg(feature = "embree")]
             Inner::Embree(e) => {
                 e.update_positions(&frame.positions)?;
@@ -238,26 +343,28 @@ impl Follower {
     pub fn set_query(&mut self, query: Query) -> Result<()> {
         match &mut self.inner {
             Inner::Raylab { backend, .. } => backend.set_query(query),
+            Inner::TwoLevel { tree, .. } => tree.set_query(query),
             #[cfg(feature = "embree")]
             Inner::Embree(e) => e.set_query(query),
+            #[cfg(feature = "embree")]
+            Inner::EmbreeInstanced(e) => e.set_query(query),
         }
     }
 
     /// The query paths it can trace with.
     pub fn queries(&self) -> Vec<Query> {
-        match &self.inner {
-            Inner::Raylab { .. } => vec![Query::Single, Query::Packet(8), Query::Packet(16)],
-            #[cfg(feature = "embree")]
-            Inner::Embree(_) => vec![Query::Single, Query::Packet(8), Query::Packet(16)],
-        }
+        vec![Query::Single, Query::Packet(8), Query::Packet(16)]
     }
 
     /// The backend as it stands.
     pub fn backend(&self) -> &dyn Backend {
         match &self.inner {
             Inner::Raylab { backend, .. } => backend,
+            Inner::TwoLevel { tree, .. } => tree,
             #[cfg(feature = "embree")]
             Inner::Embree(e) => e,
+            #[cfg(feature = "embree")]
+            Inner::EmbreeInstanced(e) => e,
         }
     }
 
@@ -265,15 +372,20 @@ impl Follower {
     pub fn policy_cost(&self) -> Option<f64> {
         match &self.inner {
             Inner::Raylab { backend, .. } => Some(policy_cost(&backend.tree)),
+            Inner::TwoLevel { tree, .. } => Some(tree.tlas_cost(&REFIT_POLICY_COSTS)),
             #[cfg(feature = "embree")]
-            Inner::Embree(_) => None,
+            Inner::Embree(_) | Inner::EmbreeInstanced(_) => None,
         }
     }
 }
 
 /// The SAH cost of a fresh raylab build at `rung` on `frame` (what the
-/// strategies' costs are divided by).
+/// strategies' costs are divided by): of the TLAS alone for a scene whose
+/// instances move.
 pub fn fresh_cost(frame: &Scene, rung: Quality, threads: usize) -> Result<f64> {
+    if frame.is_instanced() {
+        return fresh_tlas_cost(frame, rung, threads, &REFIT_POLICY_COSTS);
+    }
     let params = BuildParams::for_quality(rung)
         .with_width(8)
         .with_threads(threads);

@@ -167,12 +167,6 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     args.view.check()?;
     args.files.check(std::slice::from_ref(&args.scene))?;
 
-    if args.flatten && (args.time.is_some() || args.frames.is_some()) {
-        return Err(Error::usage(
-            "--flatten",
-            "animated scenes are traced as one triangle list already; --flatten is for instanced scenes",
-        ));
-    }
     if args.time.is_none() && args.frames.is_none() {
         let start = Instant::now();
         let scene = args.files.load_instanced(&args.scene)?;
@@ -207,10 +201,25 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         "--frames"
     };
     let animation = crate::scene::motion::Animation::load(&args.scene, args.files.policy(), flag)?;
+    if args.flatten && !animation.moves_instances() {
+        return Err(Error::usage(
+            "--flatten",
+            format!("{} is traced as one triangle list already (its vertices move); --flatten is for instanced scenes", args.scene),
+        ));
+    }
+    // A frame as traced: --flatten bakes its instances into one list.
+    let frame_at = |t: f32| -> Result<crate::scene::Scene> {
+        let frame = animation.frame(t)?;
+        if args.flatten {
+            frame.flattened()
+        } else {
+            Ok(frame)
+        }
+    };
     let load_time = start.elapsed();
     if let Some(t) = args.time {
         animation.check_time(t, "--time")?;
-        let frame = animation.frame(t)?;
+        let frame = frame_at(t)?;
         return render_scene(args, &spec, threads, frame, load_time, &args.output, None);
     }
     let (first, last) = args.frames.expect("--time or --frames");
@@ -218,11 +227,11 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     animation.check_time(last as f32 / fps, "--frames")?;
     // The view and default light of the first frame, kept for all of them
     // unless --follow.
-    let mut framing = animation.frame(first as f32 / fps)?;
+    let mut framing = frame_at(first as f32 / fps)?;
     let fixed = (args.view.prepare(&mut framing)?, framing.lights.extra);
     for f in first..=last {
         let start = Instant::now();
-        let frame = animation.frame(f as f32 / fps)?;
+        let frame = frame_at(f as f32 / fps)?;
         let output = numbered(&args.output, f);
         let fixed = (!args.follow).then_some(&fixed);
         render_scene(args, &spec, threads, frame, start.elapsed(), &output, fixed)?;

@@ -128,6 +128,52 @@ impl Scene {
         Ok(scene)
     }
 
+    /// The same meshes and instances, each instance moved to its transform
+    /// in `transforms` (one per instance, in order): a frame of a scene whose
+    /// instances move. Lights are found anew (their world areas change with a
+    /// scale); fails for a count that is not the instances' or a transform
+    /// [`Instance::new`] refuses.
+    pub fn moved_instances(&self, transforms: &[Affine3A]) -> Result<Scene> {
+        let Some(inst) = &self.instancing else {
+            return Err(Error::Scene {
+                name: self.name.clone(),
+                msg: "has no instances to move".into(),
+            });
+        };
+        if transforms.len() != inst.instances.len() {
+            return Err(Error::Scene {
+                name: self.name.clone(),
+                msg: format!(
+                    "{} transforms for {} instances",
+                    transforms.len(),
+                    inst.instances.len()
+                ),
+            });
+        }
+        let instances = inst
+            .instances
+            .par_iter()
+            .zip(transforms)
+            .enumerate()
+            .map(|(i, (old, m))| {
+                Instance::new(old.mesh, *m).map_err(|e| Error::Scene {
+                    name: self.name.clone(),
+                    msg: format!("instance {i}: {e}"),
+                })
+            })
+            .collect::<Result<Vec<Instance>>>()?;
+        let mut scene = self.clone();
+        scene.instancing = Some(Arc::new(Instancing {
+            meshes: inst.meshes.clone(),
+            instances,
+            mesh_bounds: inst.mesh_bounds.clone(),
+            first: inst.first.clone(),
+        }));
+        scene.framed_bounds = None;
+        scene.lights = scene.find_instanced_lights();
+        Ok(scene)
+    }
+
     /// Whether the scene places meshes by instances.
     pub fn is_instanced(&self) -> bool {
         self.instancing.is_some()

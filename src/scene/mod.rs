@@ -3,6 +3,7 @@
 //! material table (only what MTL files give and the shader uses) and the emissive
 //! triangles with their areas for light sampling. No scene graph.
 
+pub(crate) mod asteroids;
 pub(crate) mod budget;
 pub mod builtin;
 pub(crate) mod forest;

@@ -11,6 +11,10 @@
 //! - `cloth:N`: a cloth of about N triangles pinned along one edge, waving
 //!   in travelling waves. Neighbours stay neighbours: the easy case.
 //!
+//! - `asteroids:N`: N rocks orbiting in a belt and tumbling: the meshes stay,
+//!   the instances move ([`super::asteroids`]), so a two-level tree refits
+//!   or rebuilds its instances' tree (the TLAS) alone.
+//!
 //! - a glTF file's animations ([`super::gltf_motion`]): node TRS keyframes,
 //!   morph targets and skins, as the file's author made them.
 //!
@@ -34,6 +38,10 @@ pub const ANIMATED_SCENES: &[(&str, &str)] = &[
     (
         "cloth:N",
         "animated, 2 s, looping: a cloth of about N triangles (100..=1e7) pinned along one edge waves in the box (neighbours stay neighbours)",
+    ),
+    (
+        "asteroids:N",
+        "animated, 2 s, instanced: N rocks (1..=1e6; three meshes of 4-6k triangles, stored once) orbit in a belt above a ground and tumble, inner ones faster, so neighbours drift apart: the instances move, the meshes do not (two-level trees update their instances' tree alone)",
     ),
 ];
 
@@ -62,6 +70,8 @@ enum Motion {
     },
     /// A glTF file's animations (node TRS, morph weights, skins).
     Nodes(Box<super::gltf_motion::NodeMotion>),
+    /// The instances move (each by its orbit), the meshes do not.
+    Instances(Box<super::asteroids::Belt>),
     /// Vertices from `first` on are a `cols x rows` grid hanging in the
     /// plane z = `z0`, pinned at its left column.
     Cloth {
@@ -106,6 +116,7 @@ impl Animation {
         match prefix {
             "explode" => Some(Self::explode(name)),
             "cloth" => Some(Self::cloth(name)),
+            "asteroids" => Some(Self::asteroids(name)),
             _ => None,
         }
     }
@@ -123,7 +134,7 @@ impl Animation {
             if !is_gltf {
                 return Err(Error::usage(
                     flag,
-                    format!("{spec} does not move: raylab reads animations from glTF files (.gltf, .glb) and has the animated built-ins explode:N and cloth:N"),
+                    format!("{spec} does not move: raylab reads animations from glTF files (.gltf, .glb) and has the animated built-ins explode:N, cloth:N and asteroids:N"),
                 ));
             }
             let (mut rest, motion) = super::gltf_motion::load(path, policy)?;
@@ -218,6 +229,22 @@ impl Animation {
         })
     }
 
+    fn asteroids(name: &str) -> Result<Animation> {
+        let n = parse_count(name, "asteroids", super::asteroids::INSTANCES)? as usize;
+        let (rest, belt) = super::asteroids::asteroids(name, n)?;
+        Ok(Animation {
+            rest,
+            motion: Motion::Instances(Box::new(belt)),
+            duration: super::asteroids::SECONDS,
+        })
+    }
+
+    /// Whether its instances move (and its meshes do not): a two-level tree
+    /// follows it by updating the instances' tree alone.
+    pub fn moves_instances(&self) -> bool {
+        matches!(self.motion, Motion::Instances(_))
+    }
+
     fn cloth(name: &str) -> Result<Animation> {
         let n = parse_count(name, "cloth", CLOTH_TRIANGLES)? as usize;
         let base = shape("cornell-empty")?;
@@ -303,6 +330,8 @@ impl Animation {
                 name: self.rest.name.clone(),
                 msg,
             })?,
+            // The meshes do not move; the instances do, in `frame`.
+            Motion::Instances(_) => {}
             Motion::Explode {
                 first,
                 centroids,
@@ -343,8 +372,12 @@ impl Animation {
     }
 
     /// The scene at time `t` seconds: the rest pose's triangles and
-    /// materials, the vertices moved, no vertex normals, lights found anew.
+    /// materials, the vertices moved, no vertex normals, lights found anew;
+    /// for moving instances, the rest pose's meshes with the instances moved.
     pub fn frame(&self, t: f32) -> Result<Scene> {
+        if let Motion::Instances(belt) = &self.motion {
+            return self.rest.moved_instances(&belt.transforms_at(t));
+        }
         let mut s = self.rest.clone();
         s.positions = self.positions_at(t)?;
         s.normals = None;

@@ -26,11 +26,11 @@ use rayon::prelude::*;
 
 use super::backend::BvhBackend;
 use super::builder::build;
-use super::params::BuildParams;
+use super::params::{BuildParams, BuilderKind, Quality};
 use super::params::{CULL_SLACK, DEEP_STACK};
 use super::simd_packet::bits;
 use super::tree::Tree;
-use super::wide::Bvh8;
+use super::wide::{Bvh8, TraversalCosts};
 use crate::accel::{Backend, Query};
 use crate::error::Error;
 use crate::geometry::{Aabb, Hit, Intersector, Ray};
@@ -72,18 +72,25 @@ impl TwoLevel {
         intersector: Intersector,
         query: Query,
     ) -> crate::Result<Self> {
+        Self::with_tlas_rung(scene, params, Quality::Medium, intersector, query)
+    }
+
+    /// [`TwoLevel::new`] with the TLAS built at `tlas_rung`
+    /// ([`tlas_params`]).
+    pub fn with_tlas_rung(
+        scene: &Scene,
+        params: &BuildParams,
+        tlas_rung: Quality,
+        intersector: Intersector,
+        query: Query,
+    ) -> crate::Result<Self> {
         let Some(instancing) = scene.instancing.clone() else {
             return Err(Error::Scene {
                 name: scene.name.clone(),
                 msg: "a two-level tree needs an instanced scene".into(),
             });
         };
-        if !matches!(query, Query::Single | Query::Packet(_)) {
-            return Err(Error::usage(
-                "--query",
-                format!("the two-level tree over an instanced scene traces single rays or packets, not {query}"),
-            ));
-        }
+        check_query(query)?;
         let mut blas = Vec::with_capacity(instancing.meshes.len());
         for range in &instancing.meshes {
             let mesh = MeshRef {
@@ -96,7 +103,7 @@ impl TwoLevel {
                     .with_query(query)?,
             );
         }
-        let tlas = tlas(&instancing, params.threads)?;
+        let tlas = tlas(&instancing, &tlas_params(tlas_rung, params.threads))?;
         Ok(TwoLevel {
             tlas,
             blas,
@@ -132,6 +139,74 @@ impl TwoLevel {
         hit.tri += self.instancing.meshes[mesh].start;
         hit.inst = i;
         hit
+    }
+
+    /// Traces streams with `query` from now on (refused as [`TwoLevel::new`]
+    /// refuses it; the tree is unchanged then).
+    pub fn set_query(&mut self, query: Query) -> crate::Result<()> {
+        check_query(query)?;
+        // The meshes' trees have one width: the first refuses what all do.
+        for blas in &mut self.blas {
+            blas.set_query(query)?;
+        }
+        self.query = query;
+        Ok(())
+    }
+
+    /// Follows `frame`, the same meshes with the instances moved: the TLAS's
+    /// boxes recomputed bottom-up over its kept topology (in parallel on the
+    /// current rayon pool when `parallel`), the meshes' trees untouched.
+    /// Fails for a frame that is not the same instances of the same meshes.
+    pub fn refit_instances(&mut self, frame: &Scene, parallel: bool) -> crate::Result<()> {
+        let moved = self.moved(frame)?;
+        self.tlas.refit(&tlas_boxes(&moved), parallel)?;
+        self.instancing = moved;
+        Ok(())
+    }
+
+    /// Follows `frame` as [`TwoLevel::refit_instances`] does, by building
+    /// the TLAS anew at `rung` on `threads` threads.
+    pub fn rebuild_instances(
+        &mut self,
+        frame: &Scene,
+        rung: Quality,
+        threads: usize,
+    ) -> crate::Result<()> {
+        let moved = self.moved(frame)?;
+        self.tlas = tlas(&moved, &tlas_params(rung, threads))?;
+        self.instancing = moved;
+        Ok(())
+    }
+
+    /// `frame`'s instancing, when it places the same meshes by the same
+    /// instances as this tree's (each instance the same mesh).
+    fn moved(&self, frame: &Scene) -> crate::Result<Arc<Instancing>> {
+        let refused = |msg: &str| Error::Scene {
+            name: frame.name.clone(),
+            msg: format!("cannot update the two-level tree: {msg}"),
+        };
+        let Some(moved) = frame.instancing.clone() else {
+            return Err(refused("the frame has no instances"));
+        };
+        let (old, new) = (&self.instancing, &moved);
+        if old.meshes != new.meshes || old.instances.len() != new.instances.len() {
+            return Err(refused("the frame's meshes or instance count differ"));
+        }
+        if old
+            .instances
+            .iter()
+            .zip(&new.instances)
+            .any(|(a, b)| a.mesh != b.mesh)
+        {
+            return Err(refused("an instance places another mesh"));
+        }
+        Ok(moved)
+    }
+
+    /// The TLAS's SAH cost under `costs` (what the refit-or-rebuild policy
+    /// compares: the meshes' trees never change as instances move).
+    pub fn tlas_cost(&self, costs: &TraversalCosts) -> f64 {
+        self.tlas.sah_cost(costs)
     }
 
     /// Closest hits of one packet (at most [`MAX_PACKET`] rays, the
@@ -214,6 +289,17 @@ impl TwoLevel {
     }
 }
 
+/// Refuses the query paths the two-level tree has none of.
+fn check_query(query: Query) -> crate::Result<()> {
+    if !matches!(query, Query::Single | Query::Packet(_)) {
+        return Err(Error::usage(
+            "--query",
+            format!("the two-level tree over an instanced scene traces single rays or packets, not {query}"),
+        ));
+    }
+    Ok(())
+}
+
 /// The rays of a packet that reached one instance, moved into its mesh's
 /// space, and what its tree answered them.
 struct Scratch {
@@ -255,14 +341,14 @@ impl Scratch {
     }
 }
 
-/// The 8-wide SAH tree over the instances' world boxes, padded so that
-/// rounding never culls an instance its mesh's tree would hit: each box
+/// The instances' world boxes as the builders and the refit read them
+/// (triangles): an instance's box is the triangle from its box's minimum to
+/// its maximum corner, whose box (and so centre) it is. Each box is padded
+/// so that rounding never culls an instance its mesh's tree would hit: it
 /// grows by 2^-20 of its largest coordinate, far above the transform's
 /// rounding (a few ulps) and far below any scene's detail.
-fn tlas(instancing: &Instancing, threads: usize) -> crate::Result<Bvh8> {
-    // The builders read triangles: an instance's box is the triangle from its
-    // box's minimum to its maximum corner, whose box (and so centroid) it is.
-    let boxes: Vec<[Vec3; 3]> = (0..instancing.instances.len())
+fn tlas_boxes(instancing: &Instancing) -> Vec<[Vec3; 3]> {
+    (0..instancing.instances.len())
         .into_par_iter()
         .map(|i| {
             let b = instancing.world_box(i);
@@ -273,14 +359,45 @@ fn tlas(instancing: &Instancing, threads: usize) -> crate::Result<Bvh8> {
             };
             [b.min, b.max, b.min]
         })
-        .collect();
-    let params = BuildParams {
+        .collect()
+}
+
+/// How the TLAS is built at a rung: one instance per leaf, 8 wide; the low
+/// rung's LBVH, the medium rung's binned SAH, and at the high rung the SAH
+/// with reinsertion. Never spatial splits: an instance's box is no triangle
+/// to clip.
+pub fn tlas_params(rung: Quality, threads: usize) -> BuildParams {
+    let builder = match rung {
+        Quality::Low => BuilderKind::Lbvh,
+        Quality::Medium | Quality::High => BuilderKind::Sah,
+    };
+    BuildParams {
         max_leaf_size: TLAS_LEAF,
-        ..BuildParams::sah()
+        ..BuildParams::for_builder(builder)
     }
+    .with_optimize(rung == Quality::High)
     .with_width(8)
-    .with_threads(threads);
-    let Tree::Wide8(bvh) = build(&boxes, &params)? else {
+    .with_threads(threads)
+}
+
+/// The SAH cost under `costs` of a TLAS built afresh at `rung` over
+/// `frame`'s instances (what a refitted TLAS's cost is set against).
+pub fn fresh_tlas_cost(
+    frame: &Scene,
+    rung: Quality,
+    threads: usize,
+    costs: &TraversalCosts,
+) -> crate::Result<f64> {
+    let Some(instancing) = &frame.instancing else {
+        return Err(Error::Other(format!("{} has no instances", frame.name)));
+    };
+    Ok(tlas(instancing, &tlas_params(rung, threads))?.sah_cost(costs))
+}
+
+/// The 8-wide tree over the instances' boxes ([`tlas_boxes`]), built as
+/// `params` say ([`tlas_params`]).
+fn tlas(instancing: &Instancing, params: &BuildParams) -> crate::Result<Bvh8> {
+    let Tree::Wide8(bvh) = build(&tlas_boxes(instancing), params)? else {
         unreachable!("a width-8 build is 8-wide")
     };
     if bvh.stack_need > DEEP_STACK {

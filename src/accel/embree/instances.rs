@@ -10,11 +10,13 @@ use super::api;
 use super::ffi;
 use super::wrapper::{
     embree_ray, embree_takes, intersect_packets, raw_quality, tasking_threads, Device, EmbreeScene,
+    EmbreeUpdate,
 };
 use super::Quality;
 use crate::accel::{Backend, Query};
 use crate::error::{Error, Result};
 use crate::geometry::{Hit, Ray};
+use crate::scene::instancing::Instancing;
 use crate::scene::Scene;
 
 /// An instanced scene in Embree.
@@ -29,8 +31,9 @@ pub struct EmbreeInstanced {
     bvh_bytes: usize,
     build_threads: usize,
     query: Query,
-    /// Held, never read: the device must outlive every scene made on it.
-    _device: Arc<Device>,
+    /// The device every scene was made on (it must outlive them), whose
+    /// error log the updates check.
+    device: Arc<Device>,
 }
 
 // SAFETY: a committed scene is immutable and Embree allows rtcIntersect1 and
@@ -43,6 +46,96 @@ impl EmbreeInstanced {
     /// Builds a scene per mesh and the top scene at `quality` on a new
     /// device of `threads` threads. Fails for a scene without instances.
     pub fn new(scene: &Scene, quality: Quality, robust: bool, threads: usize) -> Result<Self> {
+        let flags = if robust {
+            ffi::RTCSceneFlags_RTC_SCENE_FLAG_ROBUST
+        } else {
+            ffi::RTCSceneFlags_RTC_SCENE_FLAG_NONE
+        };
+        Self::with_top(
+            scene,
+            quality,
+            robust,
+            threads,
+            (raw_quality(quality), flags),
+        )
+    }
+
+    /// A scene whose instances will move ([`EmbreeInstanced::move_instances`]),
+    /// the top scene rebuilt on each commit as `update` says. Embree has no
+    /// refit of instances: its refit quality applies to meshes. Asked to
+    /// refit, the top scene is made as Embree's documentation advises for
+    /// scenes that change every frame, `RTC_SCENE_FLAG_DYNAMIC` at
+    /// `RTC_BUILD_QUALITY_LOW`, for which it builds the instances with its
+    /// dynamic (Morton) builder; the meshes are built once, at medium
+    /// quality. `Rebuild(q)`: the top scene and the meshes at `q`.
+    pub fn for_updates(scene: &Scene, update: EmbreeUpdate, threads: usize) -> Result<Self> {
+        let (meshes, top) = match update {
+            EmbreeUpdate::Refit => (
+                Quality::Medium,
+                (
+                    ffi::RTCBuildQuality_RTC_BUILD_QUALITY_LOW,
+                    ffi::RTCSceneFlags_RTC_SCENE_FLAG_DYNAMIC,
+                ),
+            ),
+            EmbreeUpdate::Rebuild(q) => {
+                (q, (raw_quality(q), ffi::RTCSceneFlags_RTC_SCENE_FLAG_NONE))
+            }
+        };
+        Self::with_top(scene, meshes, false, threads, top)
+    }
+
+    /// Moves every instance to its transform in `instancing` (the same
+    /// instances of the same meshes, moved) and commits the top scene, which
+    /// Embree builds anew over the instances' new boxes; the meshes' scenes
+    /// are untouched.
+    pub fn move_instances(&mut self, instancing: &Instancing) -> Result<()> {
+        if instancing.instances.len() != self.first_tri.len() {
+            return Err(Error::Other(format!(
+                "embree instances: an update of {} instances for a scene of {}",
+                instancing.instances.len(),
+                self.first_tri.len()
+            )));
+        }
+        for (i, placed) in instancing.instances.iter().enumerate() {
+            let cols = column_major(&placed.to_world);
+            // SAFETY: `self.top` is live and holds geometry `i` (attached by
+            // id in `with_top`, never detached); `&mut self` means no query
+            // runs on the scene now; the transform is 12 floats read during
+            // the call. Setting the transform, committing the geometry and
+            // then the scene is Embree's documented sequence for a changed
+            // geometry.
+            unsafe {
+                let g = ffi::rtcGetGeometry(self.top, i as u32);
+                ffi::rtcSetGeometryTransform(
+                    g,
+                    0,
+                    ffi::RTCFormat_RTC_FORMAT_FLOAT3X4_COLUMN_MAJOR,
+                    cols.as_ptr() as *const std::ffi::c_void,
+                );
+                ffi::rtcCommitGeometry(g);
+            }
+        }
+        // SAFETY: a live scene, its geometries committed above.
+        unsafe { ffi::rtcCommitScene(self.top) };
+        self.device.check("rtcCommitScene (instances moved)")
+    }
+
+    /// Traces streams with `query` from now on ([`EmbreeInstanced::with_query`]).
+    pub fn set_query(&mut self, query: Query) -> Result<()> {
+        Self::check_query(query)?;
+        self.query = query;
+        Ok(())
+    }
+
+    /// [`EmbreeInstanced::new`] with the top scene's build quality and flags
+    /// given.
+    fn with_top(
+        scene: &Scene,
+        quality: Quality,
+        robust: bool,
+        threads: usize,
+        (top_quality, flags): (ffi::RTCBuildQuality, ffi::RTCSceneFlags),
+    ) -> Result<Self> {
         let Some(inst) = &scene.instancing else {
             return Err(Error::Other(
                 "embree instances: the scene has no instances".into(),
@@ -73,11 +166,6 @@ impl EmbreeInstanced {
                 &device, &positions, &local, quality, robust,
             )?);
         }
-        let flags = if robust {
-            ffi::RTCSceneFlags_RTC_SCENE_FLAG_ROBUST
-        } else {
-            ffi::RTCSceneFlags_RTC_SCENE_FLAG_NONE
-        };
         // SAFETY: a live device.
         let top = unsafe { ffi::rtcNewScene(device.raw()) };
         device.check("rtcNewScene (instances)")?;
@@ -88,30 +176,15 @@ impl EmbreeInstanced {
             bvh_bytes: 0,
             build_threads,
             query: Query::Single,
-            _device: device.clone(),
+            device: device.clone(),
         };
         // SAFETY: a live scene; plain setters.
         unsafe {
-            ffi::rtcSetSceneBuildQuality(top, raw_quality(quality));
+            ffi::rtcSetSceneBuildQuality(top, top_quality);
             ffi::rtcSetSceneFlags(top, flags);
         }
         for (i, placed) in inst.instances.iter().enumerate() {
-            // Column-major 3x4: the three axes, then the translation.
-            let m = placed.to_world;
-            let cols: [f32; 12] = [
-                m.matrix3.x_axis.x,
-                m.matrix3.x_axis.y,
-                m.matrix3.x_axis.z,
-                m.matrix3.y_axis.x,
-                m.matrix3.y_axis.y,
-                m.matrix3.y_axis.z,
-                m.matrix3.z_axis.x,
-                m.matrix3.z_axis.y,
-                m.matrix3.z_axis.z,
-                m.translation.x,
-                m.translation.y,
-                m.translation.z,
-            ];
+            let cols = column_major(&placed.to_world);
             // SAFETY: a live device; the geometry is released after the
             // scene attaches it (the scene then holds its reference); the
             // instanced scene is committed and outlives the top scene
@@ -158,15 +231,37 @@ impl EmbreeInstanced {
     /// the bench did not repeat. Embree 3's stream API is not wired for
     /// instances.
     pub fn with_query(mut self, query: Query) -> Result<Self> {
+        self.set_query(query)?;
+        Ok(self)
+    }
+
+    fn check_query(query: Query) -> Result<()> {
         if !matches!(query, Query::Single | Query::Packet(4 | 8 | 16)) {
             return Err(Error::usage(
                 "--query",
                 format!("Embree's instanced scene is traced as single rays or packets of 4, 8 or 16 here, not {query}"),
             ));
         }
-        self.query = query;
-        Ok(self)
+        Ok(())
     }
+}
+
+/// `m` as Embree's column-major 3x4: the three axes, then the translation.
+fn column_major(m: &glam::Affine3A) -> [f32; 12] {
+    [
+        m.matrix3.x_axis.x,
+        m.matrix3.x_axis.y,
+        m.matrix3.x_axis.z,
+        m.matrix3.y_axis.x,
+        m.matrix3.y_axis.y,
+        m.matrix3.y_axis.z,
+        m.matrix3.z_axis.x,
+        m.matrix3.z_axis.y,
+        m.matrix3.z_axis.z,
+        m.translation.x,
+        m.translation.y,
+        m.translation.z,
+    ]
 }
 
 impl Drop for EmbreeInstanced {

@@ -19,12 +19,13 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::Serialize;
 
+use super::instances::EXACT_MAX;
 use super::libraries::{frame_ms, recorded_windows};
 use super::ChartSection;
 use crate::accel::bvh::params::REBUILD_FACTOR;
 use crate::accel::bvh::BuildParams;
 use crate::accel::update::{fresh_cost, Follower, Strategy};
-use crate::accel::{build_backend, BackendSpec, Query};
+use crate::accel::{build_scene_backend, BackendSpec, Query};
 use crate::bench::charts::{
     color, distinct, legend, line_with_points, log_axis, log_label, log_range, save_chart,
     DrawResult, FONT,
@@ -49,8 +50,14 @@ pub const SECTION: ChartSection = ChartSection {
     caption: "Per animated scene, per frame: left, the SAH cost of each raylab strategy's tree over a fresh build's at the same rung (a ring marks a frame the policy rebuilt on); right, update plus the frame's rays at one sample per pixel (ms, log). The second chart: total time over the animation against rays per frame (log-log), a line per strategy; where two lines cross, the cheaper update stops paying.",
 };
 
-/// The animations measured when the bench's scenes hold none.
-pub const DEFAULT_ANIMATIONS: [&str; 2] = ["cloth:20000", "explode:20000"];
+/// The animations measured when the bench's scenes hold none (with
+/// `--quick`, the second of each pair): a deforming mesh each way a refit
+/// can go, and rocks whose instances move (a TLAS's refit).
+pub const DEFAULT_ANIMATIONS: [(&str, &str); 3] = [
+    ("cloth:20000", "cloth:2000"),
+    ("explode:20000", "explode:2000"),
+    ("asteroids:300", "asteroids:30"),
+];
 
 /// Samples per pixel the totals are given at.
 pub const SPP: [f64; 2] = [1.0, 16.0];
@@ -59,7 +66,11 @@ pub const SPP: [f64; 2] = [1.0, 16.0];
 #[derive(Clone, Debug, Serialize)]
 pub struct AnimationPoint {
     pub scene: String,
+    /// Triangles as placed (an instanced scene's counted per instance).
     pub triangles: usize,
+    /// The instances move, not the vertices: raylab's strategies update the
+    /// TLAS alone, and the SAH ratio is the TLAS's.
+    pub instances_move: bool,
     pub strategy: String,
     pub embree: bool,
     pub frame: usize,
@@ -83,12 +94,14 @@ pub struct AnimationPoint {
     /// judges wrong.
     pub wrong: usize,
     pub checked: usize,
+    /// Embree's differing answers the exact reference could not judge (an
+    /// instanced frame past its size).
+    pub unjudged: usize,
     pub threads: usize,
 }
 
 /// The animations of `cfg`'s scenes (animated built-ins, and glTF files
-/// that have animations), or the defaults when none moves (with `--quick`,
-/// the defaults at a tenth of their size).
+/// that have animations), or the defaults when none moves.
 fn animations(cfg: &BenchConfig) -> Vec<String> {
     let named: Vec<String> = cfg
         .scenes
@@ -105,13 +118,7 @@ fn animations(cfg: &BenchConfig) -> Vec<String> {
     }
     DEFAULT_ANIMATIONS
         .iter()
-        .map(|s| {
-            if cfg.quick {
-                s.replace("20000", "2000")
-            } else {
-                s.to_string()
-            }
-        })
+        .map(|(full, quick)| if cfg.quick { quick } else { full }.to_string())
         .collect()
 }
 
@@ -139,7 +146,7 @@ struct FrameRays {
 
 /// The frame's [`FrameRays`], `per_kind` of each kind at most.
 fn frame_rays(frame: &Scene, cfg: &BenchConfig, per_kind: usize) -> Result<FrameRays> {
-    let recorder = build_backend(
+    let recorder = build_scene_backend(
         &BackendSpec::bvh(BuildParams::sah().with_width(8)).with_fastest_query(),
         frame,
     )?;
@@ -158,20 +165,57 @@ fn frame_rays(frame: &Scene, cfg: &BenchConfig, per_kind: usize) -> Result<Frame
     })
 }
 
-/// Wrong answers of `follower` (and answers checked): for raylab's
-/// strategies every answer that differs from `want` (a fresh build's) by a
-/// bit; for Embree's, answers that differ and that the exact reference
-/// judges wrong (not a tie at an edge or undecidable: Embree's own
-/// rounding decides such rays, on every strategy alike).
+/// What Embree's answers are judged by: the exact reference over the
+/// frame's triangles as placed (built on the first answer that needs it),
+/// or none for an instanced frame past [`EXACT_MAX`] placed triangles.
+struct Judge<'a> {
+    frame: &'a Scene,
+    exact: Option<Option<ExactReference>>,
+}
+
+impl Judge<'_> {
+    /// The exact reference, built on first use (`None`: too large).
+    fn reference(&mut self) -> Result<Option<&ExactReference>> {
+        if self.exact.is_none() {
+            let frame = self.frame;
+            self.exact = Some(if !frame.is_instanced() {
+                Some(ExactReference::new(frame.triangle_vertices()))
+            } else if frame.placed_triangle_count() <= EXACT_MAX {
+                Some(ExactReference::new(frame.flattened()?.triangle_vertices()))
+            } else {
+                None
+            });
+        }
+        Ok(self.exact.as_ref().and_then(|e| e.as_ref()))
+    }
+
+    /// `hit` as the exact reference numbers triangles (placed ones, for an
+    /// instanced frame).
+    fn numbered(&self, hit: Option<Hit>) -> Option<Hit> {
+        hit.map(|h| match self.frame.is_instanced() {
+            true => Hit {
+                tri: self.frame.flat_index(&h) as u32,
+                inst: 0,
+                ..h
+            },
+            false => h,
+        })
+    }
+}
+
+/// Answers that are wrong, checked, and unjudged. For raylab's strategies,
+/// every answer that differs from `want` (a fresh build's) by a bit is
+/// wrong; for Embree's, an answer that differs is wrong when the exact
+/// reference judges it so (not a tie at an edge or undecidable: Embree's
+/// own rounding decides such rays, on every strategy alike), and unjudged
+/// where the frame is too large for the reference.
 fn count_wrong(
     follower: &Follower,
     rays: &[Vec<Ray>],
     want: &[Vec<Option<Hit>>],
-    exact: &mut Option<ExactReference>,
-    triangles: &[[glam::Vec3; 3]],
-) -> (usize, usize) {
-    let mut wrong = 0;
-    let mut checked = 0;
+    judge: &mut Judge,
+) -> Result<(usize, usize, usize)> {
+    let (mut wrong, mut checked, mut unjudged) = (0, 0, 0);
     for (k, (rays, want)) in rays.iter().zip(want).enumerate() {
         let closest = k == 0;
         let got = hits_or_occluded(follower.backend(), closest, rays);
@@ -189,17 +233,21 @@ fn count_wrong(
                 wrong += 1;
                 continue;
             }
-            let reference = exact.get_or_insert_with(|| ExactReference::new(triangles.to_vec()));
+            let hit = judge.numbered(*g);
+            let Some(reference) = judge.reference()? else {
+                unjudged += 1;
+                continue;
+            };
             let answer = reference.answer(ray);
             let verdict = if closest {
-                answer.judge_closest(*g)
+                answer.judge_closest(hit)
             } else {
-                answer.judge_occluded(g.is_some())
+                answer.judge_occluded(hit.is_some())
             };
             wrong += verdict.is_wrong() as usize;
         }
     }
-    (wrong, checked)
+    Ok((wrong, checked, unjudged))
 }
 
 /// Mrays/s per kind on the fastest of the follower's paths, and the path.
@@ -263,9 +311,10 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<An
         for (f, &t) in times.iter().enumerate() {
             bar.set_message(format!("animation: {name} frame {f} of {n}"));
             let frame = animation.frame(t)?;
-            let triangles = frame.triangle_vertices();
-            // Built on the first answer that needs judging.
-            let mut exact: Option<ExactReference> = None;
+            let mut judge = Judge {
+                frame: &frame,
+                exact: None,
+            };
             // Update (or, on the first frame, build) every strategy.
             let mut updates = Vec::new();
             for (i, s) in strategies.iter().enumerate() {
@@ -310,12 +359,13 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<An
                     Some(follower.policy_cost()? / fresh)
                 });
                 let (mrays, paths) = time_kinds(follower, &rays, threads, reps, min_run)?;
-                let (wrong, checked) = count_wrong(follower, &rays, &want, &mut exact, &triangles);
+                let (wrong, checked, unjudged) = count_wrong(follower, &rays, &want, &mut judge)?;
                 // Each kind's share of a whole frame's rays, as recorded.
                 let frame_trace_ms = frame_ms(&rays, &mrays, frame_rays);
                 out.push(AnimationPoint {
                     scene: name.clone(),
-                    triangles: frame.triangle_count(),
+                    triangles: frame.placed_triangle_count() as usize,
+                    instances_move: animation.moves_instances(),
                     strategy: follower.strategy.name(),
                     embree: follower.strategy.is_embree(),
                     frame: f,
@@ -329,6 +379,7 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<An
                     frame_trace_ms,
                     wrong,
                     checked,
+                    unjudged,
                     threads,
                 });
             }
@@ -353,6 +404,7 @@ pub struct Totals {
     pub rays: f64,
     pub wrong: usize,
     pub checked: usize,
+    pub unjudged: usize,
 }
 
 impl Totals {
@@ -384,6 +436,7 @@ pub fn totals(points: &[AnimationPoint]) -> Vec<Totals> {
                     rays: 0.0,
                     wrong: 0,
                     checked: 0,
+                    unjudged: 0,
                 });
                 out.len() - 1
             }
@@ -403,6 +456,7 @@ pub fn totals(points: &[AnimationPoint]) -> Vec<Totals> {
         t.rays += p.frame_rays;
         t.wrong += p.wrong;
         t.checked += p.checked;
+        t.unjudged += p.unjudged;
     }
     out
 }
@@ -436,7 +490,11 @@ pub fn markdown(points: &[AnimationPoint]) -> String {
             format!("{:.1}", s.trace_ms),
             format!("{:.1}", s.total_ms(SPP[0])),
             format!("{:.1}", s.total_ms(SPP[1])),
-            format!("{} of {}", s.wrong, s.checked),
+            if s.unjudged > 0 {
+                format!("{} of {} ({} unjudged)", s.wrong, s.checked, s.unjudged)
+            } else {
+                format!("{} of {}", s.wrong, s.checked)
+            },
         ]);
     }
     let mut f = Table::new([
@@ -467,10 +525,15 @@ pub fn markdown(points: &[AnimationPoint]) -> String {
     }
     format!(
         "### Scenes that move: totals over {frames} frames ({threads} thread{})\n\n\
-         Build: the first frame's. Updates: the {} frames after it. Trace: each frame's recorded rays (primary, shadow, AO) at the bench's image size, one sample per pixel, at each strategy's measured rates on its fastest path. Wrong: answers that differ from a fresh raylab build of the frame (by a bit, for raylab's trees; for Embree's, those of them the exact reference judges wrong).\n\n{}\n\
+         Build: the first frame's. Updates: the {} frames after it. Trace: each frame's recorded rays (primary, shadow, AO) at the bench's image size, one sample per pixel, at each strategy's measured rates on its fastest path. Wrong: answers that differ from a fresh raylab build of the frame (by a bit, for raylab's trees; for Embree's, those of them the exact reference judges wrong).{}\n\n{}\n\
          ### Scenes that move: per frame\n\n{}\n",
         if threads == 1 { "" } else { "s" },
         frames - 1,
+        if points.iter().any(|p| p.instances_move) {
+            " Where the instances move (the meshes do not), raylab's strategies refit or rebuild the instances' tree (TLAS) alone, the meshes' trees built once, and SAH / fresh is the TLAS's; Embree has no refit of instances, so its refit is its top scene rebuilt on each commit as it advises for scenes that change every frame (RTC_SCENE_FLAG_DYNAMIC at low quality)."
+        } else {
+            ""
+        },
         t.markdown(),
         f.markdown()
     )
@@ -648,6 +711,7 @@ mod tests {
         AnimationPoint {
             scene: "s".into(),
             triangles: 1,
+            instances_move: false,
             strategy: strategy.into(),
             embree: false,
             frame,
@@ -661,6 +725,7 @@ mod tests {
             frame_trace_ms: trace,
             wrong: 0,
             checked: 10,
+            unjudged: 0,
             threads: 1,
         }
     }

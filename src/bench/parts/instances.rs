@@ -55,7 +55,7 @@ const QUICK_FORESTS: [usize; 3] = [10, 100, 1_000];
 const FLATTEN_MAX: u64 = 12_000_000;
 /// Placed triangles up to which differing answers are judged by the exact
 /// reference (it holds every flattened triangle in f64).
-const EXACT_MAX: u64 = 2_000_000;
+pub(crate) const EXACT_MAX: u64 = 2_000_000;
 
 /// One structure over one instanced scene.
 #[derive(Clone, Debug, Serialize)]
