@@ -310,7 +310,10 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<An
         let mut followers: Vec<Follower> = Vec::new();
         for (f, &t) in times.iter().enumerate() {
             bar.set_message(format!("animation: {name} frame {f} of {n}"));
-            let frame = animation.frame(t)?;
+            let mut frame = animation.frame(t)?;
+            // Shadow rays need a light: the default one where the scene has
+            // no emitter (as the bench's still scenes get it).
+            frame.set_extra_light(None, glam::Vec3::Y);
             let mut judge = Judge {
                 frame: &frame,
                 exact: None,
