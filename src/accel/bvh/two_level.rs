@@ -636,6 +636,39 @@ mod tests {
     }
 
     #[test]
+    fn a_tlas_refitted_back_to_rest_is_the_built_one_and_other_scenes_are_refused() {
+        let animation = crate::scene::motion::Animation::parse("asteroids:200")
+            .unwrap()
+            .unwrap();
+        let rest = animation.rest();
+        let params = BuildParams::sah().with_width(8);
+        let mut two = TwoLevel::new(rest, &params, Intersector::Mt, Query::Single).unwrap();
+        let built = (two.tlas.nodes.clone(), two.tlas.blocks.clone());
+        let cost = two.tlas_cost(&crate::accel::bvh::params::REFIT_POLICY_COSTS);
+        two.refit_instances(&animation.frame(2.0).unwrap(), false)
+            .unwrap();
+        assert_ne!(two.tlas.nodes, built.0, "the boxes moved");
+        two.refit_instances(rest, false).unwrap();
+        assert_eq!(two.tlas.nodes, built.0, "node for node");
+        assert_eq!(two.tlas.blocks, built.1);
+        assert_eq!(
+            two.tlas_cost(&crate::accel::bvh::params::REFIT_POLICY_COSTS),
+            cost
+        );
+        // Another scene, or the same one with fewer instances, is refused
+        // and leaves the tree as it was.
+        for other in ["asteroids:199", "forest:200"] {
+            let other = builtin(other).unwrap();
+            let err = two.refit_instances(&other, false).unwrap_err().to_string();
+            assert!(err.contains("cannot update the two-level tree"), "{err}");
+            assert!(two.rebuild_instances(&other, Quality::Low, 1).is_err());
+        }
+        let flat = builtin("cornell-sphere").unwrap();
+        assert!(two.refit_instances(&flat, false).is_err());
+        assert_eq!(two.tlas.nodes, built.0);
+    }
+
+    #[test]
     fn binary_trees_refuse_packets_and_flat_scenes_are_refused() {
         let s = scene();
         let err = TwoLevel::new(
