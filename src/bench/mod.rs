@@ -241,6 +241,8 @@ pub fn run(cfg: &BenchConfig, scenes: &[Scene]) -> Result<BenchReport> {
         reports.trace(),
         reports.validation(),
         &measurements,
+        reports.animation(),
+        reports.instances(),
     );
     let mut report = BenchReport {
         format: FORMAT,

@@ -8,6 +8,8 @@ use serde::Serialize;
 
 use super::family::Family;
 use super::measure::Measurement;
+use super::parts::animation::{self, AnimationPoint};
+use super::parts::instances::InstancesPoint;
 use super::parts::libraries::{LibraryPoint, KINDS};
 use super::parts::trace::TracePoint;
 use super::parts::validate::ValidationRow;
@@ -81,12 +83,16 @@ pub struct Summary {
 }
 
 impl Summary {
-    /// The summary of a run's points.
+    /// The summary of a run's points. The animation and instances parts
+    /// add no rows (their measures are not per ray kind alone), only what
+    /// was wrong in them.
     pub fn of(
         libraries: &[LibraryPoint],
         trace: &[TracePoint],
         validation: &[ValidationRow],
         measurements: &[Measurement],
+        animation: &[AnimationPoint],
+        instances: &[InstancesPoint],
     ) -> Summary {
         let (source, entries) = if !libraries.is_empty() {
             ("libraries", library_entries(libraries))
@@ -111,6 +117,8 @@ impl Summary {
             problems: Vec::new(),
         };
         s.problems = problems(&s, libraries, measurements);
+        s.problems.extend(animation_problems(animation));
+        s.problems.extend(instances_problems(instances));
         s
     }
 
@@ -119,7 +127,7 @@ impl Summary {
     pub fn markdown(&self) -> String {
         let mut out = String::from("### Summary\n\n");
         if self.rows.is_empty() {
-            out.push_str("No backend was timed on recorded rays (neither the libraries nor the trace part ran).\n\n");
+            out.push_str("No backend was timed on recorded rays (neither the libraries nor the trace part ran); what the other parts found behind or wrong is under What was wrong.\n\n");
         } else {
             out.push_str(&match self.source.as_str() {
                 "libraries" => "One thread, the same recorded rays for every backend, each on its fastest query path for the kind (the libraries part). Time: raylab's best path's time per ray over the other's best (below 1.00: raylab is faster).\n\n".to_string(),
@@ -466,6 +474,122 @@ fn problems(s: &Summary, libraries: &[LibraryPoint], measurements: &[Measurement
     out
 }
 
+/// Where the animation part found raylab behind or wrong, per scene and
+/// thread count: its best strategy's update-plus-trace total against
+/// Embree's best at 1 and 16 samples per pixel, its refit's update time
+/// against Embree's refit, and raylab strategies whose answers differ from
+/// a fresh build's.
+fn animation_problems(points: &[AnimationPoint]) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut runs: Vec<(&str, usize)> = Vec::new();
+    for p in points {
+        if !runs.contains(&(p.scene.as_str(), p.threads)) {
+            runs.push((&p.scene, p.threads));
+        }
+    }
+    for (scene, threads) in runs {
+        let here: Vec<AnimationPoint> = points
+            .iter()
+            .filter(|p| p.scene == scene && p.threads == threads)
+            .cloned()
+            .collect();
+        let embree_of = |strategy: &str| here.iter().any(|p| p.strategy == strategy && p.embree);
+        let totals = animation::totals(&here);
+        let (ours, theirs): (Vec<_>, Vec<_>) = totals.iter().partition(|t| !embree_of(&t.strategy));
+        let at = format!(
+            "{scene} ({threads} thread{})",
+            if threads == 1 { "" } else { "s" }
+        );
+        let behind: Vec<String> = [1.0, 16.0]
+            .into_iter()
+            .filter_map(|spp| {
+                let best = |side: &[&animation::Totals]| {
+                    side.iter()
+                        .min_by(|a, b| a.total_ms(spp).total_cmp(&b.total_ms(spp)))
+                        .map(|t| (t.strategy.clone(), t.total_ms(spp)))
+                };
+                let ((r, r_ms), (e, e_ms)) = (best(&ours)?, best(&theirs)?);
+                (r_ms > e_ms).then(|| {
+                    format!(
+                        "{:.2}x the time at {spp} spp ({r} {r_ms:.1} ms against {e} {e_ms:.1})",
+                        r_ms / e_ms
+                    )
+                })
+            })
+            .collect();
+        if !behind.is_empty() {
+            out.push(format!(
+                "{at}: update plus trace over the animation, raylab's best strategy against Embree's best: {}.",
+                behind.join(", ")
+            ));
+        }
+        let refit = |embree: bool| {
+            totals
+                .iter()
+                .find(|t| embree_of(&t.strategy) == embree && t.strategy.ends_with("-refit"))
+        };
+        if let (Some(r), Some(e)) = (refit(false), refit(true)) {
+            if r.update_ms > e.update_ms {
+                out.push(format!(
+                    "{at}: raylab's refit took {:.2}x Embree's refit time ({:.2} ms against {:.2} over the updates).",
+                    r.update_ms / e.update_ms,
+                    r.update_ms,
+                    e.update_ms
+                ));
+            }
+        }
+        for t in ours.iter().filter(|t| t.wrong > 0) {
+            out.push(format!(
+                "{at}: {} answered {} of {} rays otherwise than a fresh build of the frame.",
+                t.strategy, t.wrong, t.checked
+            ));
+        }
+    }
+    out
+}
+
+/// Where the instances part found raylab's two-level tree behind Embree's
+/// instances (a frame's trace time, the build) or wrong.
+fn instances_problems(points: &[InstancesPoint]) -> Vec<String> {
+    let mut out = Vec::new();
+    for ours in points.iter().filter(|p| p.two_level && !p.embree) {
+        let at = format!(
+            "{} ({} thread{})",
+            ours.scene,
+            ours.threads,
+            if ours.threads == 1 { "" } else { "s" }
+        );
+        let theirs = points.iter().find(|p| {
+            p.two_level && p.embree && p.scene == ours.scene && p.threads == ours.threads
+        });
+        if let Some(e) = theirs {
+            if ours.frame_trace_ms > e.frame_trace_ms {
+                out.push(format!(
+                    "{at}: raylab's two-level tree traces a frame in {:.2}x the time of Embree's instances ({:.1} ms against {:.1}).",
+                    ours.frame_trace_ms / e.frame_trace_ms,
+                    ours.frame_trace_ms,
+                    e.frame_trace_ms
+                ));
+            }
+            if ours.build_ms > e.build_ms {
+                out.push(format!(
+                    "{at}: raylab's two-level tree builds in {:.2}x the time of Embree's instances ({:.1} ms against {:.1}).",
+                    ours.build_ms / e.build_ms,
+                    ours.build_ms,
+                    e.build_ms
+                ));
+            }
+        }
+        if let Some(wrong) = ours.wrong.filter(|w| *w > 0) {
+            out.push(format!(
+                "{at}: raylab's two-level tree answered {wrong} of {} rays wrong by the exact reference.",
+                ours.checked
+            ));
+        }
+    }
+    out
+}
+
 /// Today's date (UTC) as `YYYY-MM-DD`, from the system clock.
 pub fn today() -> String {
     let secs = std::time::SystemTime::now()
@@ -559,7 +683,7 @@ mod tests {
                 3,
             ),
         ];
-        let s = Summary::of(&points, &[], &[], &[]);
+        let s = Summary::of(&points, &[], &[], &[], &[], &[]);
         assert_eq!(s.source, "libraries");
         assert_eq!(s.rows.len(), 4);
         let primary = &s.rows[0];
@@ -598,8 +722,80 @@ mod tests {
     }
 
     #[test]
+    fn the_animation_and_instances_parts_report_where_raylab_is_behind() {
+        let frame = |strategy: &str, embree: bool, frame: usize, update_ms: f64, trace: f64| {
+            AnimationPoint {
+                scene: "belt".into(),
+                triangles: 1,
+                instances_move: true,
+                strategy: strategy.into(),
+                embree,
+                frame,
+                time_s: frame as f32,
+                update_ms,
+                rebuilt: frame == 0,
+                sah_ratio: None,
+                mrays: vec![1.0; 3],
+                paths: vec!["single".into(); 3],
+                frame_rays: 100.0,
+                frame_trace_ms: trace,
+                wrong: usize::from(strategy == "raylab-rebuild-medium" && frame == 1),
+                checked: 10,
+                unjudged: 0,
+                threads: 1,
+            }
+        };
+        // raylab's best strategy is level with Embree's at 1 spp and
+        // behind at 16; its refit updates faster than Embree's.
+        let animation = [
+            frame("raylab-refit", false, 0, 1.0, 12.0),
+            frame("raylab-refit", false, 1, 0.5, 12.0),
+            frame("raylab-rebuild-medium", false, 0, 1.0, 10.0),
+            frame("raylab-rebuild-medium", false, 1, 2.0, 10.0),
+            frame("embree-refit", true, 0, 1.0, 9.0),
+            frame("embree-refit", true, 1, 4.0, 9.0),
+        ];
+        let instance = |structure: &str, embree: bool, build_ms: f64, trace: f64| InstancesPoint {
+            scene: "forest:10".into(),
+            instances: 10,
+            unique_triangles: 1,
+            placed_triangles: 10,
+            structure: structure.into(),
+            embree,
+            two_level: true,
+            build_ms,
+            memory_bytes: None,
+            mrays: vec![1.0; 3],
+            paths: vec!["single".into(); 3],
+            frame_rays: 100.0,
+            frame_trace_ms: trace,
+            differ: 0,
+            wrong: Some(0),
+            checked: 10,
+            threads: 2,
+        };
+        let instances = [
+            instance("raylab two-level", false, 5.0, 12.0),
+            instance("embree instances", true, 8.0, 10.0),
+        ];
+        let s = Summary::of(&[], &[], &[], &[], &animation, &instances);
+        let md = s.markdown();
+        assert_eq!(s.problems.len(), 3, "{md}");
+        // 1 spp: raylab 1 + 2 + 20 = 23, Embree 1 + 4 + 18 = 23: level.
+        // 16 spp: raylab 3 + 320 = 323 against 5 + 288 = 293.
+        assert!(md.contains("- belt (1 thread): update plus trace over the animation, raylab's best strategy against Embree's best: 1.10x the time at 16 spp (raylab-rebuild-medium 323.0 ms against embree-refit 293.0)"), "{md}");
+        assert!(!md.contains("refit took"), "{md}");
+        assert!(
+            md.contains("raylab-rebuild-medium answered 1 of 20 rays otherwise"),
+            "{md}"
+        );
+        assert!(md.contains("- forest:10 (2 threads): raylab's two-level tree traces a frame in 1.20x the time of Embree's instances (12.0 ms against 10.0)"), "{md}");
+        assert!(!md.contains("builds in"), "{md}");
+    }
+
+    #[test]
     fn nothing_measured_says_so() {
-        let md = Summary::of(&[], &[], &[], &[]).markdown();
+        let md = Summary::of(&[], &[], &[], &[], &[], &[]).markdown();
         assert!(md.contains("No backend was timed"), "{md}");
         assert!(md.contains("### What was wrong\n\nNothing"), "{md}");
     }
