@@ -11,7 +11,7 @@ use std::f32::consts::TAU;
 
 use glam::{Affine3A, Quat, Vec3};
 
-use super::shapes::Builder;
+use super::shapes::{ground, Builder};
 use super::{Material, Scene};
 use crate::error::Result;
 use crate::rng::Rng;
@@ -76,7 +76,7 @@ pub fn asteroids(name: &str, n: usize) -> Result<(Scene, Belt)> {
     // The annulus from `inner` to `outer` holds the rocks at AREA_PER_ROCK.
     let inner = 4.0 + (n as f32).sqrt() * 0.8;
     let outer = (inner * inner + n as f32 * AREA_PER_ROCK / std::f32::consts::PI).sqrt();
-    meshes.push(ground(outer + 2.0)?);
+    meshes.push(ground(outer + 2.0, Vec3::new(0.30, 0.28, 0.26))?);
     let ground = meshes.len() as u32 - 1;
     let orbits: Vec<Orbit> = (0..n)
         .map(|i| {
@@ -134,18 +134,6 @@ fn rock(kind: usize) -> Result<Scene> {
     // The normals no longer fit the lumps: shade with the geometric normal.
     b.normals.fill(Vec3::ZERO);
     b.into_scene(&format!("rock {kind}"))
-}
-
-/// The ground: one quad `half` units to each side of the origin.
-fn ground(half: f32) -> Result<Scene> {
-    let mut b = Builder::default();
-    let soil = b.material(Material::diffuse("ground", Vec3::new(0.30, 0.28, 0.26)));
-    let c = |x: f32, z: f32| Vec3::new(x * half, 0.0, z * half);
-    b.quad(
-        [c(-1.0, 1.0), c(1.0, 1.0), c(1.0, -1.0), c(-1.0, -1.0)],
-        soil,
-    );
-    b.into_scene("ground")
 }
 
 #[cfg(test)]

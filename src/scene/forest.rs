@@ -7,7 +7,7 @@
 
 use glam::{Affine3A, Quat, Vec3};
 
-use super::shapes::Builder;
+use super::shapes::{ground, Builder};
 use super::{Material, Scene};
 use crate::error::Result;
 use crate::rng::Rng;
@@ -33,7 +33,7 @@ pub fn forest(name: &str, n: usize) -> Result<Scene> {
         .collect::<Result<_>>()?;
     let side = (n as f64).sqrt().ceil() as usize;
     let half = side as f32 * SPACING * 0.5 + SPACING;
-    meshes.push(ground(half)?);
+    meshes.push(ground(half, Vec3::new(0.35, 0.30, 0.22))?);
     let ground = meshes.len() as u32 - 1;
     let mut placements = Vec::with_capacity(n + 1);
     placements.push((ground, Affine3A::IDENTITY));
@@ -82,18 +82,6 @@ fn tree(kind: usize, radius: f32, height: f32, centre: f32, green: Vec3) -> Resu
     }
     b.normals.fill(Vec3::ZERO);
     b.into_scene(&format!("tree {kind}"))
-}
-
-/// The ground: one quad `half` units to each side of the origin.
-fn ground(half: f32) -> Result<Scene> {
-    let mut b = Builder::default();
-    let soil = b.material(Material::diffuse("ground", Vec3::new(0.35, 0.30, 0.22)));
-    let c = |x: f32, z: f32| Vec3::new(x * half, 0.0, z * half);
-    b.quad(
-        [c(-1.0, 1.0), c(1.0, 1.0), c(1.0, -1.0), c(-1.0, -1.0)],
-        soil,
-    );
-    b.into_scene("ground")
 }
 
 #[cfg(test)]

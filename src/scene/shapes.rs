@@ -626,3 +626,16 @@ impl Builder {
         }
     }
 }
+
+/// A ground for the instanced built-ins: one quad `half` units to each side
+/// of the origin in y = 0, as a mesh of its own (placed once).
+pub(super) fn ground(half: f32, colour: Vec3) -> Result<Scene> {
+    let mut b = Builder::default();
+    let soil = b.material(Material::diffuse("ground", colour));
+    let c = |x: f32, z: f32| Vec3::new(x * half, 0.0, z * half);
+    b.quad(
+        [c(-1.0, 1.0), c(1.0, 1.0), c(1.0, -1.0), c(-1.0, -1.0)],
+        soil,
+    );
+    b.into_scene("ground")
+}
