@@ -251,7 +251,7 @@ pub struct SlabRay {
 }
 
 impl SlabRay {
-    #[inline]
+    #[inline(always)]
     pub fn new(ray: &Ray) -> SlabRay {
         let in_plane = ray.dir.cmpeq(Vec3::ZERO);
         if !in_plane.any() {
