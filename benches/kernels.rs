@@ -2,14 +2,15 @@
 //! `cargo bench`: the ray/box and ray/triangle tests, closest-hit and any-hit
 //! queries per backend on the study's scenes (coherent camera rays and the
 //! incoherent AO rays a render casts), the same queries as streams on every
-//! query path (single rays, packets, Embree's stream API), and builds per
-//! builder against size.
+//! query path (single rays, packets, Embree's stream API), raylab's
+//! two-level tree against Embree's instances on an instanced forest, and
+//! builds per builder against size.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::Vec3;
 use raylab::accel::bvh::BuildParams;
 
-use raylab::accel::{build_backend, Backend, BackendSpec};
+use raylab::accel::{build_backend, build_scene_backend, Backend, BackendSpec, Query};
 use raylab::camera::Camera;
 use raylab::geometry::{intersect_triangle, Aabb, Ray, SlabRay, TriangleTest, Watertight};
 use raylab::scene::builtin::builtin;
@@ -248,6 +249,59 @@ fn stream_queries(c: &mut Criterion) {
     g.finish();
 }
 
+/// Instanced scenes: raylab's two-level tree and Embree's instances, single
+/// rays, on the primary, shadow and AO rays of a 128x96 render of
+/// `forest:1000` (1001 instances of 4 meshes, 10^7 placed triangles) from its
+/// default view. Finer than the bench's `instances` part for a change to
+/// the instance walk: the same rays, per kind, with criterion's statistics.
+fn instanced_queries(c: &mut Criterion) {
+    let mut scene = builtin("forest:1000").unwrap();
+    scene.set_extra_light(None, Vec3::Y);
+    let (w, h) = (128, 96);
+    let (eye, look) = raylab::camera::default_view(&scene, None, None, Vec3::Y, 60.0, (w, h));
+    let settings = raylab::render::RenderSettings {
+        width: w,
+        height: h,
+        camera: Camera::new(eye, look, Vec3::Y, 60.0, w, h).unwrap(),
+        ao: raylab::render::AoMode::Paper,
+        ao_dist: raylab::render::default_ao_dist(&scene),
+        light_samples: 1,
+        seed: 1,
+        two_sided_lights: false,
+    };
+    let mut specs = vec![BackendSpec::DEFAULT];
+    if raylab::accel::embree::AVAILABLE {
+        specs.push(BackendSpec::embree(1).with_query(Query::Single).unwrap());
+    }
+    let built: Vec<_> = specs
+        .iter()
+        .map(|spec| build_scene_backend(spec, &scene).unwrap())
+        .collect();
+    let rays =
+        raylab::measure::validate::recorded_rays(&scene, built[0].as_ref(), &settings).unwrap();
+    let mut g = c.benchmark_group("instances");
+    for b in &built {
+        let name = b.name();
+        for (kind, rays, closest) in [
+            ("primary", &rays.primary, true),
+            ("shadow", &rays.shadow, false),
+            ("ao", &rays.ao, false),
+        ] {
+            g.throughput(Throughput::Elements(rays.len() as u64));
+            g.bench_function(BenchmarkId::new(kind, &name), |bench| {
+                bench.iter(|| {
+                    if closest {
+                        rays.iter().filter_map(|r| b.intersect(r)).count()
+                    } else {
+                        rays.iter().filter(|r| b.occluded(r)).count()
+                    }
+                })
+            });
+        }
+    }
+    g.finish();
+}
+
 /// Build time against triangle count on the procedural meshes, serial and on 2 threads.
 fn bvh_builds(c: &mut Criterion) {
     // As the binary does: repeated builds reuse freed memory on every thread
@@ -332,6 +386,7 @@ criterion_group!(
     camera_queries,
     ao_queries,
     stream_queries,
+    instanced_queries,
     bvh_builds
 );
 criterion_main!(benches);
