@@ -536,11 +536,11 @@ impl WideBvh<8> {
     /// kernel is AVX2. With `nearest_first` false the children are visited
     /// as the any-hit traversal visits them (the first hit lane, then the
     /// others as pushed), which is what an occlusion query wants.
-    pub(crate) fn walk_ids(
+    pub(crate) fn walk_ids<F: FnMut(u32, &mut f32) -> bool>(
         &self,
         ray: &Ray,
         nearest_first: bool,
-        visit: &mut dyn FnMut(u32, &mut f32) -> bool,
+        visit: &mut F,
     ) {
         if self.nodes.is_empty() || !ray.is_valid() {
             return;
@@ -554,12 +554,12 @@ impl WideBvh<8> {
     }
 
     #[inline(always)]
-    fn walk_ids_with<K: NodeKernel<8>>(
+    fn walk_ids_with<K: NodeKernel<8>, F: FnMut(u32, &mut f32) -> bool>(
         &self,
         kernel: K,
         ray: &Ray,
         nearest_first: bool,
-        visit: &mut dyn FnMut(u32, &mut f32) -> bool,
+        visit: &mut F,
     ) {
         let wray = WideRay::new(&SlabRay::new(ray));
         let tmin = ray.tmin * (1.0 - SLAB_SLACK);
@@ -620,12 +620,12 @@ impl WideBvh<8> {
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,bmi1,popcnt")]
-fn walk_ids_avx2(
+fn walk_ids_avx2<F: FnMut(u32, &mut f32) -> bool>(
     kernel: Avx2,
     bvh: &WideBvh<8>,
     ray: &Ray,
     nearest_first: bool,
-    visit: &mut dyn FnMut(u32, &mut f32) -> bool,
+    visit: &mut F,
 ) {
     bvh.walk_ids_with(kernel, ray, nearest_first, visit)
 }
