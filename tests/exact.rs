@@ -205,3 +205,33 @@ fn ray_files_round_trip_through_validate_and_bench() {
     );
     std::fs::remove_dir_all(&d).ok();
 }
+
+#[test]
+fn ray_files_of_an_instanced_scene_are_recorded_without_flattening_it() {
+    // forest:10 places 105,428 triangles from 31,322 unique ones: over a
+    // budget of 100,000 flattened, within it as meshes and instances (as
+    // `render` takes it). `rays` flattened it before, and refused.
+    let d = temp_dir("rayfile-instanced");
+    let file = d.join("forest.rays");
+    let out = raylab(&[
+        "rays",
+        "forest:10",
+        "--max-triangles",
+        "100000",
+        "--out",
+        file.to_str().unwrap(),
+        "--count",
+        "300",
+        "--size",
+        "32x24",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let bytes = std::fs::read(&file).unwrap();
+    let n = u64::from_le_bytes(bytes[16..24].try_into().unwrap()) as usize;
+    assert!(n > 300, "primary, shadow, ao and diffuse rays: {n}");
+    std::fs::remove_dir_all(&d).ok();
+}

@@ -305,8 +305,9 @@ impl Recorded {
             .enumerate()
             .filter_map(|(i, (ray, hit))| {
                 let hit = (*hit)?;
-                let mut n =
-                    crate::geometry::triangle_unit_normal(&scene.triangle(hit.tri as usize));
+                // The world triangle: an instanced scene's hit names its
+                // mesh's triangle, which the instance moves.
+                let mut n = crate::geometry::triangle_unit_normal(&scene.hit_triangle(&hit));
                 if n.dot(ray.dir) > 0.0 {
                     n = -n;
                 }
@@ -428,7 +429,12 @@ pub fn ray_sets(
         ),
         None => (Vec::new(), Vec::new(), Vec::new()),
     };
-    let spawns = recorded.as_ref().map(|r| judge_spawns(scene, &r.spawns));
+    // Spawns name a mesh's triangle without its instance: judged on flat
+    // scenes (every command that reports them traces one list).
+    let spawns = recorded
+        .as_ref()
+        .filter(|_| !scene.is_instanced())
+        .map(|r| judge_spawns(scene, &r.spawns));
     let sets = sets
         .iter()
         .map(|&set| {
@@ -666,6 +672,61 @@ pub fn mismatch_image(agreements: &[Agreement], hits: &[bool]) -> Vec<u8> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn diffuse_bounces_of_an_instanced_scene_leave_the_world_triangle_on_the_viewers_side() {
+        // One box placed turned a quarter about x and moved: its mesh-space
+        // normals point elsewhere than its world ones.
+        use glam::{Affine3A, Quat};
+        let mesh = crate::scene::builtin::builtin("cornell-empty").unwrap();
+        let turned = Affine3A::from_rotation_translation(
+            Quat::from_rotation_x(std::f32::consts::FRAC_PI_2),
+            Vec3::new(0.0, 1.0, -1.0),
+        );
+        let scene = Scene::instanced("turned", vec![mesh], vec![(0, turned)]).unwrap();
+        let params = crate::accel::bvh::BuildParams::sah().with_width(8);
+        let tree =
+            crate::accel::build_scene_backend(&crate::accel::BackendSpec::bvh(params), &scene)
+                .unwrap();
+        let eye = Vec3::new(0.2, 1.3, 1.5);
+        let settings = RenderSettings {
+            width: 24,
+            height: 18,
+            camera: crate::camera::Camera::new(
+                eye,
+                Vec3::new(0.0, 1.0, -1.0),
+                Vec3::Y,
+                70.0,
+                24,
+                18,
+            )
+            .unwrap(),
+            ao: crate::render::AoMode::Off,
+            ao_dist: 0.2,
+            light_samples: 1,
+            seed: 1,
+            two_sided_lights: false,
+        };
+        let recorded = recorded_rays(&scene, tree.as_ref(), &settings).unwrap();
+        let bounces = recorded.diffuse(&scene, 1);
+        let hits: Vec<(&Ray, Hit)> = recorded
+            .primary
+            .iter()
+            .zip(&recorded.primary_hits)
+            .filter_map(|(r, h)| Some((r, (*h)?)))
+            .collect();
+        assert_eq!(bounces.len(), hits.len());
+        assert!(hits.len() > 200, "{} primary hits", hits.len());
+        for ((ray, hit), bounce) in hits.iter().zip(&bounces) {
+            let n = crate::geometry::triangle_unit_normal(&scene.hit_triangle(hit));
+            let facing = if n.dot(ray.dir) > 0.0 { -n } else { n };
+            assert!(
+                bounce.dir.dot(facing) > 0.0,
+                "a bounce off triangle {} leaves into it: {bounce:?}",
+                hit.tri
+            );
+        }
+    }
 
     /// A hit in the middle of its triangle.
     fn hit(t: f32, tri: u32) -> Option<Hit> {
