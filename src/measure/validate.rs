@@ -386,7 +386,7 @@ pub fn judge_spawns(scene: &Scene, spawns: &[Spawn]) -> SpawnReport {
     use rayon::prelude::*;
     let bad: Vec<&Spawn> = spawns
         .par_iter()
-        .filter(|s| !strictly_in_front(&scene.triangle(s.tri as usize), s.origin, s.normal))
+        .filter(|s| !strictly_in_front(&scene.placed_triangle(s.tri, s.inst), s.origin, s.normal))
         .collect();
     SpawnReport {
         surfaces: spawns.len(),
@@ -429,12 +429,7 @@ pub fn ray_sets(
         ),
         None => (Vec::new(), Vec::new(), Vec::new()),
     };
-    // Spawns name a mesh's triangle without its instance: judged on flat
-    // scenes (every command that reports them traces one list).
-    let spawns = recorded
-        .as_ref()
-        .filter(|_| !scene.is_instanced())
-        .map(|r| judge_spawns(scene, &r.spawns));
+    let spawns = recorded.as_ref().map(|r| judge_spawns(scene, &r.spawns));
     let sets = sets
         .iter()
         .map(|&set| {
@@ -674,7 +669,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn diffuse_bounces_of_an_instanced_scene_leave_the_world_triangle_on_the_viewers_side() {
+    fn an_instanced_scenes_bounces_and_origins_leave_the_world_triangle_on_the_viewers_side() {
         // One box placed turned a quarter about x and moved: its mesh-space
         // normals point elsewhere than its world ones.
         use glam::{Affine3A, Quat};
@@ -717,6 +712,10 @@ mod tests {
             .collect();
         assert_eq!(bounces.len(), hits.len());
         assert!(hits.len() > 200, "{} primary hits", hits.len());
+        // Their origins, judged against the placed (world) triangles.
+        let judged = judge_spawns(&scene, &recorded.spawns);
+        assert_eq!(judged.surfaces, hits.len());
+        assert_eq!(judged.behind, 0, "{:?}", judged.examples);
         for ((ray, hit), bounce) in hits.iter().zip(&bounces) {
             let n = crate::geometry::triangle_unit_normal(&scene.hit_triangle(hit));
             let facing = if n.dot(ray.dir) > 0.0 { -n } else { n };

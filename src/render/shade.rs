@@ -48,11 +48,13 @@ pub fn secondary_origin(scene: &Scene, hit: &Hit, n: Vec3) -> Vec3 {
 }
 
 /// Where the secondary rays of one primary hit start, as [`Tracer::spawned`]
-/// is told: the triangle left, its geometric normal on the side left
-/// (unit), and the origin.
+/// is told: the triangle left (and its instance), its geometric normal on
+/// the side left (unit), and the origin.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Spawn {
     pub tri: u32,
+    /// The instance that placed `tri` (0 in a flat scene).
+    pub inst: u32,
     pub normal: Vec3,
     pub origin: Vec3,
 }
@@ -112,6 +114,8 @@ struct Surface {
     /// Unit direction towards the viewer.
     wo: Vec3,
     tri: u32,
+    /// The instance that placed `tri` (0 in a flat scene).
+    inst: u32,
 }
 
 /// Pixels per side of the blocks primary rays are issued in: a packet of 8
@@ -202,10 +206,12 @@ pub fn render_rect<T: Tracer + ?Sized>(
             ns,
             wo,
             tri: hit.tri,
+            inst: hit.inst,
         });
     }
     tracer.spawned(&mut surfaces.iter().map(|s| Spawn {
         tri: s.tri,
+        inst: s.inst,
         normal: s.ng,
         origin: s.origin,
     }));

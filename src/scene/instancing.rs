@@ -196,10 +196,17 @@ impl Scene {
     /// The world-space vertices of the triangle `hit` names.
     #[inline]
     pub fn hit_triangle(&self, hit: &Hit) -> [Vec3; 3] {
-        let tri = self.triangle(hit.tri as usize);
+        self.placed_triangle(hit.tri, hit.inst)
+    }
+
+    /// The world-space vertices of triangle `tri` as instance `inst` places
+    /// it (in a flat scene, `inst` is unused and the triangle is its own).
+    #[inline]
+    pub fn placed_triangle(&self, tri: u32, inst: u32) -> [Vec3; 3] {
+        let tri = self.triangle(tri as usize);
         match &self.instancing {
             Some(i) => {
-                let inst = &i.instances[hit.inst as usize];
+                let inst = &i.instances[inst as usize];
                 let [a, b, c] = tri.map(|p| inst.to_world.transform_point3(p));
                 if inst.mirrored {
                     [a, c, b]
