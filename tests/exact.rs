@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{assert_one_line_error, raylab, temp_dir};
+use common::{assert_one_line_error, assert_success, raylab, temp_dir};
 
 #[test]
 fn the_watertight_path_is_never_wrong_against_the_exact_reference() {
@@ -117,11 +117,7 @@ fn ray_files_round_trip_through_validate_and_bench() {
         "--size",
         "32x24",
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_success(&out);
     let bytes = std::fs::read(&file).unwrap();
     assert_eq!(&bytes[..8], b"RAYLABRY");
     let n = u64::from_le_bytes(bytes[16..24].try_into().unwrap()) as usize;
@@ -139,11 +135,7 @@ fn ray_files_round_trip_through_validate_and_bench() {
         "watertight",
         "--json",
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_success(&out);
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let traced: u64 = report[0]["sets"]
         .as_array()
@@ -164,11 +156,7 @@ fn ray_files_round_trip_through_validate_and_bench() {
         "--out",
         bench_out.to_str().unwrap(),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_success(&out);
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let points = report["libraries"].as_array().unwrap();
     assert!(!points.is_empty());
@@ -225,13 +213,10 @@ fn ray_files_of_an_instanced_scene_are_recorded_without_flattening_it() {
         "--size",
         "32x24",
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let bytes = std::fs::read(&file).unwrap();
-    let n = u64::from_le_bytes(bytes[16..24].try_into().unwrap()) as usize;
+    assert_success(&out);
+    // Read back as `validate --rays` and `bench --rays` read it.
+    let sets = raylab::measure::rayfile::read(&file).unwrap();
+    let n: usize = sets.iter().map(|(_, rays)| rays.len()).sum();
     assert!(n > 300, "primary, shadow, ao and diffuse rays: {n}");
     std::fs::remove_dir_all(&d).ok();
 }

@@ -43,9 +43,10 @@ pub fn run(args: &RaysArgs) -> Result<()> {
     args.files.check(std::slice::from_ref(&args.scene))?;
     let mut scene = args.files.load_instanced(&args.scene)?;
     let settings = args.view.prepare(&mut scene)?;
-    // Recorded with raylab's tree: the naive scan's hits bit for bit; an
-    // instanced scene with its two-level tree, as `render` traces it (a
-    // flattened copy of forest:100000 would be 10^9 triangles).
+    // Recorded with raylab's tree: the naive scan's hits bit for bit. An
+    // instanced scene with its two-level tree, as `render` traces it: the
+    // flattened scene's hits up to the transforms' rounding (a flattened
+    // copy of forest:100000 would be 10^9 triangles).
     let recorder = build_scene_backend(
         &BackendSpec::bvh(BuildParams::sah().with_width(8).with_threads(threads)),
         &scene,
