@@ -198,22 +198,44 @@ fn mesh_nodes<'a>(
 /// one node (each mesh stored once, in its own space; each node placing it
 /// an instance), else flattened as [`load_parts`] does.
 fn load_instanced(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Scene> {
+    Ok(instanced(bytes, path, policy, false)?.0)
+}
+
+/// A glTF file as an instanced scene whatever its meshes' uses (each node
+/// placing a mesh an instance), and the node of each instance: what a file
+/// whose animations move its nodes rigidly is followed as.
+pub(super) fn load_placed_instances(
+    bytes: &[u8],
+    path: &Path,
+    policy: RefPolicy,
+) -> Result<(Scene, Vec<usize>)> {
+    instanced(bytes, path, policy, true)
+}
+
+/// [`load_instanced`]'s work: instanced when a mesh is placed more than
+/// once or `always`, with the node of each instance (none when flattened).
+fn instanced(
+    bytes: &[u8],
+    path: &Path,
+    policy: RefPolicy,
+    always: bool,
+) -> Result<(Scene, Vec<usize>)> {
     let (doc, buffers) = read_document(bytes, path, policy)?;
     let err = |msg: String| parse_error(path, msg);
     let roots = root_nodes(&doc).map_err(err)?;
     // Every node placing a mesh, with its world transform.
-    let placed: Vec<(usize, Mat4)> = mesh_nodes(&roots)
+    let placed: Vec<(usize, usize, Mat4)> = mesh_nodes(&roots)
         .map_err(err)?
         .into_iter()
-        .map(|(_, mesh, world)| (mesh.index(), world))
+        .map(|(node, mesh, world)| (node.index(), mesh.index(), world))
         .collect();
     let mut uses = vec![0usize; doc.meshes().count()];
-    for &(m, _) in &placed {
+    for &(_, m, _) in &placed {
         uses[m] += 1;
     }
-    if uses.iter().all(|&u| u <= 1) {
+    if !always && uses.iter().all(|&u| u <= 1) {
         check_budget(&roots).map_err(err)?;
-        return Ok(flatten(&roots, &buffers, path)?.0);
+        return Ok((flatten(&roots, &buffers, path)?.0, Vec::new()));
     }
     // Budgets: the unique triangles and vertices, and the instances.
     let (mut triangles, mut vertices) = (0u64, 0u64);
@@ -236,7 +258,8 @@ fn load_instanced(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Scene>
     let mut skipped_primitives = 0;
     let mut empty = 0;
     let mut placements = Vec::with_capacity(placed.len());
-    for &(m, world) in &placed {
+    let mut nodes = Vec::with_capacity(placed.len());
+    for &(node, m, world) in &placed {
         if slot[m].is_none() {
             let mesh = doc.meshes().nth(m).expect("a mesh the nodes name");
             let mut out = Flattened::default();
@@ -283,7 +306,10 @@ fn load_instanced(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Scene>
         }
         match slot[m] {
             Some(u32::MAX) | None => {}
-            Some(s) => placements.push((s, glam::Affine3A::from_mat4(world))),
+            Some(s) => {
+                placements.push((s, glam::Affine3A::from_mat4(world)));
+                nodes.push(node);
+            }
         }
     }
     if placements.is_empty() {
@@ -303,7 +329,7 @@ fn load_instanced(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Scene>
     }
     warnings.append(&mut scene.warnings);
     scene.warnings = warnings;
-    Ok(scene)
+    Ok((scene, nodes))
 }
 
 /// Whether `bytes` declare glTF 1.0 (`"version": "1.0"` in the asset, or a

@@ -8,7 +8,10 @@
 //! time 0 to the last keyframe of any of them.
 //!
 //! The triangle list is the static load's: a frame moves vertices only, so a
-//! tree built on one frame can be refitted to the next.
+//! tree built on one frame can be refitted to the next. A file whose placed
+//! meshes all move rigidly with their nodes ([`NodeMotion::is_rigid`]) is
+//! followed as an instanced scene instead, whose instances move
+//! ([`NodeMotion::transforms_at`]).
 
 use glam::{Mat4, Quat, Vec3};
 
@@ -276,10 +279,54 @@ impl NodeMotion {
         }))
     }
 
-    /// Every vertex at time `t` into `positions` (the flattened scene's
-    /// array); an error when a transform overflows to a non-finite vertex.
-    pub fn positions_at(&self, t: f32, positions: &mut [Vec3]) -> std::result::Result<(), String> {
-        // Each node's local transform and weights at `t`.
+    /// Whether every placed mesh moves rigidly with its node: no skin, no
+    /// morph targets, no weight channel, and no scale channel that can pass
+    /// through zero (cubic splines can overshoot; linear and step keys must
+    /// keep each component's sign), so every node's transform stays
+    /// invertible. Such a file is followed as moving instances.
+    pub fn is_rigid(&self) -> bool {
+        let placed_still = self
+            .placed
+            .iter()
+            .all(|p| p.skin.is_none() && p.targets.is_empty());
+        let channels_rigid = self.channels.iter().all(|ch| match ch.path {
+            Path::Weights => false,
+            Path::Scale => {
+                ch.interpolation != Interpolation::CubicSpline
+                    && (0..3).all(|c| {
+                        let keys = ch.values.iter().skip(c).step_by(3);
+                        keys.clone().all(|&v| v > 0.0) || keys.clone().all(|&v| v < 0.0)
+                    })
+            }
+            Path::Translation | Path::Rotation => true,
+        });
+        placed_still && channels_rigid
+    }
+
+    /// The world transform at `t` of each node in `nodes` (the nodes of an
+    /// instanced load's instances); an error when one is not finite.
+    pub fn transforms_at(
+        &self,
+        t: f32,
+        nodes: &[usize],
+    ) -> std::result::Result<Vec<glam::Affine3A>, String> {
+        let (world, _) = self.world_at(t)?;
+        nodes
+            .iter()
+            .map(|&n| {
+                let m = world[n];
+                if m.is_finite() {
+                    Ok(glam::Affine3A::from_mat4(m))
+                } else {
+                    Err(format!("at {t} s the transform of node {n} is not finite"))
+                }
+            })
+            .collect()
+    }
+
+    /// Every node's world transform and morph weights at `t`.
+    #[allow(clippy::type_complexity)]
+    fn world_at(&self, t: f32) -> std::result::Result<(Vec<Mat4>, Vec<Vec<f32>>), String> {
         let mut trs: Vec<(Vec3, Quat, Vec3)> = self.nodes.iter().map(|n| (n.t, n.r, n.s)).collect();
         let mut weights: Vec<Vec<f32>> = self.nodes.iter().map(|n| n.weights.clone()).collect();
         for ch in &self.channels {
@@ -326,6 +373,13 @@ impl NodeMotion {
             }
         }
         let world: Vec<Mat4> = world.into_iter().map(|w| w.expect("every node")).collect();
+        Ok((world, weights))
+    }
+
+    /// Every vertex at time `t` into `positions` (the flattened scene's
+    /// array); an error when a transform overflows to a non-finite vertex.
+    pub fn positions_at(&self, t: f32, positions: &mut [Vec3]) -> std::result::Result<(), String> {
+        let (world, weights) = self.world_at(t)?;
         for p in &self.placed {
             let w = &weights[p.node];
             let out = &mut positions[p.base..p.base + p.local.len()];
@@ -493,17 +547,31 @@ pub(super) fn file_error(path: &std::path::Path, msg: String) -> Error {
     }
 }
 
-/// Loads a glTF file's animations: the scene as loaded, and its motion.
-pub(super) fn load(
-    path: &std::path::Path,
-    policy: super::refs::RefPolicy,
-) -> Result<(super::Scene, NodeMotion)> {
+/// A glTF file's animations, as loaded: over the flattened scene (its
+/// vertices move), or, when every placed mesh moves rigidly with its node,
+/// over an instanced scene whose instances move (a two-level tree follows
+/// it by updating its instances' tree alone).
+pub(super) enum Followed {
+    Vertices(super::Scene, NodeMotion),
+    /// The scene (at the file's static transforms), its instances' nodes.
+    Instances(super::Scene, NodeMotion, Vec<usize>),
+}
+
+/// Loads a glTF file's animations.
+pub(super) fn load(path: &std::path::Path, policy: super::refs::RefPolicy) -> Result<Followed> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     let loaded = super::gltf::load_parts(&bytes, path, policy)?;
     let motion = NodeMotion::of(&loaded)
         .map_err(|m| file_error(path, m))?
         .ok_or_else(|| file_error(path, "the file has no animations".into()))?;
-    Ok((loaded.scene, motion))
+    if motion.is_rigid() {
+        // A static node that cannot be inverted (a zero scale) cannot be an
+        // instance; its vertices are followed instead.
+        if let Ok((scene, nodes)) = super::gltf::load_placed_instances(&bytes, path, policy) {
+            return Ok(Followed::Instances(scene, motion, nodes));
+        }
+    }
+    Ok(Followed::Vertices(loaded.scene, motion))
 }
 
 #[cfg(test)]
@@ -559,6 +627,108 @@ mod tests {
         let loaded = super::super::gltf::load_parts(bytes, path, Default::default())
             .map_err(|e| e.to_string())?;
         Ok(NodeMotion::of(&loaded)?.expect("animated"))
+    }
+
+    /// A glTF of one triangle placed by three nodes (node 1 a child of node
+    /// 0, node 2 still) whose animation turns node 0, and scales and steps
+    /// node 1 (its scale keys `scale_to` at 2 s).
+    fn jointed_triangles(scale_to: [f32; 3]) -> Vec<u8> {
+        use base64::Engine;
+        let floats: Vec<f32> = [
+            // 0: the triangle, 36 bytes
+            vec![0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+            // 36: the times, 8 bytes
+            vec![0.0, 2.0],
+            // 44: node 0's rotations (a quarter turn about y), 32 bytes
+            vec![0.0, 0.0, 0.0, 1.0, 0.0, 0.707_106_77, 0.0, 0.707_106_77],
+            // 76: node 1's scales, 24 bytes
+            [vec![1.0, 1.0, 1.0], scale_to.to_vec()].concat(),
+            // 100: node 1's translations, 24 bytes
+            vec![0.0, 1.0, 0.0, 3.0, 1.0, 0.0],
+        ]
+        .concat();
+        let bin: Vec<u8> = floats.iter().flat_map(|f| f.to_le_bytes()).collect();
+        let uri = format!(
+            "data:application/octet-stream;base64,{}",
+            base64::engine::general_purpose::STANDARD.encode(&bin)
+        );
+        let view = |offset: usize, len: usize| {
+            format!(r#"{{"buffer":0,"byteOffset":{offset},"byteLength":{len}}}"#)
+        };
+        format!(
+            r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0,2]}}],
+            "nodes":[{{"mesh":0,"children":[1],"translation":[0,0,-1]}},
+                     {{"mesh":0,"translation":[0,1,0]}},
+                     {{"mesh":0,"translation":[5,0,0]}}],
+            "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}}}}]}}],
+            "buffers":[{{"byteLength":{},"uri":"{uri}"}}],
+            "bufferViews":[{},{},{},{},{}],
+            "accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}},
+                         {{"bufferView":1,"componentType":5126,"count":2,"type":"SCALAR","min":[0],"max":[2]}},
+                         {{"bufferView":2,"componentType":5126,"count":2,"type":"VEC4"}},
+                         {{"bufferView":3,"componentType":5126,"count":2,"type":"VEC3"}},
+                         {{"bufferView":4,"componentType":5126,"count":2,"type":"VEC3"}}],
+            "animations":[{{"channels":[{{"sampler":0,"target":{{"node":0,"path":"rotation"}}}},
+                                        {{"sampler":1,"target":{{"node":1,"path":"scale"}}}},
+                                        {{"sampler":2,"target":{{"node":1,"path":"translation"}}}}],
+                            "samplers":[{{"input":1,"output":2}},{{"input":1,"output":3}},
+                                        {{"input":1,"output":4,"interpolation":"STEP"}}]}}]}}"#,
+            bin.len(),
+            view(0, 36),
+            view(36, 8),
+            view(44, 32),
+            view(76, 24),
+            view(100, 24),
+        )
+        .into_bytes()
+    }
+
+    /// The animation of `bytes` loaded from a file, as `render --time` does.
+    fn animation_of(bytes: &[u8], name: &str) -> crate::scene::motion::Animation {
+        let dir = std::env::temp_dir().join(format!("raylab-gltf-motion-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(name);
+        std::fs::write(&path, bytes).unwrap();
+        crate::scene::motion::Animation::load(path.to_str().unwrap(), Default::default(), "--time")
+            .unwrap()
+    }
+
+    #[test]
+    fn rigidly_moving_nodes_are_followed_as_moving_instances_placed_as_the_vertices_would_be() {
+        let bytes = jointed_triangles([2.0, 0.5, 1.0]);
+        let animation = animation_of(&bytes, "jointed.gltf");
+        assert!(animation.moves_instances());
+        assert_eq!(animation.rest().instance_count(), 3);
+        // The same file followed vertex by vertex, as before.
+        let vertices = motion_of(&bytes).unwrap();
+        assert!(vertices.is_rigid());
+        for t in [0.0, 0.7, 1.0, 1.5, 2.0] {
+            let frame = animation.frame(t).unwrap().flattened().unwrap();
+            let mut want = vec![Vec3::ZERO; 9];
+            vertices.positions_at(t, &mut want).unwrap();
+            let got: Vec<Vec3> = (0..frame.triangle_count())
+                .flat_map(|i| frame.triangle(i))
+                .collect();
+            assert_eq!(got.len(), want.len());
+            for (g, w) in got.iter().zip(&want) {
+                assert!((*g - *w).length() < 1e-5, "at {t} s: {g} against {w}");
+            }
+        }
+        // The child moved by its parent's turn: at 2 s node 1's triangle is
+        // turned a quarter about y (x goes to -z) and stepped to x = 3.
+        let end = animation.frame(2.0).unwrap().flattened().unwrap();
+        let child = end.triangle(1);
+        assert!((child[1] - child[0] - Vec3::new(0.0, 0.0, -2.0)).length() < 1e-5);
+    }
+
+    #[test]
+    fn a_scale_through_zero_is_followed_vertex_by_vertex() {
+        let bytes = jointed_triangles([2.0, 0.0, 1.0]);
+        assert!(!motion_of(&bytes).unwrap().is_rigid());
+        let animation = animation_of(&bytes, "collapsing.gltf");
+        assert!(!animation.moves_instances());
+        // At 2 s node 1's triangle is flat in y (and still traced).
+        animation.frame(2.0).unwrap();
     }
 
     #[test]

@@ -16,7 +16,9 @@
 //!   or rebuilds its instances' tree (the TLAS) alone.
 //!
 //! - a glTF file's animations ([`super::gltf_motion`]): node TRS keyframes,
-//!   morph targets and skins, as the file's author made them.
+//!   morph targets and skins, as the file's author made them. When every
+//!   placed mesh moves rigidly with its node, its instances move, as the
+//!   asteroids' do.
 //!
 //! Frames drop the rest pose's vertex normals (they would not follow the
 //! motion) and shade with the geometric normal.
@@ -25,6 +27,7 @@ use std::f32::consts::TAU;
 
 use glam::{Quat, Vec3};
 
+use super::gltf_motion::Followed;
 use super::shapes::{parse_count, still, MESH_TRIANGLES};
 use super::{Material, Scene};
 use crate::error::{Error, Result};
@@ -68,8 +71,13 @@ enum Motion {
         axes: Vec<Vec3>,
         spins: Vec<f32>,
     },
-    /// A glTF file's animations (node TRS, morph weights, skins).
+    /// A glTF file's animations (node TRS, morph weights, skins) moving
+    /// the flattened scene's vertices.
     Nodes(Box<super::gltf_motion::NodeMotion>),
+    /// A glTF file's animations that move every placed mesh rigidly with
+    /// its node: the instances move (the node of each instance given), the
+    /// meshes do not.
+    Placed(Box<(super::gltf_motion::NodeMotion, Vec<usize>)>),
     /// The instances move (each by its orbit), the meshes do not.
     Instances(Box<super::asteroids::Belt>),
     /// Vertices from `first` on are a `cols x rows` grid hanging in the
@@ -137,18 +145,32 @@ impl Animation {
                     format!("{spec} does not move: raylab reads animations from glTF files (.gltf, .glb) and has the animated built-ins explode:N, cloth:N and asteroids:N"),
                 ));
             }
-            let (mut rest, motion) = super::gltf_motion::load(path, policy)?;
-            let duration = motion.duration;
-            let mut positions = rest.positions.clone();
-            motion
-                .positions_at(0.0, &mut positions)
-                .map_err(|m| super::gltf_motion::file_error(path, m))?;
-            rest.positions = positions;
-            return Ok(Animation {
-                rest,
-                motion: Motion::Nodes(Box::new(motion)),
-                duration,
-            });
+            let file_error = |m| super::gltf_motion::file_error(path, m);
+            return match super::gltf_motion::load(path, policy)? {
+                Followed::Vertices(mut rest, motion) => {
+                    let duration = motion.duration;
+                    let mut positions = rest.positions.clone();
+                    motion
+                        .positions_at(0.0, &mut positions)
+                        .map_err(file_error)?;
+                    rest.positions = positions;
+                    Ok(Animation {
+                        rest,
+                        motion: Motion::Nodes(Box::new(motion)),
+                        duration,
+                    })
+                }
+                Followed::Instances(placed, motion, nodes) => {
+                    let duration = motion.duration;
+                    let rest = placed
+                        .moved_instances(&motion.transforms_at(0.0, &nodes).map_err(file_error)?)?;
+                    Ok(Animation {
+                        rest,
+                        motion: Motion::Placed(Box::new((motion, nodes))),
+                        duration,
+                    })
+                }
+            };
         }
         Animation::parse(spec).unwrap_or_else(|| {
             let names: Vec<&str> = ANIMATED_SCENES.iter().map(|(n, _)| *n).collect();
@@ -242,7 +264,7 @@ impl Animation {
     /// Whether its instances move (and its meshes do not): a two-level tree
     /// follows it by updating the instances' tree alone.
     pub fn moves_instances(&self) -> bool {
-        matches!(self.motion, Motion::Instances(_))
+        matches!(self.motion, Motion::Instances(_) | Motion::Placed(_))
     }
 
     fn cloth(name: &str) -> Result<Animation> {
@@ -331,7 +353,7 @@ impl Animation {
                 msg,
             })?,
             // The meshes do not move; the instances do, in `frame`.
-            Motion::Instances(_) => {}
+            Motion::Instances(_) | Motion::Placed(_) => {}
             Motion::Explode {
                 first,
                 centroids,
@@ -375,8 +397,17 @@ impl Animation {
     /// materials, the vertices moved, no vertex normals, lights found anew;
     /// for moving instances, the rest pose's meshes with the instances moved.
     pub fn frame(&self, t: f32) -> Result<Scene> {
-        if let Motion::Instances(belt) = &self.motion {
-            return self.rest.moved_instances(&belt.transforms_at(t));
+        match &self.motion {
+            Motion::Instances(belt) => return self.rest.moved_instances(&belt.transforms_at(t)),
+            Motion::Placed(placed) => {
+                let (motion, nodes) = placed.as_ref();
+                let transforms = motion.transforms_at(t, nodes).map_err(|msg| Error::Scene {
+                    name: self.rest.name.clone(),
+                    msg,
+                })?;
+                return self.rest.moved_instances(&transforms);
+            }
+            _ => {}
         }
         let mut s = self.rest.clone();
         s.positions = self.positions_at(t)?;
