@@ -84,6 +84,18 @@ pub unsafe fn occluded1(scene: ffi::RTCScene, ray: &mut ffi::RTCRay) {
     }
 }
 
+/// What an occlusion packet tells Embree 3 of its rays. Coherent is the
+/// hint for raylab's packets of neighbouring rays; incoherent is for
+/// packets through instances: there Embree 3.13.5's coherent
+/// `rtcOccluded16` never returned (forest:10's shadow packets in `bench
+/// --parts instances`, every run, stuck inside Embree), and the incoherent
+/// one answers the same rays.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Coherence {
+    Coherent,
+    Incoherent,
+}
+
 /// `rtcIntersect{N}` and `rtcOccluded{N}` for one packet width.
 macro_rules! packet_queries {
     ($intersect:ident, $occluded:ident, $rtc_intersect:ident, $rtc_occluded:ident, $ray_hit:ident, $ray:ident) => {
@@ -109,20 +121,29 @@ macro_rules! packet_queries {
             }
         }
 
-        #[doc = concat!("`", stringify!($rtc_occluded), "` on a committed scene, coherent rays; sets an occluded lane's `tfar` to -inf.")]
+        #[doc = concat!("`", stringify!($rtc_occluded), "` on a committed scene; sets an occluded lane's `tfar` to -inf. `hint` is Embree 3's coherence flag (Embree 4's default is incoherent).")]
         ///
         /// # Safety
         /// As for the closest-hit query.
         #[inline]
-        pub unsafe fn $occluded(valid: *const i32, scene: ffi::RTCScene, rays: &mut ffi::$ray) {
+        pub unsafe fn $occluded(
+            valid: *const i32,
+            scene: ffi::RTCScene,
+            rays: &mut ffi::$ray,
+            hint: Coherence,
+        ) {
             #[cfg(embree3)]
             {
-                let mut ctx = coherent();
+                let mut ctx = match hint {
+                    Coherence::Coherent => coherent(),
+                    Coherence::Incoherent => context(),
+                };
                 // SAFETY: as above.
                 unsafe { ffi::$rtc_occluded(valid, scene, &mut ctx, rays) }
             }
             #[cfg(embree4)]
             {
+                let _ = hint;
                 // SAFETY: as above.
                 unsafe { ffi::$rtc_occluded(valid, scene, rays, std::ptr::null_mut()) }
             }

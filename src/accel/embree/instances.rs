@@ -9,8 +9,8 @@ use std::sync::Arc;
 use super::api;
 use super::ffi;
 use super::wrapper::{
-    embree_ray, embree_takes, intersect_packets, raw_quality, tasking_threads, Device, EmbreeScene,
-    EmbreeUpdate,
+    embree_ray, embree_takes, intersect_packets, occluded_packets, raw_quality, tasking_threads,
+    Device, EmbreeScene, EmbreeUpdate,
 };
 use super::Quality;
 use crate::accel::{Backend, Query};
@@ -222,14 +222,11 @@ impl EmbreeInstanced {
     }
 
     /// Traces streams with `query`: single rays or packets of 4, 8 or 16
-    /// (`rtcIntersect{N}` on the top scene; Embree takes the packet through
-    /// the instances) for closest hits. Occlusion goes ray by ray
-    /// (`rtcOccluded1`, the trait's default stream) on every path: Embree
-    /// 3.13.5 once never returned from `rtcOccluded16` through the
-    /// instances (16 coherent shadow rays of forest:10, inside `bench
-    /// --parts instances`), which the same rays, scene and calls outside
-    /// the bench did not repeat. Embree 3's stream API is not wired for
-    /// instances.
+    /// (`rtcIntersect{N}` and `rtcOccluded{N}` on the top scene; Embree
+    /// takes the packet through the instances). Occlusion packets are
+    /// marked incoherent for Embree 3 (`api::Coherence`: its coherent
+    /// `rtcOccluded16` through instances never returned). Embree 3's stream
+    /// API is not wired for instances.
     pub fn with_query(mut self, query: Query) -> Result<Self> {
         self.set_query(query)?;
         Ok(self)
@@ -321,6 +318,21 @@ impl Backend for EmbreeInstanced {
             _ => {
                 for (ray, hit) in rays.iter().zip(hits) {
                     *hit = self.intersect(ray);
+                }
+            }
+        }
+    }
+
+    fn occluded_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
+        match self.query {
+            // SAFETY: `self.top` is a committed scene kept alive by `self`.
+            // Incoherent: see `api::Coherence`.
+            Query::Packet(n) => unsafe {
+                occluded_packets(self.top, n, rays, occluded, api::Coherence::Incoherent)
+            },
+            _ => {
+                for (ray, o) in rays.iter().zip(occluded) {
+                    *o = self.occluded(ray);
                 }
             }
         }

@@ -558,7 +558,12 @@ macro_rules! packet_queries {
 
         /// # Safety
         /// As for the closest-hit query beside it.
-        pub(super) unsafe fn $occluded(scene: ffi::RTCScene, rays: &[Ray], occluded: &mut [bool]) {
+        pub(super) unsafe fn $occluded(
+            scene: ffi::RTCScene,
+            rays: &[Ray],
+            occluded: &mut [bool],
+            hint: api::Coherence,
+        ) {
             for (rays, occluded) in rays.chunks($n).zip(occluded.chunks_mut($n)) {
                 let mut valid = Valid([0i32; $n]);
                 // SAFETY: as above.
@@ -570,7 +575,7 @@ macro_rules! packet_queries {
                     }
                 }
                 // SAFETY: as above.
-                unsafe { api::$api_occluded(valid.0.as_ptr(), scene, &mut p) };
+                unsafe { api::$api_occluded(valid.0.as_ptr(), scene, &mut p, hint) };
                 for (lane, o) in occluded.iter_mut().enumerate() {
                     *o = valid.0[lane] != 0 && p.tfar[lane] == f32::NEG_INFINITY;
                 }
@@ -640,13 +645,14 @@ pub(super) unsafe fn occluded_packets(
     n: usize,
     rays: &[Ray],
     occluded: &mut [bool],
+    hint: api::Coherence,
 ) {
     // SAFETY: the caller's guarantee, passed on.
     unsafe {
         match n {
-            4 => occluded4(scene, rays, occluded),
-            8 => occluded8(scene, rays, occluded),
-            16 => occluded16(scene, rays, occluded),
+            4 => occluded4(scene, rays, occluded, hint),
+            8 => occluded8(scene, rays, occluded, hint),
+            16 => occluded16(scene, rays, occluded, hint),
             _ => unreachable!("Embree's packets are 4, 8 or 16 rays"),
         }
     }
@@ -888,7 +894,9 @@ impl Backend for EmbreeBackend {
             #[cfg(embree3)]
             Query::Stream => s.occluded_1m(rays, occluded),
             // SAFETY: as above.
-            Query::Packet(n) => unsafe { occluded_packets(s.raw, n, rays, occluded) },
+            Query::Packet(n) => unsafe {
+                occluded_packets(s.raw, n, rays, occluded, api::Coherence::Coherent)
+            },
             _ => {
                 for (ray, o) in rays.iter().zip(occluded) {
                     *o = s.occluded(ray);
