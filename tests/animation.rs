@@ -67,7 +67,7 @@ fn every_strategy_answers_as_the_naive_scan_on_every_frame() {
             for f in &mut followers {
                 f.update(&frame).unwrap();
                 let who = format!("{name} at {t} s, {}", f.strategy.name());
-                for q in [Query::Single, Query::Packet(8), Query::Packet(16)] {
+                for q in f.queries() {
                     f.set_query(q).unwrap();
                     let got = closest(f.backend(), &rays);
                     let got_any = occluded(f.backend(), &rays);
@@ -288,7 +288,7 @@ fn moving_instances_every_strategy_answers_as_a_fresh_two_level_tree() {
         for f in &mut followers {
             f.update(&frame).unwrap();
             let who = format!("asteroids:80 at {t} s, {}", f.strategy.name());
-            for q in [Query::Single, Query::Packet(8), Query::Packet(16)] {
+            for q in f.queries() {
                 if f.set_query(q).is_err() {
                     // packet16 needs AVX-512.
                     assert_eq!(q, Query::Packet(16), "{who}");

@@ -303,7 +303,10 @@ fn embree_packets_and_streams_answer_as_its_single_rays() {
         let single = EmbreeBackend::new(&scene, Quality::Medium, false, 1).unwrap();
         let recorded = recorded_rays(&scene, &single, &s).unwrap();
         let diffuse = recorded.diffuse(&scene, 3);
-        let mut queries = vec![Query::Packet(4), Query::Packet(8), Query::Packet(16)];
+        let mut queries: Vec<Query> = [4, 8, 16]
+            .into_iter()
+            .flat_map(|n| [Query::Packet(n), Query::IncoherentPacket(n)])
+            .collect();
         if HAS_STREAMS {
             queries.push(Query::Stream);
         }

@@ -263,8 +263,11 @@ fn packets_through_instances_answer_as_single_rays() {
     }
     for spec in specs {
         let single = build_scene_backend(&spec.with_query(Query::Single).unwrap(), &s).unwrap();
-        for n in [4, 8, 16] {
-            let Ok(packets) = spec.with_query(Query::Packet(n)) else {
+        let paths = [4, 8, 16]
+            .into_iter()
+            .flat_map(|n| [Query::Packet(n), Query::IncoherentPacket(n)]);
+        for q in paths {
+            let Ok(packets) = spec.with_query(q) else {
                 continue;
             };
             let Ok(packets) = build_scene_backend(&packets, &s) else {

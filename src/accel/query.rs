@@ -17,24 +17,44 @@ pub enum Query {
     Packet(usize),
     /// Embree 3's stream API over the whole stream (`rtcIntersect1M`).
     Stream,
+    /// Embree's packets of `N` rays (4, 8 or 16) marked incoherent
+    /// (`RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT`) instead of coherent: its
+    /// faster path for scattered rays, and on some scenes for shadow, AO
+    /// and even primary rays (docs/results.md). Embree 4 takes no hint from
+    /// raylab (null arguments: its default, incoherent), so there it is the
+    /// same call as `Packet`.
+    IncoherentPacket(usize),
 }
 
 impl Query {
     /// Every path some backend has, in the order reports list them.
-    pub const ALL: [Query; 5] = [
+    pub const ALL: [Query; 8] = [
         Query::Single,
         Query::Packet(4),
         Query::Packet(8),
         Query::Packet(16),
         Query::Stream,
+        Query::IncoherentPacket(4),
+        Query::IncoherentPacket(8),
+        Query::IncoherentPacket(16),
     ];
 
-    /// `single`, `packet8`, `stream`.
+    /// `single`, `packet8`, `stream`, `packet16-incoherent`.
     pub fn name(self) -> String {
         match self {
             Query::Single => "single".into(),
             Query::Packet(n) => format!("packet{n}"),
             Query::Stream => "stream".into(),
+            Query::IncoherentPacket(n) => format!("packet{n}-incoherent"),
+        }
+    }
+
+    /// Embree's packets, coherent or not, with their width.
+    pub fn embree_packet(self) -> Option<(usize, bool)> {
+        match self {
+            Query::Packet(n) => Some((n, true)),
+            Query::IncoherentPacket(n) => Some((n, false)),
+            _ => None,
         }
     }
 }
@@ -51,6 +71,8 @@ impl FromStr for Query {
         Query::ALL
             .into_iter()
             .find(|q| q.name() == s)
-            .ok_or_else(|| format!("'{s}': expected single, packet4, packet8, packet16 or stream"))
+            .ok_or_else(|| {
+                format!("'{s}': expected single, packet4, packet8, packet16, stream or packetN-incoherent (N = 4, 8, 16)")
+            })
     }
 }

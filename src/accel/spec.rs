@@ -337,8 +337,9 @@ impl BackendSpec {
 
     /// The query paths this backend has: single rays for all; raylab's
     /// 8- and 16-ray packets for the 8-wide tree (16 in AVX-512 lanes where
-    /// the CPU has it); Embree's packets of 4, 8 and 16 rays, and its stream
-    /// API where the linked Embree has it (3, not 4).
+    /// the CPU has it); Embree's packets of 4, 8 and 16 rays, coherent and
+    /// incoherent, and its stream API where the linked Embree has it (3,
+    /// not 4).
     pub fn queries(&self) -> Vec<Query> {
         match self {
             BackendSpec::Naive { .. } | BackendSpec::Library { .. } => vec![Query::Single],
@@ -463,7 +464,7 @@ impl BackendSpec {
 pub fn name_grammar() -> String {
     let builders: Vec<&str> = BuilderKind::ALL.map(BuilderKind::name).to_vec();
     format!(
-        "naive[-watertight], bvh|bvh4|bvh8-BUILDER[-opt][-watertight][-packet8|-packet16] (BUILDER: {}), embree[-low|-medium|-high][-robust][-packet4|-packet8|-packet16|-stream], tinybvh[-bvh8|-bvh][-hq], obvhs[-cwbvh|-bvh2][-low|-medium|-high], bvh-crate; e.g. {}",
+        "naive[-watertight], bvh|bvh4|bvh8-BUILDER[-opt][-watertight][-packet8|-packet16] (BUILDER: {}), embree[-low|-medium|-high][-robust][-packet4|-packet8|-packet16[-incoherent]|-stream], tinybvh[-bvh8|-bvh][-hq], obvhs[-cwbvh|-bvh2][-low|-medium|-high], bvh-crate; e.g. {}",
         builders.join(", "),
         BackendSpec::DEFAULT.name()
     )
@@ -573,8 +574,11 @@ impl std::str::FromStr for BackendSpec {
         };
         let query = match spec {
             BackendSpec::Bvh { .. } | BackendSpec::Embree { .. } => {
-                let paths = &Query::ALL[1..];
-                eat_one(&mut rest, paths, Query::name).unwrap_or(Query::Single)
+                // Longest names first: `packet16` is a prefix of
+                // `packet16-incoherent`.
+                let mut paths = Query::ALL[1..].to_vec();
+                paths.sort_by_key(|q| std::cmp::Reverse(q.name().len()));
+                eat_one(&mut rest, &paths, Query::name).unwrap_or(Query::Single)
             }
             _ => Query::Single,
         };

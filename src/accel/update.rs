@@ -351,9 +351,14 @@ impl Follower {
         }
     }
 
-    /// The query paths it can trace with.
+    /// The query paths it can trace with (Embree's packets coherent and
+    /// incoherent).
     pub fn queries(&self) -> Vec<Query> {
-        vec![Query::Single, Query::Packet(8), Query::Packet(16)]
+        let mut paths = vec![Query::Single, Query::Packet(8), Query::Packet(16)];
+        if self.strategy.is_embree() {
+            paths.extend([Query::IncoherentPacket(8), Query::IncoherentPacket(16)]);
+        }
+        paths
     }
 
     /// The backend as it stands.

@@ -211,13 +211,14 @@ impl Variant {
             BackendSpec::Embree {
                 quality, robust, ..
             } => {
-                let n = match self.backend.query() {
-                    Query::Packet(n) => n.to_string(),
-                    Query::Stream => "1M".into(),
-                    Query::Single => "1".into(),
+                let (n, hint) = match self.backend.query() {
+                    Query::Packet(n) => (n.to_string(), ""),
+                    Query::IncoherentPacket(n) => (n.to_string(), ", marked incoherent"),
+                    Query::Stream => ("1M".into(), ""),
+                    Query::Single => ("1".into(), ""),
                 };
                 format!(
-                    "Embree {}{}, rtcIntersect{n}/rtcOccluded{n}",
+                    "Embree {}{}, rtcIntersect{n}/rtcOccluded{n}{hint}",
                     quality.name().to_uppercase(),
                     if robust { " robust" } else { "" }
                 )

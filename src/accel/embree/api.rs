@@ -84,12 +84,14 @@ pub unsafe fn occluded1(scene: ffi::RTCScene, ray: &mut ffi::RTCRay) {
     }
 }
 
-/// What an occlusion packet tells Embree 3 of its rays. Coherent is the
-/// hint for raylab's packets of neighbouring rays; incoherent is for
-/// packets through instances: there Embree 3.13.5's coherent
+/// What a packet query tells Embree 3 of its rays (`--query packetN` or
+/// `packetN-incoherent`). Neither is always faster: on cornell-water,
+/// Wuson, the engine and Sponza incoherent packets took 0.45-0.89x the
+/// coherent ones' time for shadow, diffuse and most AO rays, and 0.68-1.38x
+/// for primary rays (docs/results.md), so the bench times both. Occlusion
+/// through instances is always incoherent: there Embree 3.13.5's coherent
 /// `rtcOccluded16` never returned (forest:10's shadow packets in `bench
-/// --parts instances`, every run, stuck inside Embree), and the incoherent
-/// one answers the same rays.
+/// --parts instances`, every run, stuck inside Embree).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Coherence {
     Coherent,
@@ -99,23 +101,32 @@ pub enum Coherence {
 /// `rtcIntersect{N}` and `rtcOccluded{N}` for one packet width.
 macro_rules! packet_queries {
     ($intersect:ident, $occluded:ident, $rtc_intersect:ident, $rtc_occluded:ident, $ray_hit:ident, $ray:ident) => {
-        #[doc = concat!("`", stringify!($rtc_intersect), "` on a committed scene, coherent rays.")]
+        #[doc = concat!("`", stringify!($rtc_intersect), "` on a committed scene; `hint` as for occlusion.")]
         ///
         /// # Safety
         /// `scene` must be a valid, committed scene that outlives the call;
         /// `valid` must point to one `i32` per lane (-1 valid, 0 not), aligned
         /// as the packet is.
         #[inline]
-        pub unsafe fn $intersect(valid: *const i32, scene: ffi::RTCScene, rays: &mut ffi::$ray_hit) {
+        pub unsafe fn $intersect(
+            valid: *const i32,
+            scene: ffi::RTCScene,
+            rays: &mut ffi::$ray_hit,
+            hint: Coherence,
+        ) {
             #[cfg(embree3)]
             {
-                let mut ctx = coherent();
+                let mut ctx = match hint {
+                    Coherence::Coherent => coherent(),
+                    Coherence::Incoherent => context(),
+                };
                 // SAFETY: the caller guarantees `scene` and `valid`; `ctx` and
                 // `rays` are live.
                 unsafe { ffi::$rtc_intersect(valid, scene, &mut ctx, rays) }
             }
             #[cfg(embree4)]
             {
+                let _ = hint;
                 // SAFETY: as above; null arguments select the defaults.
                 unsafe { ffi::$rtc_intersect(valid, scene, rays, std::ptr::null_mut()) }
             }

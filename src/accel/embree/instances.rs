@@ -221,19 +221,22 @@ impl EmbreeInstanced {
         self.build_threads
     }
 
-    /// Traces streams with `query`: single rays or packets of 4, 8 or 16
-    /// (`rtcIntersect{N}` and `rtcOccluded{N}` on the top scene; Embree
-    /// takes the packet through the instances). Occlusion packets are
-    /// marked incoherent for Embree 3 (`api::Coherence`: its coherent
-    /// `rtcOccluded16` through instances never returned). Embree 3's stream
-    /// API is not wired for instances.
+    /// Traces streams with `query`: single rays or packets of 4, 8 or 16,
+    /// coherent or incoherent (`rtcIntersect{N}` and `rtcOccluded{N}` on the
+    /// top scene; Embree takes the packet through the instances). Occlusion
+    /// packets are marked incoherent on both packet paths (`api::Coherence`:
+    /// Embree 3's coherent `rtcOccluded16` through instances never
+    /// returned). Embree 3's stream API is not wired for instances.
     pub fn with_query(mut self, query: Query) -> Result<Self> {
         self.set_query(query)?;
         Ok(self)
     }
 
     fn check_query(query: Query) -> Result<()> {
-        if !matches!(query, Query::Single | Query::Packet(4 | 8 | 16)) {
+        if !matches!(
+            query,
+            Query::Single | Query::Packet(4 | 8 | 16) | Query::IncoherentPacket(4 | 8 | 16)
+        ) {
             return Err(Error::usage(
                 "--query",
                 format!("Embree's instanced scene is traced as single rays or packets of 4, 8 or 16 here, not {query}"),
@@ -310,10 +313,15 @@ impl Backend for EmbreeInstanced {
     }
 
     fn intersect_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
+        let first = Some(self.first_tri.as_slice());
         match self.query {
             // SAFETY: `self.top` is a committed scene kept alive by `self`.
             Query::Packet(n) => unsafe {
-                intersect_packets(self.top, n, rays, hits, Some(&self.first_tri))
+                intersect_packets(self.top, n, rays, hits, first, api::Coherence::Coherent)
+            },
+            // SAFETY: as above.
+            Query::IncoherentPacket(n) => unsafe {
+                intersect_packets(self.top, n, rays, hits, first, api::Coherence::Incoherent)
             },
             _ => {
                 for (ray, hit) in rays.iter().zip(hits) {
@@ -326,8 +334,8 @@ impl Backend for EmbreeInstanced {
     fn occluded_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
         match self.query {
             // SAFETY: `self.top` is a committed scene kept alive by `self`.
-            // Incoherent: see `api::Coherence`.
-            Query::Packet(n) => unsafe {
+            // Incoherent on both packet paths: see `api::Coherence`.
+            Query::Packet(n) | Query::IncoherentPacket(n) => unsafe {
                 occluded_packets(self.top, n, rays, occluded, api::Coherence::Incoherent)
             },
             _ => {

@@ -515,6 +515,7 @@ macro_rules! packet_queries {
             rays: &[Ray],
             hits: &mut [Option<Hit>],
             first_tri: Option<&[u32]>,
+            hint: api::Coherence,
         ) {
             for (rays, hits) in rays.chunks($n).zip(hits.chunks_mut($n)) {
                 let mut valid = Valid([0i32; $n]);
@@ -533,7 +534,7 @@ macro_rules! packet_queries {
                 }
                 // SAFETY: the caller guarantees `scene`; `valid` has one
                 // aligned i32 per lane.
-                unsafe { api::$api_intersect(valid.0.as_ptr(), scene, &mut p) };
+                unsafe { api::$api_intersect(valid.0.as_ptr(), scene, &mut p, hint) };
                 for (lane, hit) in hits.iter_mut().enumerate() {
                     let (prim, inst) = (p.hit.primID[lane], p.hit.instID[0][lane]);
                     let found = valid.0[lane] != 0 && p.hit.geomID[lane] != api::INVALID_ID;
@@ -624,13 +625,14 @@ pub(super) unsafe fn intersect_packets(
     rays: &[Ray],
     hits: &mut [Option<Hit>],
     first_tri: Option<&[u32]>,
+    hint: api::Coherence,
 ) {
     // SAFETY: the caller's guarantee, passed on.
     unsafe {
         match n {
-            4 => intersect4(scene, rays, hits, first_tri),
-            8 => intersect8(scene, rays, hits, first_tri),
-            16 => intersect16(scene, rays, hits, first_tri),
+            4 => intersect4(scene, rays, hits, first_tri, hint),
+            8 => intersect8(scene, rays, hits, first_tri, hint),
+            16 => intersect16(scene, rays, hits, first_tri, hint),
             _ => unreachable!("Embree's packets are 4, 8 or 16 rays"),
         }
     }
@@ -767,8 +769,8 @@ pub struct EmbreeBackend {
 }
 
 impl EmbreeBackend {
-    /// Traces streams with `query`: single rays, packets of 4, 8 or 16, or
-    /// (Embree 3) the stream API.
+    /// Traces streams with `query`: single rays, packets of 4, 8 or 16
+    /// (coherent or incoherent), or (Embree 3) the stream API.
     pub fn with_query(mut self, query: Query) -> Result<Self> {
         self.set_query(query)?;
         Ok(self)
@@ -777,7 +779,7 @@ impl EmbreeBackend {
     /// [`Self::with_query`] in place (unchanged on an error).
     pub fn set_query(&mut self, query: Query) -> Result<()> {
         match query {
-            Query::Single | Query::Packet(4 | 8 | 16) => {}
+            Query::Single | Query::Packet(4 | 8 | 16) | Query::IncoherentPacket(4 | 8 | 16) => {}
             Query::Stream if api::HAS_STREAMS => {}
             _ => {
                 return Err(Error::usage(
@@ -879,7 +881,13 @@ impl Backend for EmbreeBackend {
             #[cfg(embree3)]
             Query::Stream => s.intersect_1m(rays, hits),
             // SAFETY: `s` is a committed scene kept alive by `self`.
-            Query::Packet(n) => unsafe { intersect_packets(s.raw, n, rays, hits, None) },
+            Query::Packet(n) => unsafe {
+                intersect_packets(s.raw, n, rays, hits, None, api::Coherence::Coherent)
+            },
+            // SAFETY: as above.
+            Query::IncoherentPacket(n) => unsafe {
+                intersect_packets(s.raw, n, rays, hits, None, api::Coherence::Incoherent)
+            },
             _ => {
                 for (ray, hit) in rays.iter().zip(hits) {
                     *hit = s.intersect(ray);
@@ -896,6 +904,10 @@ impl Backend for EmbreeBackend {
             // SAFETY: as above.
             Query::Packet(n) => unsafe {
                 occluded_packets(s.raw, n, rays, occluded, api::Coherence::Coherent)
+            },
+            // SAFETY: as above.
+            Query::IncoherentPacket(n) => unsafe {
+                occluded_packets(s.raw, n, rays, occluded, api::Coherence::Incoherent)
             },
             _ => {
                 for (ray, o) in rays.iter().zip(occluded) {

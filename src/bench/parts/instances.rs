@@ -168,13 +168,16 @@ fn rates(
 }
 
 /// The query paths a structure is timed on: single rays, and its fastest
-/// packets besides (raylab's and Embree's packets walk the instances too).
+/// packets besides (raylab's and Embree's packets walk the instances too),
+/// for Embree both coherent and incoherent.
 fn queries(spec: &BackendSpec) -> Vec<Query> {
     let fastest = spec.with_fastest_query().query();
-    if fastest == Query::Single {
-        vec![Query::Single]
-    } else {
-        vec![Query::Single, fastest]
+    match fastest {
+        Query::Single => vec![Query::Single],
+        Query::Packet(n) if spec.is_embree() => {
+            vec![Query::Single, fastest, Query::IncoherentPacket(n)]
+        }
+        _ => vec![Query::Single, fastest],
     }
 }
 

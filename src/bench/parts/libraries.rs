@@ -123,8 +123,15 @@ fn specs() -> Vec<BackendSpec> {
         .collect()
 }
 
-/// The query paths each backend is timed on, where it has them.
-const PATHS: [Query; 3] = [Query::Single, Query::Packet(8), Query::Packet(16)];
+/// The query paths each backend is timed on, where it has them (Embree's
+/// packets both coherent and incoherent: either can be its fastest).
+const PATHS: [Query; 5] = [
+    Query::Single,
+    Query::Packet(8),
+    Query::Packet(16),
+    Query::IncoherentPacket(8),
+    Query::IncoherentPacket(16),
+];
 
 /// Progress steps: one per scene and backend.
 pub fn steps(_cfg: &BenchConfig, scenes: &[Scene]) -> u64 {
