@@ -47,6 +47,10 @@ pub static VARIANTS: LazyLock<Vec<Variant>> = LazyLock::new(|| {
     let rung = |q| BackendSpec::bvh(BuildParams::for_quality(q).with_width(8));
     let embree = |q| BackendSpec::embree_at(q, 1);
     let packets = |spec: BackendSpec, n| spec.with_query(Query::Packet(n)).expect("its path");
+    let incoherent = |spec: BackendSpec, n| {
+        spec.with_query(Query::IncoherentPacket(n))
+            .expect("its path")
+    };
     let mut out = Vec::new();
     for schedule in [Serial, Rows, Tiles] {
         out.push(v(BackendSpec::naive(), schedule, false));
@@ -75,6 +79,9 @@ pub static VARIANTS: LazyLock<Vec<Variant>> = LazyLock::new(|| {
         v(packets(embree(Quality::Medium), 8), Serial, false),
         v(packets(embree(Quality::Medium), 8), Tiles, false),
         v(packets(embree(Quality::Medium), 16), Tiles, false),
+        // Marked incoherent: Embree 3's faster packets on some ray kinds.
+        v(incoherent(embree(Quality::Medium), 16), Serial, false),
+        v(incoherent(embree(Quality::Medium), 16), Tiles, false),
         v(packets(embree(Quality::Low), 8), Serial, false),
         v(packets(embree(Quality::High), 8), Serial, false),
     ]);
