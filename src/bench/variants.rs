@@ -366,7 +366,8 @@ mod tests {
              bvh8-sah-rayon bvh8-sah-packet8-serial bvh8-sah-packet8-tiles \
              bvh8-sah-packet16-tiles bvh8-lbvh-packet8-serial bvh8-sbvh-opt-packet8-serial \
              embree-serial embree-tiles embree-rayon embree-packet8-serial \
-             embree-packet8-tiles embree-packet16-tiles embree-low-packet8-serial \
+             embree-packet8-tiles embree-packet16-tiles embree-packet16-incoherent-serial \
+             embree-packet16-incoherent-tiles embree-low-packet8-serial \
              embree-high-packet8-serial tinybvh-serial tinybvh-hq-serial \
              tinybvh-bvh-serial obvhs-serial obvhs-bvh2-serial bvh-crate-serial"
         );
