@@ -48,15 +48,6 @@ impl Query {
             Query::IncoherentPacket(n) => format!("packet{n}-incoherent"),
         }
     }
-
-    /// Embree's packets, coherent or not, with their width.
-    pub fn embree_packet(self) -> Option<(usize, bool)> {
-        match self {
-            Query::Packet(n) => Some((n, true)),
-            Query::IncoherentPacket(n) => Some((n, false)),
-            _ => None,
-        }
-    }
 }
 
 impl std::fmt::Display for Query {

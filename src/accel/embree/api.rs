@@ -33,6 +33,15 @@ fn coherent() -> ffi::RTCIntersectContext {
     context_with(ffi::RTCIntersectContextFlags_RTC_INTERSECT_CONTEXT_FLAG_COHERENT)
 }
 
+/// The context a packet query's `hint` asks for.
+#[cfg(embree3)]
+fn hinted(hint: Coherence) -> ffi::RTCIntersectContext {
+    match hint {
+        Coherence::Coherent => coherent(),
+        Coherence::Incoherent => context(),
+    }
+}
+
 #[cfg(embree3)]
 fn context_with(flags: ffi::RTCIntersectContextFlags) -> ffi::RTCIntersectContext {
     let mut ctx = ffi::RTCIntersectContext {
@@ -116,10 +125,7 @@ macro_rules! packet_queries {
         ) {
             #[cfg(embree3)]
             {
-                let mut ctx = match hint {
-                    Coherence::Coherent => coherent(),
-                    Coherence::Incoherent => context(),
-                };
+                let mut ctx = hinted(hint);
                 // SAFETY: the caller guarantees `scene` and `valid`; `ctx` and
                 // `rays` are live.
                 unsafe { ffi::$rtc_intersect(valid, scene, &mut ctx, rays) }
@@ -145,10 +151,7 @@ macro_rules! packet_queries {
         ) {
             #[cfg(embree3)]
             {
-                let mut ctx = match hint {
-                    Coherence::Coherent => coherent(),
-                    Coherence::Incoherent => context(),
-                };
+                let mut ctx = hinted(hint);
                 // SAFETY: as above.
                 unsafe { ffi::$rtc_occluded(valid, scene, &mut ctx, rays) }
             }

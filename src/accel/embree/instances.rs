@@ -9,8 +9,8 @@ use std::sync::Arc;
 use super::api;
 use super::ffi;
 use super::wrapper::{
-    embree_ray, embree_takes, intersect_packets, occluded_packets, raw_quality, tasking_threads,
-    Device, EmbreeScene, EmbreeUpdate,
+    embree_ray, embree_takes, intersect_packets, occluded_packets, packet_path, raw_quality,
+    tasking_threads, Device, EmbreeScene, EmbreeUpdate,
 };
 use super::Quality;
 use crate::accel::{Backend, Query};
@@ -313,17 +313,12 @@ impl Backend for EmbreeInstanced {
     }
 
     fn intersect_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
-        let first = Some(self.first_tri.as_slice());
-        match self.query {
+        match packet_path(self.query) {
             // SAFETY: `self.top` is a committed scene kept alive by `self`.
-            Query::Packet(n) => unsafe {
-                intersect_packets(self.top, n, rays, hits, first, api::Coherence::Coherent)
+            Some((n, hint)) => unsafe {
+                intersect_packets(self.top, n, rays, hits, Some(&self.first_tri), hint)
             },
-            // SAFETY: as above.
-            Query::IncoherentPacket(n) => unsafe {
-                intersect_packets(self.top, n, rays, hits, first, api::Coherence::Incoherent)
-            },
-            _ => {
+            None => {
                 for (ray, hit) in rays.iter().zip(hits) {
                     *hit = self.intersect(ray);
                 }
@@ -332,13 +327,13 @@ impl Backend for EmbreeInstanced {
     }
 
     fn occluded_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
-        match self.query {
+        match packet_path(self.query) {
             // SAFETY: `self.top` is a committed scene kept alive by `self`.
             // Incoherent on both packet paths: see `api::Coherence`.
-            Query::Packet(n) | Query::IncoherentPacket(n) => unsafe {
+            Some((n, _)) => unsafe {
                 occluded_packets(self.top, n, rays, occluded, api::Coherence::Incoherent)
             },
-            _ => {
+            None => {
                 for (ray, o) in rays.iter().zip(occluded) {
                     *o = self.occluded(ray);
                 }

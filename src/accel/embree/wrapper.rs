@@ -614,6 +614,16 @@ packet_queries!(
     occluded16
 );
 
+/// The packet width and coherence hint of `query`, when it is one of
+/// Embree's packet paths.
+pub(super) fn packet_path(query: Query) -> Option<(usize, api::Coherence)> {
+    match query {
+        Query::Packet(n) => Some((n, api::Coherence::Coherent)),
+        Query::IncoherentPacket(n) => Some((n, api::Coherence::Incoherent)),
+        _ => None,
+    }
+}
+
 /// Closest hits of `rays` in Embree packets of `n` (4, 8 or 16) lanes; see
 /// [`packet_queries`] for `first_tri`.
 ///
@@ -877,17 +887,13 @@ impl Backend for EmbreeBackend {
 
     fn intersect_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
         let s = &self.scene;
+        if let Some((n, hint)) = packet_path(self.query) {
+            // SAFETY: `s` is a committed scene kept alive by `self`.
+            return unsafe { intersect_packets(s.raw, n, rays, hits, None, hint) };
+        }
         match self.query {
             #[cfg(embree3)]
             Query::Stream => s.intersect_1m(rays, hits),
-            // SAFETY: `s` is a committed scene kept alive by `self`.
-            Query::Packet(n) => unsafe {
-                intersect_packets(s.raw, n, rays, hits, None, api::Coherence::Coherent)
-            },
-            // SAFETY: as above.
-            Query::IncoherentPacket(n) => unsafe {
-                intersect_packets(s.raw, n, rays, hits, None, api::Coherence::Incoherent)
-            },
             _ => {
                 for (ray, hit) in rays.iter().zip(hits) {
                     *hit = s.intersect(ray);
@@ -898,17 +904,13 @@ impl Backend for EmbreeBackend {
 
     fn occluded_stream(&self, rays: &[Ray], occluded: &mut [bool]) {
         let s = &self.scene;
+        if let Some((n, hint)) = packet_path(self.query) {
+            // SAFETY: as above.
+            return unsafe { occluded_packets(s.raw, n, rays, occluded, hint) };
+        }
         match self.query {
             #[cfg(embree3)]
             Query::Stream => s.occluded_1m(rays, occluded),
-            // SAFETY: as above.
-            Query::Packet(n) => unsafe {
-                occluded_packets(s.raw, n, rays, occluded, api::Coherence::Coherent)
-            },
-            // SAFETY: as above.
-            Query::IncoherentPacket(n) => unsafe {
-                occluded_packets(s.raw, n, rays, occluded, api::Coherence::Incoherent)
-            },
             _ => {
                 for (ray, o) in rays.iter().zip(occluded) {
                     *o = s.occluded(ray);
