@@ -198,31 +198,28 @@ fn mesh_nodes<'a>(
 /// one node (each mesh stored once, in its own space; each node placing it
 /// an instance), else flattened as [`load_parts`] does.
 fn load_instanced(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Scene> {
-    Ok(instanced(bytes, path, policy, false)?.0)
+    let (doc, buffers) = read_document(bytes, path, policy)?;
+    Ok(instanced(&doc, &buffers, path, false)?.0)
 }
 
-/// A glTF file as an instanced scene whatever its meshes' uses (each node
-/// placing a mesh an instance), and the node of each instance: what a file
-/// whose animations move its nodes rigidly is followed as.
-pub(super) fn load_placed_instances(
-    bytes: &[u8],
-    path: &Path,
-    policy: RefPolicy,
-) -> Result<(Scene, Vec<usize>)> {
-    instanced(bytes, path, policy, true)
+/// The file `loaded` read as an instanced scene whatever its meshes' uses
+/// (each node placing a mesh an instance), and the node of each instance:
+/// what a file whose animations move its nodes rigidly is followed as. Its
+/// document and buffers as already read, not read again.
+pub(super) fn load_placed_instances(loaded: &Loaded, path: &Path) -> Result<(Scene, Vec<usize>)> {
+    instanced(&loaded.doc, &loaded.buffers, path, true)
 }
 
 /// [`load_instanced`]'s work: instanced when a mesh is placed more than
 /// once or `always`, with the node of each instance (none when flattened).
 fn instanced(
-    bytes: &[u8],
+    doc: &gltf::Document,
+    buffers: &[Vec<u8>],
     path: &Path,
-    policy: RefPolicy,
     always: bool,
 ) -> Result<(Scene, Vec<usize>)> {
-    let (doc, buffers) = read_document(bytes, path, policy)?;
     let err = |msg: String| parse_error(path, msg);
-    let roots = root_nodes(&doc).map_err(err)?;
+    let roots = root_nodes(doc).map_err(err)?;
     // Every node placing a mesh, with its world transform.
     let placed: Vec<(usize, usize, Mat4)> = mesh_nodes(&roots)
         .map_err(err)?
@@ -235,7 +232,7 @@ fn instanced(
     }
     if !always && uses.iter().all(|&u| u <= 1) {
         check_budget(&roots).map_err(err)?;
-        return Ok((flatten(&roots, &buffers, path)?.0, Vec::new()));
+        return Ok((flatten(&roots, buffers, path)?.0, Vec::new()));
     }
     // Budgets: the unique triangles and vertices, and the instances.
     let (mut triangles, mut vertices) = (0u64, 0u64);
@@ -264,8 +261,7 @@ fn instanced(
             let mesh = doc.meshes().nth(m).expect("a mesh the nodes name");
             let mut out = Flattened::default();
             for prim in mesh.primitives() {
-                out.primitive(&prim, Mat4::IDENTITY, &buffers)
-                    .map_err(err)?;
+                out.primitive(&prim, Mat4::IDENTITY, buffers).map_err(err)?;
             }
             // Counted as placed, as the flattened file counts them.
             skipped_primitives += out.skipped_primitives * uses[m];

@@ -567,7 +567,7 @@ pub(super) fn load(path: &std::path::Path, policy: super::refs::RefPolicy) -> Re
     if motion.is_rigid() {
         // A static node that cannot be inverted (a zero scale) cannot be an
         // instance; its vertices are followed instead.
-        if let Ok((scene, nodes)) = super::gltf::load_placed_instances(&bytes, path, policy) {
+        if let Ok((scene, nodes)) = super::gltf::load_placed_instances(&loaded, path) {
             return Ok(Followed::Instances(scene, motion, nodes));
         }
     }
