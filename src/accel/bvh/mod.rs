@@ -27,6 +27,7 @@ pub mod simd;
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod simd_lanes;
 pub(crate) mod simd_packet;
+pub(crate) mod simd_stack;
 pub(crate) mod traverse;
 pub(crate) mod tree;
 pub(crate) mod two_level;

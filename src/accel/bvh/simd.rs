@@ -4,14 +4,16 @@
 //! time. [`slab_test_scalar`] is the reference both are tested against, lane
 //! by lane and bit for bit.
 //!
-//! `unsafe` outside the Embree module lives here (and in the two AVX2 entry
-//! points of the wide traversal, `wide::traverse`): the AVX2 intrinsics
+//! `unsafe` outside the Embree module lives here (and in the other SIMD
+//! modules, `simd_lanes` and `simd_stack`, and the AVX2 entry points of the
+//! wide traversal, `wide::traverse`): the AVX2 intrinsics
 //! load through pointers, and AVX2 code may only run on a CPU that has it. An
 //! [`Avx2`] value can only be made by [`Avx2::detect`], which checks the CPU,
 //! so holding one is the proof every `unsafe` block below relies on.
 
 use glam::Vec4;
 
+use super::simd_stack::ChildStack;
 use super::wide::WideNode;
 use crate::geometry::{SlabRay, SLAB_GROW as GROW};
 
@@ -74,6 +76,20 @@ impl WideRay {
 /// lanes hold an inverted box, which the sign choice always rejects.
 pub trait NodeKernel<const N: usize>: Copy {
     fn intersect(self, node: &WideNode<N>, ray: &WideRay, tmin: f32, tmax: f32) -> (u32, [f32; N]);
+
+    /// Pushes the children of `node`'s lanes in `mask` (two or more, with
+    /// entry distances `near`) but the nearest onto `stack`, the nearest of
+    /// them on top, and returns the nearest lane ([`super::simd_stack`]).
+    #[inline(always)]
+    fn push_by_distance<const S: usize>(
+        self,
+        stack: &mut ChildStack<S>,
+        node: &WideNode<N>,
+        mask: u32,
+        near: &[f32; N],
+    ) -> usize {
+        stack.push_by_distance(&node.child, mask, near)
+    }
 }
 
 /// The portable kernel: `N / 4` glam `Vec4` operations per step.
@@ -314,6 +330,17 @@ impl NodeKernel<8> for Avx2 {
             _mm256_storeu_ps(out.as_mut_ptr(), near);
             (mask, out)
         }
+    }
+
+    #[inline(always)]
+    fn push_by_distance<const S: usize>(
+        self,
+        stack: &mut ChildStack<S>,
+        node: &WideNode<8>,
+        mask: u32,
+        near: &[f32; 8],
+    ) -> usize {
+        self.network_push(stack, &node.child, mask, near)
     }
 }
 

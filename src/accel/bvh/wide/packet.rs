@@ -30,9 +30,10 @@ use super::super::params::{
 };
 use super::super::simd::NodeKernel;
 use super::super::simd_packet::{bits, PacketHits, PacketKernel};
+use super::super::simd_stack::nearest_lane;
 use super::super::traverse::NoCount;
 use super::node::{for_leaf_blocks, WideBvh, LEAF};
-use super::traverse::{nearest_lane, push_sorted, PacketVisit};
+use super::traverse::{push_sorted, PacketVisit};
 use crate::geometry::{Hit, Ray};
 
 /// Below how many rays an entry of the packet `prepared` finishes ray by

@@ -16,6 +16,7 @@ use super::super::simd_lanes::Lanes;
 #[cfg(target_arch = "x86_64")]
 use super::super::simd_packet::SimdPacket;
 use super::super::simd_packet::{bits, PacketKernel, PerRay, PACKET, PACKET16};
+use super::super::simd_stack::{nearest_lane, ChildStack};
 use super::super::traverse::{Counter, Traversal};
 use super::node::{for_leaf_blocks, leaf_slots, WideBvh, LEAF};
 use crate::geometry::{Hit, Ray, SlabRay};
@@ -73,8 +74,7 @@ impl<const N: usize> WideBvh<N> {
             test_ray.tmax = hit.t.next_up();
             cut = hit.t * (1.0 + CULL_SLACK);
         }
-        // Not zero-filled: a cleared 64-entry stack per ray was 8% of the time.
-        let mut stack: ArrayVec<(u32, f32), S> = ArrayVec::new();
+        let mut stack = ChildStack::<S>::new();
         let mut current = start;
         loop {
             if current & LEAF != 0 {
@@ -100,13 +100,16 @@ impl<const N: usize> WideBvh<N> {
                     // The nearest hit child is visited next (no prefetch: it
                     // is loaded next), the others pushed farthest first, so
                     // that the nearest of them is on top.
-                    let next = nearest_lane(mask, &near);
-                    let base = stack.len();
-                    for lane in bits(mask & !(1 << next)) {
-                        let entry = (node.child[lane], near[lane]);
-                        self.prefetch_child(entry.0);
-                        push_sorted(&mut stack, base, entry, |e| e.1);
-                    }
+                    let next = if mask & (mask - 1) == 0 {
+                        mask.trailing_zeros() as usize
+                    } else {
+                        let base = stack.len();
+                        let next = kernel.push_by_distance(&mut stack, node, mask, &near);
+                        for child in stack.children_from(base) {
+                            self.prefetch_child(child);
+                        }
+                        next
+                    };
                     current = node.child[next];
                     continue;
                 }
@@ -193,21 +196,6 @@ impl<const N: usize> WideBvh<N> {
             }
         }
     }
-}
-
-/// The lane of `mask` (not empty) with the least `near`, the last of
-/// equals: the closest-hit traversals, single-ray and packet, visit it next
-/// and push the other hit lanes (the sorted push pops the last of equals
-/// first; on the engine's primary packets taking the first was 2% slower).
-#[inline(always)]
-pub(super) fn nearest_lane(mask: u32, near: &[f32]) -> usize {
-    let mut next = mask.trailing_zeros() as usize;
-    for lane in bits(mask & (mask - 1)) {
-        if near[lane] <= near[next] {
-            next = lane;
-        }
-    }
-    next
 }
 
 /// Pushes `entry` onto `stack`, keeping the entries from `base` on ordered
