@@ -13,7 +13,6 @@
 
 use glam::Vec4;
 
-use super::simd_stack::ChildStack;
 use super::wide::WideNode;
 use crate::geometry::{SlabRay, SLAB_GROW as GROW};
 
@@ -77,18 +76,12 @@ impl WideRay {
 pub trait NodeKernel<const N: usize>: Copy {
     fn intersect(self, node: &WideNode<N>, ray: &WideRay, tmin: f32, tmax: f32) -> (u32, [f32; N]);
 
-    /// Pushes the children of `node`'s lanes in `mask` (two or more, with
-    /// entry distances `near`) but the nearest onto `stack`, the nearest of
-    /// them on top, and returns the nearest lane ([`super::simd_stack`]).
+    /// The AVX2 proof when this kernel is the AVX2 one (the closest-hit
+    /// walk then orders a node's hit children with its sorting network,
+    /// `simd_stack`).
     #[inline(always)]
-    fn push_by_distance<const S: usize>(
-        self,
-        stack: &mut ChildStack<S>,
-        node: &WideNode<N>,
-        mask: u32,
-        near: &[f32; N],
-    ) -> usize {
-        stack.push_by_distance(&node.child, mask, near)
+    fn avx2(self) -> Option<Avx2> {
+        None
     }
 }
 
@@ -333,14 +326,8 @@ impl NodeKernel<8> for Avx2 {
     }
 
     #[inline(always)]
-    fn push_by_distance<const S: usize>(
-        self,
-        stack: &mut ChildStack<S>,
-        node: &WideNode<8>,
-        mask: u32,
-        near: &[f32; 8],
-    ) -> usize {
-        self.network_push(stack, &node.child, mask, near)
+    fn avx2(self) -> Option<Avx2> {
+        Some(self)
     }
 }
 

@@ -34,8 +34,11 @@
 
 use std::mem::MaybeUninit;
 
+#[cfg(target_arch = "x86_64")]
 use super::simd::Avx2;
+use super::simd::NodeKernel;
 use super::simd_packet::bits;
+use super::wide::WideNode;
 
 /// Pending children and their entry distances, at most `S`.
 pub struct ChildStack<const S: usize> {
@@ -134,96 +137,118 @@ pub(crate) fn nearest_lane(mask: u32, near: &[f32]) -> usize {
     next
 }
 
+/// Pushes the children of `node`'s lanes in `mask` (two or more, with entry
+/// distances `near`) but the nearest onto `stack`, the nearest of them on
+/// top, and returns the nearest lane: by [`network_push`] for an 8-wide node
+/// under the AVX2 kernel, else the scalar way.
+#[inline(always)]
+pub fn push_by_distance<K: NodeKernel<N>, const N: usize, const S: usize>(
+    kernel: K,
+    stack: &mut ChildStack<S>,
+    node: &WideNode<N>,
+    mask: u32,
+    near: &[f32; N],
+) -> usize {
+    #[cfg(target_arch = "x86_64")]
+    if let (Some(avx2), Ok(child), Ok(near)) = (
+        kernel.avx2(),
+        <&[u32; 8]>::try_from(&node.child[..]),
+        <&[f32; 8]>::try_from(&near[..]),
+    ) {
+        return network_push(avx2, stack, child, mask, near);
+    }
+    let _ = kernel;
+    stack.push_by_distance(&node.child, mask, near)
+}
+
+/// [`ChildStack::push_by_distance`] for an 8-wide node, by the sorting
+/// network of the module notes for three hit lanes or more (where the stack
+/// has room for eight entries; else, and for two, the scalar way).
 #[cfg(target_arch = "x86_64")]
-impl Avx2 {
-    /// [`ChildStack::push_by_distance`] for an 8-wide node, by the sorting
-    /// network of the module notes for three hit lanes or more (where the
-    /// stack has room for eight entries; else, and for two, the scalar way).
-    #[inline(always)]
-    pub fn network_push<const S: usize>(
-        self,
-        stack: &mut ChildStack<S>,
-        child: &[u32; 8],
-        mask: u32,
-        near: &[f32; 8],
-    ) -> usize {
-        use std::arch::x86_64::*;
-        let hits = mask.count_ones() as usize;
-        let at = stack.len;
-        if hits < 3 || at + 8 > S {
-            return stack.push_by_distance(child, mask, near);
+#[inline(always)]
+pub fn network_push<const S: usize>(
+    avx2: Avx2,
+    stack: &mut ChildStack<S>,
+    child: &[u32; 8],
+    mask: u32,
+    near: &[f32; 8],
+) -> usize {
+    use std::arch::x86_64::*;
+    let _ = avx2;
+    let hits = mask.count_ones() as usize;
+    let at = stack.len;
+    if hits < 3 || at + 8 > S {
+        return stack.push_by_distance(child, mask, near);
+    }
+    // SAFETY: `avx2` proves the CPU has AVX2 (see `Avx2::detect`).
+    // `near` and `child` are eight 4-byte values behind live references
+    // (unaligned loads). The two stores write eight entries from `at`,
+    // and `at + 8 <= S` (checked above), so they stay inside the arrays;
+    // `MaybeUninit<T>` has `T`'s layout.
+    unsafe {
+        let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+        let bit = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+        let hit = _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(mask as i32), bit), bit);
+        // Key: the distance's bits (>= +0.0: the kernel's `max` with a
+        // tmin >= 0 returns that +0.0 for a -0.0 or NaN entry), 7 - lane
+        // in the low three bits (the highest lane first among equals);
+        // lanes not hit sort last.
+        let seven = _mm256_set1_epi32(7);
+        let dist = _mm256_loadu_si256(near.as_ptr().cast());
+        let keys = _mm256_or_si256(
+            _mm256_and_si256(dist, _mm256_set1_epi32(!7)),
+            _mm256_sub_epi32(seven, lane),
+        );
+        let mut d = _mm256_blendv_epi8(_mm256_set1_epi32(i32::MAX), keys, hit);
+        // The nearest lane from a horizontal minimum, ready before the
+        // sort: the next node's load waits for it, not for the stack.
+        let m = _mm256_min_epi32(d, _mm256_shuffle_epi32::<0xB1>(d));
+        let m = _mm256_min_epi32(m, _mm256_shuffle_epi32::<0x4E>(m));
+        let m = _mm256_min_epi32(m, _mm256_permute2x128_si256::<1>(m, m));
+        let next = 7 - (_mm256_cvtsi256_si32(m) & 7) as usize;
+        // Bitonic sort, ascending: each step pairs lane i with i ^ j
+        // (j = 1, 2, 1, 4, 2, 1) and the blend's set bits take the pair's
+        // maximum.
+        macro_rules! step {
+            ($partner:expr, $max_lanes:literal) => {{
+                let other = $partner;
+                d = _mm256_blend_epi32::<$max_lanes>(
+                    _mm256_min_epi32(d, other),
+                    _mm256_max_epi32(d, other),
+                );
+            }};
         }
-        // SAFETY: `self` proves the CPU has AVX2 (see `Avx2::detect`).
-        // `near` and `child` are eight 4-byte values behind live references
-        // (unaligned loads). The two stores write eight entries from `at`,
-        // and `at + 8 <= S` (checked above), so they stay inside the arrays;
-        // `MaybeUninit<T>` has `T`'s layout.
-        unsafe {
-            let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
-            let bit = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
-            let hit =
-                _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(mask as i32), bit), bit);
-            // Key: the distance's bits (>= +0.0: the kernel's `max` with a
-            // tmin >= 0 returns that +0.0 for a -0.0 or NaN entry), 7 - lane
-            // in the low three bits (the highest lane first among equals);
-            // lanes not hit sort last.
-            let seven = _mm256_set1_epi32(7);
-            let dist = _mm256_loadu_si256(near.as_ptr().cast());
-            let keys = _mm256_or_si256(
-                _mm256_and_si256(dist, _mm256_set1_epi32(!7)),
-                _mm256_sub_epi32(seven, lane),
-            );
-            let mut d = _mm256_blendv_epi8(_mm256_set1_epi32(i32::MAX), keys, hit);
-            // The nearest lane from a horizontal minimum, ready before the
-            // sort: the next node's load waits for it, not for the stack.
-            let m = _mm256_min_epi32(d, _mm256_shuffle_epi32::<0xB1>(d));
-            let m = _mm256_min_epi32(m, _mm256_shuffle_epi32::<0x4E>(m));
-            let m = _mm256_min_epi32(m, _mm256_permute2x128_si256::<1>(m, m));
-            let next = 7 - (_mm256_cvtsi256_si32(m) & 7) as usize;
-            // Bitonic sort, ascending: each step pairs lane i with i ^ j
-            // (j = 1, 2, 1, 4, 2, 1) and the blend's set bits take the pair's
-            // maximum.
-            macro_rules! step {
-                ($partner:expr, $max_lanes:literal) => {{
-                    let other = $partner;
-                    d = _mm256_blend_epi32::<$max_lanes>(
-                        _mm256_min_epi32(d, other),
-                        _mm256_max_epi32(d, other),
-                    );
-                }};
-            }
-            step!(_mm256_shuffle_epi32::<0xB1>(d), 0x66);
-            step!(_mm256_shuffle_epi32::<0x4E>(d), 0x3C);
-            step!(_mm256_shuffle_epi32::<0xB1>(d), 0x5A);
-            step!(_mm256_permute2x128_si256::<1>(d, d), 0xF0);
-            step!(_mm256_shuffle_epi32::<0x4E>(d), 0xCC);
-            step!(_mm256_shuffle_epi32::<0xB1>(d), 0xAA);
-            // Farthest first: position i takes sorted key hits - 1 - i, so
-            // the pushed `hits - 1` entries are the sorted ones but the
-            // nearest, which lands above them and is not kept.
-            let order = _mm256_and_si256(
-                _mm256_sub_epi32(_mm256_set1_epi32(hits as i32 - 1), lane),
-                seven,
-            );
-            let sorted = _mm256_permutevar8x32_epi32(d, order);
-            let lanes = _mm256_sub_epi32(seven, _mm256_and_si256(sorted, seven));
-            let children =
-                _mm256_permutevar8x32_epi32(_mm256_loadu_si256(child.as_ptr().cast()), lanes);
-            let dists = _mm256_and_si256(sorted, _mm256_set1_epi32(!7));
-            _mm256_storeu_si256(stack.child.as_mut_ptr().add(at).cast(), children);
-            _mm256_storeu_si256(stack.near.as_mut_ptr().add(at).cast(), dists);
-            // The top entry once more by a scalar store: the next pop (often
-            // soon, on short rays) loads it forwarded from this store rather
-            // than from part of the vector one (1.07 -> 1.04 of the scalar
-            // way's time on Sponza's primary rays, measured).
-            let top = _mm256_set1_epi32(hits as i32 - 2);
-            let top_child = _mm256_cvtsi256_si32(_mm256_permutevar8x32_epi32(children, top));
-            let top_near = _mm256_cvtsi256_si32(_mm256_permutevar8x32_epi32(dists, top));
-            stack.child[at + hits - 2] = MaybeUninit::new(top_child as u32);
-            stack.near[at + hits - 2] = MaybeUninit::new(f32::from_bits(top_near as u32));
-            stack.len = at + hits - 1;
-            next
-        }
+        step!(_mm256_shuffle_epi32::<0xB1>(d), 0x66);
+        step!(_mm256_shuffle_epi32::<0x4E>(d), 0x3C);
+        step!(_mm256_shuffle_epi32::<0xB1>(d), 0x5A);
+        step!(_mm256_permute2x128_si256::<1>(d, d), 0xF0);
+        step!(_mm256_shuffle_epi32::<0x4E>(d), 0xCC);
+        step!(_mm256_shuffle_epi32::<0xB1>(d), 0xAA);
+        // Farthest first: position i takes sorted key hits - 1 - i, so
+        // the pushed `hits - 1` entries are the sorted ones but the
+        // nearest, which lands above them and is not kept.
+        let order = _mm256_and_si256(
+            _mm256_sub_epi32(_mm256_set1_epi32(hits as i32 - 1), lane),
+            seven,
+        );
+        let sorted = _mm256_permutevar8x32_epi32(d, order);
+        let lanes = _mm256_sub_epi32(seven, _mm256_and_si256(sorted, seven));
+        let children =
+            _mm256_permutevar8x32_epi32(_mm256_loadu_si256(child.as_ptr().cast()), lanes);
+        let dists = _mm256_and_si256(sorted, _mm256_set1_epi32(!7));
+        _mm256_storeu_si256(stack.child.as_mut_ptr().add(at).cast(), children);
+        _mm256_storeu_si256(stack.near.as_mut_ptr().add(at).cast(), dists);
+        // The top entry once more by a scalar store: the next pop (often
+        // soon, on short rays) loads it forwarded from this store rather
+        // than from part of the vector one (1.07 -> 1.04 of the scalar
+        // way's time on Sponza's primary rays, measured).
+        let top = _mm256_set1_epi32(hits as i32 - 2);
+        let top_child = _mm256_cvtsi256_si32(_mm256_permutevar8x32_epi32(children, top));
+        let top_near = _mm256_cvtsi256_si32(_mm256_permutevar8x32_epi32(dists, top));
+        stack.child[at + hits - 2] = MaybeUninit::new(top_child as u32);
+        stack.near[at + hits - 2] = MaybeUninit::new(f32::from_bits(top_near as u32));
+        stack.len = at + hits - 1;
+        next
     }
 }
 
@@ -272,7 +297,7 @@ mod tests {
                 }
             }
             let want = scalar.push_by_distance(&child, mask, &near);
-            let got = avx2.network_push(&mut simd, &child, mask, &near);
+            let got = network_push(avx2, &mut simd, &child, mask, &near);
             let label = format!("mask {mask:08b} near {near:?}");
             let bucket = |lane: usize| near[lane].to_bits() >> 3;
             assert!(
@@ -302,7 +327,7 @@ mod tests {
             full.len += 1;
         }
         let near = [3.0, 1.0, 2.0, 0.5, 4.0, 8.0, 6.0, 7.0];
-        assert_eq!(avx2.network_push(&mut full, &child, 0b1111, &near), 3);
+        assert_eq!(network_push(avx2, &mut full, &child, 0b1111, &near), 3);
         assert_eq!(
             drain(&mut full)[..3],
             [(101, 1.0), (102, 2.0), (100, 3.0)],

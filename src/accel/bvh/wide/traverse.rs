@@ -16,7 +16,7 @@ use super::super::simd_lanes::Lanes;
 #[cfg(target_arch = "x86_64")]
 use super::super::simd_packet::SimdPacket;
 use super::super::simd_packet::{bits, PacketKernel, PerRay, PACKET, PACKET16};
-use super::super::simd_stack::{nearest_lane, ChildStack};
+use super::super::simd_stack::{nearest_lane, push_by_distance, ChildStack};
 use super::super::traverse::{Counter, Traversal};
 use super::node::{for_leaf_blocks, leaf_slots, WideBvh, LEAF};
 use crate::geometry::{Hit, Ray, SlabRay};
@@ -104,7 +104,7 @@ impl<const N: usize> WideBvh<N> {
                         mask.trailing_zeros() as usize
                     } else {
                         let base = stack.len();
-                        let next = kernel.push_by_distance(&mut stack, node, mask, &near);
+                        let next = push_by_distance(kernel, &mut stack, node, mask, &near);
                         for child in stack.children_from(base) {
                             self.prefetch_child(child);
                         }
