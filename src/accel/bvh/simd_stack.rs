@@ -7,17 +7,19 @@
 //! - [`ChildStack::push_by_distance`]: find the nearest lane, then insert
 //!   each other child into its place (the scalar way, any width). Its
 //!   branches follow the distances, which incoherent rays make random.
-//! - [`Avx2`]'s sorting network (for three hit children or more, where the
-//!   stack has room for eight): each lane's key is its entry distance's bits
-//!   with the lane in the lowest three (entry distances are never negative,
-//!   so their bits sort as the floats do), sorted in six compare-exchange
-//!   steps, and stored as a whole at the top of the stack: no branch on the
-//!   distances. Measured on recorded rays (one thread, Intel Xeon with
-//!   AVX-512, fastest of 16 passes alternating which goes first, single
-//!   rays): diffuse rays of grass:2000 0.74-0.86 of the scalar way's time,
-//!   its primary rays 0.90, forest:10's and Sponza's diffuse rays 0.93 and
-//!   0.92, cornell-water level; Sponza's primary rays, two node visits a ray,
-//!   1.05 (their best path is packets, which this does not slow).
+//! - [`network_push`], a sorting network under the AVX2 kernel (for three
+//!   hit children or more, where the stack has room for eight): each lane's
+//!   key is its entry distance's bits with the lane in the lowest three
+//!   (entry distances are never negative, so their bits sort as the floats
+//!   do), sorted in six compare-exchange steps, and stored as a whole at the
+//!   top of the stack: no branch on the distances. Measured on recorded rays
+//!   (one thread, Intel Xeon with AVX-512, fastest of 16 passes alternating
+//!   which goes first), over the scalar way's time: grass:2000's diffuse
+//!   single rays 0.85-0.88 and its primary ones 0.90, its diffuse packets of
+//!   16 0.92; forest:10's diffuse rays 0.97, cornell-water's 0.99; Sponza's
+//!   primary single rays, two node visits a ray, 1.00-1.04 (their best path
+//!   is packets: 1.00). docs/results.md, "A node's hit children sorted
+//!   without branches".
 //!
 //! The order decides how soon a ray finds its hit, never which hit it
 //! returns: the closest is chosen by `Hit::is_closer_than` whichever order
