@@ -200,7 +200,10 @@ impl<const N: usize> WideBvh<N> {
 
 /// Pushes `entry` onto `stack`, keeping the entries from `base` on ordered
 /// by `near` descending (farthest first, so the nearest is popped first):
-/// the insertion step of the closest-hit traversals, single-ray and packet.
+/// the insertion step of the packet traversal's closest hits and of the
+/// nearest-first id walks. The single-ray closest hit keeps its entries in
+/// `simd_stack::ChildStack` (split arrays the AVX2 network stores into),
+/// whose scalar `push_by_distance` is this step on those arrays.
 #[inline(always)]
 pub(super) fn push_sorted<E: Copy, const S: usize>(
     stack: &mut ArrayVec<E, S>,
