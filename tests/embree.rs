@@ -364,6 +364,64 @@ fn embree_packets_and_streams_answer_as_its_single_rays() {
     }
 }
 
+/// Rays Embree cannot take, scattered through full and partial packets
+/// (the packets are laid out with SIMD transposes when full), miss in every
+/// packet path; the rays beside them answer as Embree's single rays do
+/// (shared-edge ties aside, as above).
+#[test]
+fn embree_packets_miss_the_rays_it_cannot_take_and_answer_the_rest() {
+    use raylab::accel::Query;
+    use raylab::measure::validate::classify;
+    let scene = builtin("cornell-sphere").unwrap();
+    let tris = scene.triangle_vertices();
+    let single = EmbreeBackend::new(&scene, Quality::Medium, false, 1).unwrap();
+    let bad = [
+        Ray::new(Vec3::NAN, Vec3::Z),
+        Ray::new(Vec3::ZERO, Vec3::ZERO),
+        Ray::segment(Vec3::ZERO, Vec3::Z, 0.0, f32::NAN),
+        Ray::segment(Vec3::ZERO, Vec3::Z, -1.0, 5.0),
+        Ray::new(Vec3::new(0.0, 1.0, 1e30), -Vec3::Z),
+        Ray::new(
+            Vec3::new(0.0, 1.0, 3.0),
+            Vec3::new(0.0, f32::INFINITY, -1.0),
+        ),
+    ];
+    let mut rays = primary_rays(&settings(40, 30, AoMode::Paper));
+    let len = rays.len() - 5; // a partial packet last
+    rays.truncate(len);
+    for (k, i) in (0..rays.len()).step_by(7).enumerate() {
+        rays[i] = bad[k % bad.len()];
+    }
+    for query in [4, 8, 16]
+        .into_iter()
+        .flat_map(|n| [Query::Packet(n), Query::IncoherentPacket(n)])
+    {
+        let embree = EmbreeBackend::new(&scene, Quality::Medium, false, 1)
+            .unwrap()
+            .with_query(query)
+            .unwrap();
+        let mut hits = vec![None; rays.len()];
+        let mut occluded = vec![true; rays.len()];
+        embree.intersect_stream(&rays, &mut hits);
+        embree.occluded_stream(&rays, &mut occluded);
+        let mut found = 0;
+        for (i, ray) in rays.iter().enumerate() {
+            if i % 7 == 0 {
+                assert_eq!((hits[i], occluded[i]), (None, false), "{query}: {ray:?}");
+                continue;
+            }
+            let want = single.intersect(ray);
+            if hits[i].map(|h| (h.tri, h.t.to_bits())) != want.map(|h| (h.tri, h.t.to_bits())) {
+                let agreement = classify(ray, hits[i], want, &tris);
+                assert_eq!(agreement, Agreement::Tie, "{query}: {ray:?}");
+            }
+            assert_eq!(occluded[i], single.occluded(ray), "{query}: {ray:?}");
+            found += usize::from(want.is_some());
+        }
+        assert!(found * 3 > rays.len(), "{query}: {found} hits");
+    }
+}
+
 #[test]
 fn embree_high_builds_with_the_sbvh_reference_budget() {
     use raylab::accel::bvh::params::embree_split_replications;

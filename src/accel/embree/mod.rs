@@ -2,7 +2,8 @@
 //! builder producing trees in raylab's own layout (`builder`).
 //!
 //! `unsafe` lives only in this module tree: `ffi` (generated bindings), `api`
-//! (the Embree 3/4 difference), this safe wrapper and `builder`.
+//! (the Embree 3/4 difference), this safe wrapper, `builder`, and `lanes`
+//! (packets laid out with raylab's SIMD transposes).
 
 #[cfg(feature = "embree")]
 pub mod api;
@@ -12,6 +13,8 @@ pub(crate) mod builder;
 mod ffi;
 #[cfg(feature = "embree")]
 mod instances;
+#[cfg(feature = "embree")]
+mod lanes;
 #[cfg(feature = "embree")]
 mod wrapper;
 

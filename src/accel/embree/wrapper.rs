@@ -8,6 +8,7 @@ use std::sync::{Arc, Mutex};
 
 use glam::Vec3;
 
+use super::lanes;
 use super::{api, ffi, Quality};
 use crate::accel::bvh::params::embree_split_replications;
 use crate::accel::{Backend, Query};
@@ -526,12 +527,7 @@ macro_rules! packet_queries {
                 p.hit.geomID = [api::INVALID_ID; $n];
                 p.hit.primID = [api::INVALID_ID; $n];
                 p.hit.instID = [[api::INVALID_ID; $n]; 1];
-                for (lane, ray) in rays.iter().enumerate() {
-                    if embree_takes(ray) {
-                        valid.0[lane] = -1;
-                        set_lane!(p.ray, lane, ray);
-                    }
-                }
+                lay_out_packet!(p.ray, rays, valid);
                 // SAFETY: the caller guarantees `scene`; `valid` has one
                 // aligned i32 per lane.
                 unsafe { api::$api_intersect(valid.0.as_ptr(), scene, &mut p, hint) };
@@ -569,12 +565,7 @@ macro_rules! packet_queries {
                 let mut valid = Valid([0i32; $n]);
                 // SAFETY: as above.
                 let mut p: ffi::$ray = unsafe { std::mem::zeroed() };
-                for (lane, ray) in rays.iter().enumerate() {
-                    if embree_takes(ray) {
-                        valid.0[lane] = -1;
-                        set_lane!(p, lane, ray);
-                    }
-                }
+                lay_out_packet!(p, rays, valid);
                 // SAFETY: as above.
                 unsafe { api::$api_occluded(valid.0.as_ptr(), scene, &mut p, hint) };
                 for (lane, o) in occluded.iter_mut().enumerate() {
@@ -585,20 +576,29 @@ macro_rules! packet_queries {
     };
 }
 
-/// Writes `ray` into lane `lane` of a packet's rays, as [`embree_ray`] does
-/// for one ray.
-macro_rules! set_lane {
-    ($p:expr, $lane:expr, $ray:expr) => {{
-        let (p, lane, ray) = (&mut $p, $lane, $ray);
-        p.org_x[lane] = ray.origin.x;
-        p.org_y[lane] = ray.origin.y;
-        p.org_z[lane] = ray.origin.z;
-        p.tnear[lane] = ray.tmin;
-        p.dir_x[lane] = ray.dir.x;
-        p.dir_y[lane] = ray.dir.y;
-        p.dir_z[lane] = ray.dir.z;
-        p.tfar[lane] = ray.tmax;
-        p.mask[lane] = u32::MAX;
+/// Lays `rays` out in the packet's rays `$p` ([`lanes::lay_out`]), every
+/// lane of them with all mask bits set, and marks the lanes Embree takes in
+/// `$valid`.
+macro_rules! lay_out_packet {
+    ($p:expr, $rays:expr, $valid:expr) => {{
+        let (p, rays) = (&mut $p, $rays);
+        let takes = lanes::lay_out(
+            rays,
+            [
+                &mut p.org_x,
+                &mut p.org_y,
+                &mut p.org_z,
+                &mut p.dir_x,
+                &mut p.dir_y,
+                &mut p.dir_z,
+                &mut p.tnear,
+                &mut p.tfar,
+            ],
+        );
+        for lane in 0..rays.len() {
+            $valid.0[lane] = -i32::from(takes >> lane & 1 == 1);
+            p.mask[lane] = u32::MAX;
+        }
     }};
 }
 
@@ -741,9 +741,12 @@ pub const EMBREE_MAX_COORDINATE: f32 = 1.844e18;
 /// Any other ray is answered as a miss without calling Embree.
 #[inline]
 pub fn embree_takes(ray: &Ray) -> bool {
-    ray.is_valid()
-        && ray.origin.abs().max_element() <= EMBREE_MAX_COORDINATE
-        && ray.dir.abs().max_element() <= EMBREE_MAX_COORDINATE
+    // Ray::is_valid and the bound, without branches: a component within
+    // the bound is finite (NaN fails every compare), and -0.0 is not > 0.
+    let (o, d, m) = (ray.origin.abs(), ray.dir.abs(), EMBREE_MAX_COORDINATE);
+    let within = (o.x <= m) & (o.y <= m) & (o.z <= m) & (d.x <= m) & (d.y <= m) & (d.z <= m);
+    let moving = (d.x > 0.0) | (d.y > 0.0) | (d.z > 0.0);
+    within & moving & (ray.tmin >= 0.0) & (ray.tmin <= f32::MAX) & (ray.tmax >= ray.tmin)
 }
 
 /// Our ray in Embree's layout: all mask bits set (Embree 4 gives geometries mask
