@@ -190,10 +190,10 @@ fn quick_bench_runs_every_experiment() {
     let structures = if embree() { 2 } else { 1 };
     assert_eq!(len("ladder"), 4 * 3 * structures);
     // Every CPU BVH side by side: raylab's two tests and its high rung,
-    // Embree plain and robust, six layouts of the other libraries, on every
-    // scene; raylab's watertight path is never wrong against the exact
-    // reference.
-    let libraries = if embree() { 11 } else { 9 };
+    // Embree plain, robust and at its high quality, six layouts of the
+    // other libraries, on every scene; raylab's watertight path is never
+    // wrong against the exact reference.
+    let libraries = if embree() { 12 } else { 9 };
     assert_eq!(len("libraries"), 4 * libraries);
     // Rows are named by structure (the path per kind is in `paths`).
     let watertight = "bvh8-sah-watertight";
@@ -207,6 +207,17 @@ fn quick_bench_runs_every_experiment() {
         }
     }
     assert_eq!(watertight_rows, 4, "one {watertight} row per scene");
+    let high = json["libraries"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|p| p["backend"] == "embree-high")
+        .count();
+    assert_eq!(
+        high,
+        if embree() { 4 } else { 0 },
+        "Embree's high quality too"
+    );
     for p in json["ladder"].as_array().unwrap() {
         assert!(p["render_ms"]["median"].as_f64().unwrap() > 0.0, "{p}");
         assert!(p["build_ms_1t"]["median"].as_f64().unwrap() > 0.0, "{p}");
