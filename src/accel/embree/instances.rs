@@ -8,9 +8,10 @@ use std::sync::Arc;
 
 use super::api;
 use super::ffi;
+use super::lanes::embree_takes;
 use super::wrapper::{
-    embree_ray, embree_takes, intersect_packets, occluded_packets, packet_path, raw_quality,
-    tasking_threads, Device, EmbreeScene, EmbreeUpdate,
+    embree_ray, intersect_packets, occluded_packets, packet_path, raw_quality, tasking_threads,
+    Device, EmbreeScene, EmbreeUpdate,
 };
 use super::Quality;
 use crate::accel::{Backend, Query};

@@ -1,6 +1,6 @@
-//! Embree's ray packets laid out from raylab's rays: each component's lanes
-//! (origin, direction, `tnear`, `tfar`) and the lanes Embree may be given
-//! ([`embree_takes`]).
+//! Rays as Embree takes them: which rays it may be given ([`embree_takes`]),
+//! and its ray packets laid out from raylab's rays (each component's lanes:
+//! origin, direction, `tnear`, `tfar`).
 //!
 //! raylab's own packet kernels load a packet with in-register transposes
 //! ([`Lanes::load_rays`]); Embree's packets were filled lane by lane, with
@@ -11,12 +11,29 @@
 //! raylab published. With the same transposes as raylab's packets (AVX2
 //! for 8 lanes, AVX-512 for 16) Embree's packets are given the same start.
 
-use super::wrapper::embree_takes;
 #[cfg(target_arch = "x86_64")]
 use crate::accel::bvh::simd::{Avx2, Avx512};
 #[cfg(target_arch = "x86_64")]
 use crate::accel::bvh::simd_lanes::Lanes;
 use crate::geometry::Ray;
+
+/// Embree's `FLT_LARGE` (common/math/constants.h): the largest origin or
+/// direction component its ray validation (`RayK::valid`) accepts. Builds
+/// with assertions on (Debian's) abort the process on a ray past it.
+pub const EMBREE_MAX_COORDINATE: f32 = 1.844e18;
+
+/// Whether Embree can take `ray`: a valid ray ([`Ray::is_valid`]) whose
+/// origin and direction components are within [`EMBREE_MAX_COORDINATE`].
+/// Any other ray is answered as a miss without calling Embree.
+#[inline]
+pub fn embree_takes(ray: &Ray) -> bool {
+    // Ray::is_valid and the bound, without branches: a component within
+    // the bound is finite (NaN fails every compare), and -0.0 is not > 0.
+    let (o, d, m) = (ray.origin.abs(), ray.dir.abs(), EMBREE_MAX_COORDINATE);
+    let within = (o.x <= m) & (o.y <= m) & (o.z <= m) & (d.x <= m) & (d.y <= m) & (d.z <= m);
+    let moving = (d.x > 0.0) | (d.y > 0.0) | (d.z > 0.0);
+    within & moving & (ray.tmin >= 0.0) & (ray.tmin <= f32::MAX) & (ray.tmax >= ray.tmin)
+}
 
 /// A packet's ray components in a ray's memory order (origin x, y, z,
 /// direction x, y, z, `tnear`, `tfar`), each `N` lanes of Embree's packet.
@@ -96,7 +113,7 @@ fn lay_out_with<L: Lanes<R>, const R: usize>(l: L, rays: &[Ray], out: Components
     // Embree's bound (false for NaN and infinities), some direction
     // component not zero, tnear finite and not negative, tfar not below it
     // (false for NaN).
-    let (zero, bound) = (l.splat(0.0), l.splat(super::wrapper::EMBREE_MAX_COORDINATE));
+    let (zero, bound) = (l.splat(0.0), l.splat(EMBREE_MAX_COORDINATE));
     let mut takes = l.le(l.abs(c[0]), bound);
     for v in &c[1..6] {
         takes = l.and(takes, l.le(l.abs(*v), bound));
@@ -119,7 +136,7 @@ mod tests {
 
     /// Rays Embree must refuse or take at every edge of [`embree_takes`].
     fn edge_rays() -> Vec<Ray> {
-        let big = super::super::wrapper::EMBREE_MAX_COORDINATE;
+        let big = EMBREE_MAX_COORDINATE;
         let odd = [
             0.0,
             -0.0,
@@ -193,7 +210,7 @@ mod tests {
                 for (lane, ray) in packet.iter().enumerate() {
                     // What embree_takes says, written as it was before it
                     // lost its branches.
-                    let big = super::super::wrapper::EMBREE_MAX_COORDINATE;
+                    let big = EMBREE_MAX_COORDINATE;
                     let takes = ray.is_valid()
                         && ray.origin.abs().max_element() <= big
                         && ray.dir.abs().max_element() <= big;

@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex};
 
 use glam::Vec3;
 
-use super::lanes;
+use super::lanes::{self, embree_takes};
 use super::{api, ffi, Quality};
 use crate::accel::bvh::params::embree_split_replications;
 use crate::accel::{Backend, Query};
@@ -729,24 +729,6 @@ impl Drop for EmbreeScene {
         // SAFETY: releases our reference to a scene we created.
         unsafe { ffi::rtcReleaseScene(self.raw) };
     }
-}
-
-/// Embree's `FLT_LARGE` (common/math/constants.h): the largest origin or
-/// direction component its ray validation (`RayK::valid`) accepts. Builds
-/// with assertions on (Debian's) abort the process on a ray past it.
-pub const EMBREE_MAX_COORDINATE: f32 = 1.844e18;
-
-/// Whether Embree can take `ray`: a valid ray ([`Ray::is_valid`]) whose
-/// origin and direction components are within [`EMBREE_MAX_COORDINATE`].
-/// Any other ray is answered as a miss without calling Embree.
-#[inline]
-pub fn embree_takes(ray: &Ray) -> bool {
-    // Ray::is_valid and the bound, without branches: a component within
-    // the bound is finite (NaN fails every compare), and -0.0 is not > 0.
-    let (o, d, m) = (ray.origin.abs(), ray.dir.abs(), EMBREE_MAX_COORDINATE);
-    let within = (o.x <= m) & (o.y <= m) & (o.z <= m) & (d.x <= m) & (d.y <= m) & (d.z <= m);
-    let moving = (d.x > 0.0) | (d.y > 0.0) | (d.z > 0.0);
-    within & moving & (ray.tmin >= 0.0) & (ray.tmin <= f32::MAX) & (ray.tmax >= ray.tmin)
 }
 
 /// Our ray in Embree's layout: all mask bits set (Embree 4 gives geometries mask
