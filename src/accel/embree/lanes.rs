@@ -27,12 +27,9 @@ pub const EMBREE_MAX_COORDINATE: f32 = 1.844e18;
 /// Any other ray is answered as a miss without calling Embree.
 #[inline]
 pub fn embree_takes(ray: &Ray) -> bool {
-    // Ray::is_valid and the bound, without branches: a component within
-    // the bound is finite (NaN fails every compare), and -0.0 is not > 0.
-    let (o, d, m) = (ray.origin.abs(), ray.dir.abs(), EMBREE_MAX_COORDINATE);
-    let within = (o.x <= m) & (o.y <= m) & (o.z <= m) & (d.x <= m) & (d.y <= m) & (d.z <= m);
-    let moving = (d.x > 0.0) | (d.y > 0.0) | (d.z > 0.0);
-    within & moving & (ray.tmin >= 0.0) & (ray.tmin <= f32::MAX) & (ray.tmax >= ray.tmin)
+    ray.is_valid()
+        && ray.origin.abs().max_element() <= EMBREE_MAX_COORDINATE
+        && ray.dir.abs().max_element() <= EMBREE_MAX_COORDINATE
 }
 
 /// A packet's ray components in a ray's memory order (origin x, y, z,
@@ -180,59 +177,45 @@ mod tests {
         rays
     }
 
-    fn laid_out<const N: usize>(rays: &[Ray]) -> (u32, [[f32; N]; 8]) {
+    /// Lays `packet` out in packets of `N` lanes and checks every lane
+    /// against the ray and [`embree_takes`]; returns how many it takes.
+    fn check<const N: usize>(packet: &[Ray]) -> usize {
         let mut c = [[f32::NAN; N]; 8];
         let [a, b, cc, d, e, f, g, h] = &mut c;
-        let valid = lay_out::<N>(rays, [a, b, cc, d, e, f, g, h]);
-        (valid, c)
+        let valid = lay_out::<N>(packet, [a, b, cc, d, e, f, g, h]);
+        for (lane, ray) in packet.iter().enumerate() {
+            assert_eq!(valid >> lane & 1 == 1, embree_takes(ray), "{ray:?}");
+            let want = [
+                ray.origin.x,
+                ray.origin.y,
+                ray.origin.z,
+                ray.dir.x,
+                ray.dir.y,
+                ray.dir.z,
+                ray.tmin,
+                ray.tmax,
+            ];
+            for (k, w) in want.iter().enumerate() {
+                assert_eq!(c[k][lane].to_bits(), w.to_bits(), "component {k}");
+            }
+        }
+        assert_eq!(valid >> packet.len(), 0, "no lane past the rays");
+        valid.count_ones() as usize
     }
 
     #[test]
     fn packets_are_laid_out_as_lane_by_lane_and_take_the_rays_embree_takes() {
         let rays = edge_rays();
         let mut taken = 0;
-        for n in [16, 8, 4, 3] {
-            for packet in rays.chunks(n) {
-                let (valid, c) = match n {
-                    16 => {
-                        let (v, c) = laid_out::<16>(packet);
-                        (v, c.map(|c| c.to_vec()))
-                    }
-                    8 => {
-                        let (v, c) = laid_out::<8>(packet);
-                        (v, c.map(|c| c.to_vec()))
-                    }
-                    _ => {
-                        let (v, c) = laid_out::<4>(packet);
-                        (v, c.map(|c| c.to_vec()))
-                    }
-                };
-                for (lane, ray) in packet.iter().enumerate() {
-                    // What embree_takes says, written as it was before it
-                    // lost its branches.
-                    let big = EMBREE_MAX_COORDINATE;
-                    let takes = ray.is_valid()
-                        && ray.origin.abs().max_element() <= big
-                        && ray.dir.abs().max_element() <= big;
-                    assert_eq!(embree_takes(ray), takes, "{ray:?}");
-                    assert_eq!(valid >> lane & 1 == 1, takes, "{ray:?}");
-                    taken += usize::from(takes);
-                    let want = [
-                        ray.origin.x,
-                        ray.origin.y,
-                        ray.origin.z,
-                        ray.dir.x,
-                        ray.dir.y,
-                        ray.dir.z,
-                        ray.tmin,
-                        ray.tmax,
-                    ];
-                    for (k, w) in want.iter().enumerate() {
-                        assert_eq!(c[k][lane].to_bits(), w.to_bits(), "component {k}");
-                    }
-                }
-                assert_eq!(valid >> packet.len(), 0, "no lane past the rays");
-            }
+        for packet in rays.chunks(16) {
+            taken += check::<16>(packet);
+        }
+        for packet in rays.chunks(8) {
+            taken += check::<8>(packet);
+        }
+        // Lane by lane: 4-ray packets, and partial ones.
+        for packet in rays.chunks(4).chain(rays.chunks(3)) {
+            taken += check::<4>(packet);
         }
         // Both answers are common among these rays.
         assert!(taken > rays.len() && taken < 3 * rays.len(), "{taken}");
