@@ -169,7 +169,8 @@ pub(crate) fn skeleton_of(root: BuildNode, tri_ids: Vec<u32>) -> Skeleton {
 /// triangles that all lie in one axis-aligned plane, and a ray meets such a
 /// triangle only where it crosses that plane, which the zero-width slab
 /// admits exactly (its entry and exit are the same rounded `t`, and the exit
-/// is grown by [`crate::geometry::SLAB_GROW`]); a margin there only lets in
+/// is grown by [`crate::geometry::SLAB_GROW`], through the far planes'
+/// reciprocal); a margin there only lets in
 /// rays that leave the plane. Grown, every flat box of a flat export (a field
 /// 100 units across: +-4.8e-5) held the secondary rays leaving it, which then
 /// walked every box around their origin down to the leaves: 3-5x the time of

@@ -14,7 +14,7 @@
 use glam::Vec4;
 
 use super::wide::WideNode;
-use crate::geometry::{SlabRay, SLAB_GROW as GROW};
+use crate::geometry::SlabRay;
 
 /// A ray prepared for the node kernels: per axis the origin the near plane's
 /// distance is measured from and the far plane's (both the ray's origin
@@ -26,6 +26,9 @@ pub struct WideRay {
     pub near_origin: [f32; 3],
     pub far_origin: [f32; 3],
     pub inv_dir: [f32; 3],
+    /// The reciprocal the far planes' distances are multiplied by,
+    /// [`SlabRay::inv_far`] (the conservative enlargement folded in).
+    pub inv_far: [f32; 3],
     /// `near[a]` is the row of `WideNode::bounds` holding the near plane on axis
     /// `a` (the minimum for a positive direction, the maximum for a negative one).
     pub near: [usize; 3],
@@ -60,6 +63,7 @@ impl WideRay {
             near_origin: [near_origin(0), near_origin(1), near_origin(2)],
             far_origin: [far_origin(0), far_origin(1), far_origin(2)],
             inv_dir: inv_dir.to_array(),
+            inv_far: slab.inv_far.to_array(),
             near: [row(0), row(1), row(2)],
             far: [row(0) ^ 1, row(1) ^ 1, row(2) ^ 1],
         }
@@ -99,9 +103,9 @@ impl<const N: usize> NodeKernel<N> for Portable {
             let slab =
                 |r: usize, origin: f32, inv: f32| (row(r) - Vec4::splat(origin)) * Vec4::splat(inv);
             let entry = |a: usize| slab(ray.near[a], ray.near_origin[a], ray.inv_dir[a]);
-            let exit = |a: usize| slab(ray.far[a], ray.far_origin[a], ray.inv_dir[a]);
-            let n = entry(0).max(entry(1)).max(entry(2)).max(Vec4::splat(tmin));
-            let f = (exit(0).min(exit(1)).min(exit(2)) * GROW).min(Vec4::splat(tmax));
+            let exit = |a: usize| slab(ray.far[a], ray.far_origin[a], ray.inv_far[a]);
+            let n = entry(0).max(entry(1)).max(entry(2).max(Vec4::splat(tmin)));
+            let f = exit(0).min(exit(1)).min(exit(2).min(Vec4::splat(tmax)));
             mask |= n.cmple(f).bitmask() << (4 * h);
             n.write_to_slice(&mut near[4 * h..]);
         }
@@ -122,9 +126,9 @@ pub fn slab_test_scalar<const N: usize>(
     for (lane, slot) in near.iter_mut().enumerate() {
         let entry =
             |a: usize| (node.bounds[ray.near[a]][lane] - ray.near_origin[a]) * ray.inv_dir[a];
-        let exit = |a: usize| (node.bounds[ray.far[a]][lane] - ray.far_origin[a]) * ray.inv_dir[a];
-        let n = entry(0).max(entry(1)).max(entry(2)).max(tmin);
-        let f = (exit(0).min(exit(1)).min(exit(2)) * GROW).min(tmax);
+        let exit = |a: usize| (node.bounds[ray.far[a]][lane] - ray.far_origin[a]) * ray.inv_far[a];
+        let n = entry(0).max(entry(1)).max(entry(2).max(tmin));
+        let f = exit(0).min(exit(1)).min(exit(2).min(tmax));
         if n <= f {
             mask |= 1 << lane;
         }
@@ -284,39 +288,40 @@ impl NodeKernel<8> for Avx2 {
         // writable f32.
         unsafe {
             let b = &node.bounds;
-            let i = |a: usize| _mm256_set1_ps(ray.inv_dir[a]);
             // Near planes measured from `near_origin`, far ones from
             // `far_origin`. Branching to measure both from the origin when
             // the ray lies in no axis plane (three registers, not six) cost
             // single rays and the hybrid packets' single-ray finish 10-15% of
             // their time (measured): the extra registers cost none seen.
-            let at = |row: usize, o: f32, a: usize| {
+            let at = |row: usize, o: f32, inv: f32| {
                 _mm256_mul_ps(
                     _mm256_sub_ps(_mm256_load_ps(b[row].as_ptr()), _mm256_set1_ps(o)),
-                    i(a),
+                    _mm256_set1_ps(inv),
                 )
             };
             let (on, of) = (ray.near_origin, ray.far_origin);
+            let (inv, inv_far) = (ray.inv_dir, ray.inv_far);
             let (nx, ny, nz) = (
-                at(ray.near[0], on[0], 0),
-                at(ray.near[1], on[1], 1),
-                at(ray.near[2], on[2], 2),
+                at(ray.near[0], on[0], inv[0]),
+                at(ray.near[1], on[1], inv[1]),
+                at(ray.near[2], on[2], inv[2]),
             );
             let (fx, fy, fz) = (
-                at(ray.far[0], of[0], 0),
-                at(ray.far[1], of[1], 1),
-                at(ray.far[2], of[2], 2),
+                at(ray.far[0], of[0], inv_far[0]),
+                at(ray.far[1], of[1], inv_far[1]),
+                at(ray.far[2], of[2], inv_far[2]),
             );
+            // Reduced as trees (two steps deep, not three; the far side
+            // also lost its multiply by the enlargement, now in `inv_far`):
+            // a visit is a chain of dependent loads and tests, so its
+            // latency is the single ray's time per node.
             let near = _mm256_max_ps(
-                _mm256_max_ps(_mm256_max_ps(nx, ny), nz),
-                _mm256_set1_ps(tmin),
+                _mm256_max_ps(nx, ny),
+                _mm256_max_ps(nz, _mm256_set1_ps(tmin)),
             );
             let far = _mm256_min_ps(
-                _mm256_mul_ps(
-                    _mm256_min_ps(_mm256_min_ps(fx, fy), fz),
-                    _mm256_set1_ps(GROW),
-                ),
-                _mm256_set1_ps(tmax),
+                _mm256_min_ps(fx, fy),
+                _mm256_min_ps(fz, _mm256_set1_ps(tmax)),
             );
             let mask = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(near, far)) as u32;
             let mut out = [0f32; 8];

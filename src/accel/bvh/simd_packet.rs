@@ -40,9 +40,9 @@ use super::simd_lanes::Lanes;
 use super::wide::WideNode;
 #[cfg(target_arch = "x86_64")]
 use super::wide::EMPTY;
-#[cfg(target_arch = "x86_64")]
-use crate::geometry::RECIPROCAL_MAX;
 use crate::geometry::{above_plane, below_plane, Hit, Ray, SlabRay, IN_PLANE_REACH};
+#[cfg(target_arch = "x86_64")]
+use crate::geometry::{RECIPROCAL_MAX, SLAB_GROW};
 
 /// Rays per packet of the AVX2 kernel (`--query packet8`).
 pub const PACKET: usize = 8;
@@ -77,9 +77,10 @@ pub fn bits(mut mask: u32) -> impl Iterator<Item = usize> {
 /// `[inv_lo, inv_hi]` (one sign for all rays) the near plane's distance is at
 /// least `min(d * inv_lo, d * inv_hi)` with `d = plane - o_hi` (`o_lo` when
 /// the axis runs negative), both products rounded, and the far plane's at
-/// most the `max` of the products with the other origin bound. A child whose
-/// least possible entry exceeds its greatest possible exit (after
-/// [`SLAB_GROW`](crate::geometry::SLAB_GROW) and the rays' `tmax`, as each
+/// most the `max` of the products with the other origin bound (the far
+/// planes' reciprocals grown by [`SLAB_GROW`](crate::geometry::SLAB_GROW), as
+/// each ray's own are: `SlabRay::inv_far`). A child whose least possible
+/// entry exceeds its greatest possible exit (and the rays' `tmax`, as each
 /// ray's own test) is missed by every ray's own test, so skipping it changes
 /// no answer; every other child still gets the per-ray test.
 #[derive(Clone, Copy, Debug, Default)]
@@ -90,9 +91,13 @@ pub struct Frustum {
     /// are taken from.
     o_near: [f32; 3],
     o_far: [f32; 3],
-    /// Per axis, the least and greatest reciprocal direction.
+    /// Per axis, the least and greatest reciprocal direction, and the
+    /// least and greatest exit planes' reciprocal (`SlabRay::inv_far`:
+    /// rounding is monotone, so these are the products of the first two).
     inv_lo: [f32; 3],
     inv_hi: [f32; 3],
+    inv_far_lo: [f32; 3],
+    inv_far_hi: [f32; 3],
     /// The least node-test `tmin` of the rays, and a bound on every `tmax`
     /// a node test may be given for them (see [`Frustum::of_lanes`]).
     tmin: f32,
@@ -137,6 +142,7 @@ impl Frustum {
                 (lo[a], hi[a])
             };
             (f.inv_lo[a], f.inv_hi[a]) = (inv_of_hi[3 + a], inv_of_lo[3 + a]);
+            (f.inv_far_lo[a], f.inv_far_hi[a]) = (f.inv_lo[a] * SLAB_GROW, f.inv_hi[a] * SLAB_GROW);
         }
         f
     }
@@ -148,37 +154,42 @@ impl Frustum {
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
     fn children(&self, l: Avx2, node: &WideNode<8>) -> (u32, [f32; 8]) {
-        use crate::geometry::SLAB_GROW;
         let b = &node.bounds;
         // Macros, not closures: a closure is compiled without the entry
         // point's target features, and the intrinsics would not inline.
         macro_rules! distance {
-            ($row:expr, $a:expr, $o:expr, $pick:ident) => {{
+            ($row:expr, $o:expr, $pick:ident, $lo:expr, $hi:expr) => {{
                 let d = l.sub(l.load(&b[$row]), l.splat($o));
-                l.$pick(
-                    l.mul(d, l.splat(self.inv_lo[$a])),
-                    l.mul(d, l.splat(self.inv_hi[$a])),
-                )
+                l.$pick(l.mul(d, l.splat($lo)), l.mul(d, l.splat($hi)))
             }};
         }
         macro_rules! near {
             ($a:expr) => {
-                distance!(self.near_row[$a], $a, self.o_near[$a], min)
+                distance!(
+                    self.near_row[$a],
+                    self.o_near[$a],
+                    min,
+                    self.inv_lo[$a],
+                    self.inv_hi[$a]
+                )
             };
         }
         macro_rules! far {
             ($a:expr) => {
-                distance!(self.near_row[$a] ^ 1, $a, self.o_far[$a], max)
+                distance!(
+                    self.near_row[$a] ^ 1,
+                    self.o_far[$a],
+                    max,
+                    self.inv_far_lo[$a],
+                    self.inv_far_hi[$a]
+                )
             };
         }
         let entry = l.max(
-            l.max(l.max(near!(0), near!(1)), near!(2)),
-            l.splat(self.tmin),
+            l.max(near!(0), near!(1)),
+            l.max(near!(2), l.splat(self.tmin)),
         );
-        let exit = l.min(
-            l.mul(l.min(l.min(far!(0), far!(1)), far!(2)), l.splat(SLAB_GROW)),
-            l.splat(self.tmax),
-        );
+        let exit = l.min(l.min(far!(0), far!(1)), l.min(far!(2), l.splat(self.tmax)));
         // Skipped only where entry > exit for sure (a NaN keeps the child).
         (!l.bits(l.gt(entry, exit)) & 0xFF, l.store(entry))
     }
@@ -499,6 +510,8 @@ pub struct SoaRays<L: Lanes<R>, const R: usize> {
     in_plane: bool,
     dir: [L::F; 3],
     inv_dir: [L::F; 3],
+    /// `inv_dir * SLAB_GROW`, for the far planes (`SlabRay::inv_far`).
+    inv_far: [L::F; 3],
     /// Per axis, the lanes whose reciprocal direction is >= 0 (the near
     /// plane is the box's minimum, as [`WideRay`] chooses it).
     positive: [L::M; 3],
@@ -566,6 +579,14 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
             };
         }
         let inv_dir = [inv!(dx), inv!(dy), inv!(dz)];
+        let grow = l.splat(SLAB_GROW);
+        // Not `map`: a closure is compiled without the entry point's target
+        // features (see `Frustum::children`).
+        let inv_far = [
+            l.mul(inv_dir[0], grow),
+            l.mul(inv_dir[1], grow),
+            l.mul(inv_dir[2], grow),
+        ];
         let positive = [
             l.ge(inv_dir[0], zero),
             l.ge(inv_dir[1], zero),
@@ -599,6 +620,7 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
                 in_plane: in_plane.contains(&true),
                 dir: [dx, dy, dz],
                 inv_dir,
+                inv_far,
                 positive,
                 rows,
                 node_tmin: l.mul(tmin, l.splat(1.0 - SLAB_SLACK)),
@@ -623,17 +645,15 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
         active: u32,
         tmax: &[f32; R],
     ) -> NodeHits {
-        use crate::geometry::SLAB_GROW;
         let l = self.0;
         let mut out = NodeHits {
             rays: [0; 8],
             near: [f32::INFINITY; 8],
             lanes: 0,
         };
-        let inv = p.inv_dir;
+        let (inv, inv_far) = (p.inv_dir, p.inv_far);
         let tmin = p.node_tmin;
         let tmax = l.load(tmax);
-        let grow = l.splat(SLAB_GROW);
         let live = l.mask(active);
         // A coherent packet's children are ordered (and culled when popped)
         // by the frustum's least possible entry (as Embree's coherent
@@ -653,8 +673,8 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
         // computed and each ray's chosen by a blend. Macros, not closures
         // (see `Frustum::children`).
         macro_rules! plane {
-            ($row:expr, $a:expr, $c:expr, $origin:expr) => {
-                l.mul(l.sub(l.splat(b[$row][$c]), $origin), inv[$a])
+            ($row:expr, $inv:expr, $c:expr, $origin:expr) => {
+                l.mul(l.sub(l.splat(b[$row][$c]), $origin), $inv)
             };
         }
         // One child: its rays' entry and exit distances from the slab
@@ -662,8 +682,8 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
         macro_rules! child {
             ($c:expr, ($nx:expr, $fx:expr), ($ny:expr, $fy:expr), ($nz:expr, $fz:expr)) => {{
                 let c = $c;
-                let near = l.max(l.max(l.max($nx, $ny), $nz), tmin);
-                let far = l.min(l.mul(l.min(l.min($fx, $fy), $fz), grow), tmax);
+                let near = l.max(l.max($nx, $ny), l.max($nz, tmin));
+                let far = l.min(l.min($fx, $fy), l.min($fz, tmax));
                 let hit = l.and(l.le(near, far), live);
                 let rays = l.bits(hit);
                 if rays != 0 {
@@ -687,9 +707,18 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
                 for c in bits(used) {
                     child!(
                         c,
-                        (plane!(rx, 0, c, o[0]), plane!(rx ^ 1, 0, c, o[0])),
-                        (plane!(ry, 1, c, o[1]), plane!(ry ^ 1, 1, c, o[1])),
-                        (plane!(rz, 2, c, o[2]), plane!(rz ^ 1, 2, c, o[2]))
+                        (
+                            plane!(rx, inv[0], c, o[0]),
+                            plane!(rx ^ 1, inv_far[0], c, o[0])
+                        ),
+                        (
+                            plane!(ry, inv[1], c, o[1]),
+                            plane!(ry ^ 1, inv_far[1], c, o[1])
+                        ),
+                        (
+                            plane!(rz, inv[2], c, o[2]),
+                            plane!(rz ^ 1, inv_far[2], c, o[2])
+                        )
                     );
                 }
             }
@@ -714,11 +743,14 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
                 }
                 macro_rules! blended {
                     ($a:expr, $c:expr) => {{
-                        let lo = plane!(2 * $a, $a, $c, from_min[$a]);
-                        let hi = plane!(2 * $a + 1, $a, $c, from_max[$a]);
+                        let (min_row, max_row) = (2 * $a, 2 * $a + 1);
+                        let lo = plane!(min_row, inv[$a], $c, from_min[$a]);
+                        let hi = plane!(max_row, inv[$a], $c, from_max[$a]);
+                        let lo_far = plane!(min_row, inv_far[$a], $c, from_min[$a]);
+                        let hi_far = plane!(max_row, inv_far[$a], $c, from_max[$a]);
                         (
                             l.blend(p.positive[$a], hi, lo),
-                            l.blend(p.positive[$a], lo, hi),
+                            l.blend(p.positive[$a], lo_far, hi_far),
                         )
                     }};
                 }
