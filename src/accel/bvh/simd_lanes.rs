@@ -96,6 +96,24 @@ pub trait Lanes<const R: usize>: Copy {
     /// (origin, direction, `tmin`, `tmax`), a register with ray `r` in lane
     /// `r`, zero past the packet; and the rays as loaded.
     fn load_rays(self, rays: &[Ray]) -> ([Self::F; 8], Self::Loaded);
+    /// [`Ray::is_valid`] lane by lane, on the components [`Self::load_rays`]
+    /// gives: origin and direction finite, the direction not zero, `tmin`
+    /// finite and not negative, `tmax` not below it. Ordered compares fail
+    /// on NaN, and lanes past the packet (zero direction) are invalid.
+    #[inline(always)]
+    fn valid_rays(self, c: &[Self::F; 8]) -> Self::M {
+        let (inf, zero) = (self.splat(f32::INFINITY), self.splat(0.0));
+        let mut valid = self.lt(self.abs(c[0]), inf);
+        for &v in &c[1..7] {
+            valid = self.and(valid, self.lt(self.abs(v), inf));
+        }
+        let moving = self.or(
+            self.or(self.ne(c[3], zero), self.ne(c[4], zero)),
+            self.ne(c[5], zero),
+        );
+        let segment = self.and(self.ge(c[6], zero), self.ge(c[7], c[6]));
+        self.and(valid, self.and(moving, segment))
+    }
     /// The least and greatest value of each component (lanes 0-7, in a
     /// ray's memory order) over the rays whose bit is set in `valid`.
     fn ray_bounds(self, loaded: &Self::Loaded, valid: u32) -> (Self::F, Self::F);

@@ -536,41 +536,16 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
     fn prepare(self, rays: &[Ray]) -> (Self::Rays, u32) {
         let l = self.0;
         debug_assert!(rays.len() <= R);
-        let ([ox, oy, oz, dx, dy, dz, tmin, tmax], loaded) = l.load_rays(rays);
-        // Ray::is_valid for every lane (lanes past the packet are invalid:
-        // their direction is zero). Ordered compares fail on NaN.
-        let inf = l.splat(f32::INFINITY);
+        let (components, loaded) = l.load_rays(rays);
+        let valid = l.bits(l.valid_rays(&components));
+        let [ox, oy, oz, dx, dy, dz, tmin, tmax] = components;
         let zero = l.splat(0.0);
         // Macros, not closures (see `Frustum::children`).
-        macro_rules! finite {
-            ($v:expr) => {
-                l.lt(l.abs($v), inf)
-            };
-        }
         macro_rules! nonzero {
             ($v:expr) => {
                 l.ne($v, zero)
             };
         }
-        macro_rules! all {
-            ($first:expr $(, $m:expr)*) => {{
-                let m = $first;
-                $(let m = l.and(m, $m);)*
-                m
-            }};
-        }
-        let valid = l.bits(all!(
-            finite!(ox),
-            finite!(oy),
-            finite!(oz),
-            finite!(dx),
-            finite!(dy),
-            finite!(dz),
-            l.or(l.or(nonzero!(dx), nonzero!(dy)), nonzero!(dz)),
-            finite!(tmin),
-            l.ge(tmin, zero),
-            l.ge(tmax, tmin)
-        ));
         // safe_reciprocal: (1 / d) clamped (see RECIPROCAL_MAX).
         let big = l.splat(RECIPROCAL_MAX);
         macro_rules! inv {
@@ -743,14 +718,22 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
                 }
                 macro_rules! blended {
                     ($a:expr, $c:expr) => {{
-                        let (min_row, max_row) = (2 * $a, 2 * $a + 1);
-                        let lo = plane!(min_row, inv[$a], $c, from_min[$a]);
-                        let hi = plane!(max_row, inv[$a], $c, from_max[$a]);
-                        let lo_far = plane!(min_row, inv_far[$a], $c, from_min[$a]);
-                        let hi_far = plane!(max_row, inv_far[$a], $c, from_max[$a]);
+                        // Each plane's offset once, times the near and the
+                        // far reciprocal.
+                        let to_min = l.sub(l.splat(b[2 * $a][$c]), from_min[$a]);
+                        let to_max = l.sub(l.splat(b[2 * $a + 1][$c]), from_max[$a]);
+                        let (near_inv, far_inv) = (inv[$a], inv_far[$a]);
                         (
-                            l.blend(p.positive[$a], hi, lo),
-                            l.blend(p.positive[$a], lo_far, hi_far),
+                            l.blend(
+                                p.positive[$a],
+                                l.mul(to_max, near_inv),
+                                l.mul(to_min, near_inv),
+                            ),
+                            l.blend(
+                                p.positive[$a],
+                                l.mul(to_min, far_inv),
+                                l.mul(to_max, far_inv),
+                            ),
                         )
                     }};
                 }

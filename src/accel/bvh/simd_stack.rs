@@ -204,7 +204,7 @@ pub fn network_push<const S: usize>(
     let _ = avx2;
     let hits = mask.count_ones() as usize;
     let at = stack.len;
-    if hits == 2 && at < S {
+    if hits == 2 {
         return stack.push_two(child, mask, near);
     }
     if hits < 3 || at + 8 > S {

@@ -106,21 +106,13 @@ fn lay_out_with<L: Lanes<R>, const R: usize>(l: L, rays: &[Ray], out: Components
     for (dst, v) in out.into_iter().zip(c) {
         *dst = l.store(v);
     }
-    // embree_takes, lane-wise: every origin and direction component within
-    // Embree's bound (false for NaN and infinities), some direction
-    // component not zero, tnear finite and not negative, tfar not below it
-    // (false for NaN).
-    let (zero, bound) = (l.splat(0.0), l.splat(EMBREE_MAX_COORDINATE));
-    let mut takes = l.le(l.abs(c[0]), bound);
-    for v in &c[1..6] {
+    // embree_takes, lane-wise: a valid ray with every origin and direction
+    // component within Embree's bound.
+    let bound = l.splat(EMBREE_MAX_COORDINATE);
+    let mut takes = l.valid_rays(&c);
+    for v in &c[..6] {
         takes = l.and(takes, l.le(l.abs(*v), bound));
     }
-    let moving = l.or(
-        l.gt(l.abs(c[3]), zero),
-        l.or(l.gt(l.abs(c[4]), zero), l.gt(l.abs(c[5]), zero)),
-    );
-    let tnear = l.and(l.ge(c[6], zero), l.le(c[6], l.splat(f32::MAX)));
-    takes = l.and(takes, l.and(moving, l.and(tnear, l.ge(c[7], c[6]))));
     l.bits(takes)
 }
 
