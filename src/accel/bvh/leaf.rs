@@ -11,6 +11,7 @@
 
 use glam::{Vec3, Vec4};
 
+use super::prim::Triangles;
 use crate::geometry::{intersect_triangle, Hit, MollerTrumbore, Ray, TriangleTest, Watertight};
 
 /// Triangles per block.
@@ -62,6 +63,19 @@ impl Tri4 {
         self.ids[lane] = id;
     }
 
+    /// Sets the lanes named in `ids` (at most [`LANES`]) to those triangles
+    /// of `triangles`; lanes whose id is [`EMPTY_ID`] are left as they are.
+    /// Always inlined, as [`Tri4::set_lane`] is, into the leaf fill and the
+    /// refit.
+    #[inline(always)]
+    pub(crate) fn fill<T: Triangles + ?Sized>(&mut self, ids: &[u32], triangles: &T) {
+        for (lane, &id) in ids.iter().enumerate() {
+            if id != EMPTY_ID {
+                self.set_lane(lane, &triangles.get(id as usize), id);
+            }
+        }
+    }
+
     /// The triangle of `lane`.
     #[inline]
     pub fn triangle(&self, lane: usize) -> [Vec3; 3] {
@@ -78,6 +92,17 @@ impl Tri4 {
     /// Whether no lane is used (never true of a block in a tree).
     pub fn is_empty(&self) -> bool {
         self.len() == 0
+    }
+}
+
+/// Asks for the triangles `ids` of one block ([`EMPTY_ID`] where unused) to
+/// be read ahead: `stage` 0 their index triples, 1 their vertices. Leaf
+/// order jumps about a scene's triangle order, so whatever fills blocks
+/// (the wide build's leaf fill, the refit) asks a few blocks early.
+#[inline]
+pub(crate) fn prefetch_triangles<T: Triangles + ?Sized>(triangles: &T, ids: &[u32], stage: u8) {
+    for &id in ids.iter().filter(|&&id| id != EMPTY_ID) {
+        triangles.prefetch(id as usize, stage);
     }
 }
 

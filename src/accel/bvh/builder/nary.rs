@@ -25,7 +25,7 @@ use arrayvec::ArrayVec;
 use rayon::prelude::*;
 
 use super::topdown::{prim_refs, try_split, Split, Splitter};
-use crate::accel::bvh::leaf::{Tri4, EMPTY_ID, LANES};
+use crate::accel::bvh::leaf::{prefetch_triangles, Tri4, EMPTY_ID, LANES};
 use crate::accel::bvh::node::padded;
 use crate::accel::bvh::params::{FILL_AHEAD, MERGE_MAX, PARALLEL_CUTOFF};
 use crate::accel::bvh::prim::{Box4, NodeInfo, PrimRef, Triangles};
@@ -435,26 +435,6 @@ fn shifted<const N: usize>(
     node
 }
 
-/// Asks for the triangles of one block's slots `ids` ([`EMPTY_ID`] where
-/// unused) to be read ahead: `stage` 0 their index triples, 1 their vertices.
-#[inline]
-fn prefetch_block<T: Triangles + ?Sized>(triangles: &T, ids: &[u32], stage: u8) {
-    for &id in ids.iter().filter(|&&id| id != EMPTY_ID) {
-        triangles.prefetch(id as usize, stage);
-    }
-}
-
-/// Sets the lanes of `block` to the triangles of its slots `ids`
-/// ([`EMPTY_ID`] lanes are left as they are).
-#[inline]
-fn fill_block<T: Triangles + ?Sized>(block: &mut Tri4, ids: &[u32], triangles: &T) {
-    for (lane, &id) in ids.iter().enumerate() {
-        if id != EMPTY_ID {
-            block.set_lane(lane, &triangles.get(id as usize), id);
-        }
-    }
-}
-
 /// Where a block of the final array comes from ([`Layout::block_source`]).
 enum BlockSource<'a> {
     Filled(&'a Tri4),
@@ -578,13 +558,13 @@ impl<const N: usize> Layout<N> {
         // reads are asked for FILL_AHEAD blocks early, as in `blocks`.
         let ask = |b: usize, stage: u8| {
             if let Some(ids) = ids.get(b * LANES..(b + 1) * LANES) {
-                prefetch_block(triangles, ids, stage);
+                prefetch_triangles(triangles, ids, stage);
             }
         };
         for (b, block) in blocks.iter_mut().enumerate() {
             ask(b + 2 * FILL_AHEAD, 0);
             ask(b + FILL_AHEAD, 1);
-            fill_block(block, &ids[b * LANES..(b + 1) * LANES], triangles);
+            block.fill(&ids[b * LANES..(b + 1) * LANES], triangles);
         }
         let mut hint = s;
         for (i, node) in nodes.iter_mut().enumerate() {
@@ -641,7 +621,7 @@ impl<const N: usize> Layout<N> {
                 return;
             }
             if let BlockSource::Ids(ids) = this.block_source(b, hint) {
-                prefetch_block(triangles, ids, stage);
+                prefetch_triangles(triangles, ids, stage);
             }
         };
         let block = |hints: &mut [usize; 3], b: usize| {
@@ -651,7 +631,7 @@ impl<const N: usize> Layout<N> {
                 BlockSource::Filled(block) => *block,
                 BlockSource::Ids(ids) => {
                     let mut block = Tri4::empty();
-                    fill_block(&mut block, ids, triangles);
+                    block.fill(ids, triangles);
                     block
                 }
             }
