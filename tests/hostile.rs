@@ -120,6 +120,12 @@ fn gltf_that_the_gltf_crate_would_panic_on_is_refused() {
             "glTF node graphs must be trees",
         ),
         (
+            "animated-node-past.gltf",
+            r#""scenes""#,
+            r#""animations":[{"samplers":[{"input":1,"output":0}],"channels":[{"sampler":0,"target":{"node":50,"path":"translation"}}]}],"scenes""#,
+            "animation 0 channel 0 targets node 50, the file has 1",
+        ),
+        (
             "negative-colour.gltf",
             r#""indices":1}]}],"#,
             r#""indices":1,"material":0}]}],"materials":[{"pbrMetallicRoughness":{"baseColorFactor":[1,-1,1,1]}}],"#,
@@ -142,6 +148,50 @@ fn gltf_that_the_gltf_crate_would_panic_on_is_refused() {
         );
         assert_refused(&f, &[name, needle]);
     }
+    std::fs::remove_dir_all(&d).ok();
+}
+
+/// A glTF file with animations raylab cannot follow is refused by the
+/// `animation` bench part, which once took it for a scene that does not move
+/// and timed the built-in animations in its place (exit 0).
+#[test]
+fn bench_refuses_an_animated_file_it_cannot_follow() {
+    let d = temp_dir("hostile-bench-animation");
+    // Keyframe times 0, 0 (the first two position floats): not increasing.
+    let f = write(
+        &d,
+        "still.gltf",
+        triangle_gltf(|j| {
+            let j = j.replacen(
+                r#"{"bufferView":1,"componentType":5123,"count":3,"type":"SCALAR"}]"#,
+                r#"{"bufferView":1,"componentType":5123,"count":3,"type":"SCALAR"},
+                   {"bufferView":0,"componentType":5126,"count":2,"type":"SCALAR"},
+                   {"bufferView":0,"componentType":5126,"count":2,"type":"VEC3"}]"#,
+                1,
+            );
+            j.replacen(
+                r#""scenes""#,
+                r#""animations":[{"samplers":[{"input":2,"output":3}],"channels":[{"sampler":0,"target":{"node":0,"path":"translation"}}]}],"scenes""#,
+                1,
+            )
+        }),
+    );
+    let out = d.join("report");
+    common::assert_one_line_error_naming(
+        &[
+            "bench",
+            f.to_str().unwrap(),
+            "--quick",
+            "--parts",
+            "animation",
+            "--threads",
+            "1",
+            "--out",
+            out.to_str().unwrap(),
+            "-q",
+        ],
+        &["still.gltf", "strictly increasing"],
+    );
     std::fs::remove_dir_all(&d).ok();
 }
 

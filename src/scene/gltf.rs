@@ -365,7 +365,8 @@ const READ_EXTENSIONS: &[&str] = &[
 
 /// The document checked so that nothing the gltf crate or this reader calls
 /// later can panic: every primitive's attributes name accessors that exist
-/// (the crate's validation hook indexes them unchecked), every required
+/// (the crate's validation hook indexes them unchecked), every animation
+/// channel a node that exists (the crate does not check it), every required
 /// extension is one raylab reads (all that are not are named in one line),
 /// then the crate's own validation (every index in range, every enum known).
 fn validated(mut json: gltf::json::Root) -> std::result::Result<gltf::Document, String> {
@@ -376,6 +377,18 @@ fn validated(mut json: gltf::json::Root) -> std::result::Result<gltf::Document, 
             if let Some(bad) = named.map(|a| a.value()).find(|&a| a >= accessors) {
                 return Err(format!(
                     "mesh {m} primitive {p} names accessor {bad}, the file has {accessors}"
+                ));
+            }
+        }
+    }
+    // The crate checks a channel's sampler but not the node it targets.
+    let nodes = json.nodes.len();
+    for (a, anim) in json.animations.iter().enumerate() {
+        for (c, channel) in anim.channels.iter().enumerate() {
+            let node = channel.target.node.value();
+            if node >= nodes {
+                return Err(format!(
+                    "animation {a} channel {c} targets node {node}, the file has {nodes}"
                 ));
             }
         }

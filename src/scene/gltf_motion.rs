@@ -557,21 +557,24 @@ pub(super) enum Followed {
     Instances(super::Scene, NodeMotion, Vec<usize>),
 }
 
-/// Loads a glTF file's animations.
-pub(super) fn load(path: &std::path::Path, policy: super::refs::RefPolicy) -> Result<Followed> {
+/// Loads a glTF file's animations; `None` when it has none.
+pub(super) fn load(
+    path: &std::path::Path,
+    policy: super::refs::RefPolicy,
+) -> Result<Option<Followed>> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     let loaded = super::gltf::load_parts(&bytes, path, policy)?;
-    let motion = NodeMotion::of(&loaded)
-        .map_err(|m| file_error(path, m))?
-        .ok_or_else(|| file_error(path, "the file has no animations".into()))?;
+    let Some(motion) = NodeMotion::of(&loaded).map_err(|m| file_error(path, m))? else {
+        return Ok(None);
+    };
     if motion.is_rigid() {
         // A static node that cannot be inverted (a zero scale) cannot be an
         // instance; its vertices are followed instead.
         if let Ok((scene, nodes)) = super::gltf::load_placed_instances(&loaded, path) {
-            return Ok(Followed::Instances(scene, motion, nodes));
+            return Ok(Some(Followed::Instances(scene, motion, nodes)));
         }
     }
-    Ok(Followed::Vertices(loaded.scene, motion))
+    Ok(Some(Followed::Vertices(loaded.scene, motion)))
 }
 
 #[cfg(test)]

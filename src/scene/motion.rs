@@ -146,7 +146,10 @@ impl Animation {
                 ));
             }
             let file_error = |m| super::gltf_motion::file_error(path, m);
-            return match super::gltf_motion::load(path, policy)? {
+            let Some(followed) = super::gltf_motion::load(path, policy)? else {
+                return Err(file_error("the file has no animations".into()));
+            };
+            return match followed {
                 Followed::Vertices(mut rest, motion) => {
                     let duration = motion.duration;
                     let mut positions = rest.positions.clone();
@@ -182,6 +185,31 @@ impl Animation {
                 ),
             ))
         })
+    }
+
+    /// The animation of scene `spec` if it moves: an animated built-in, or
+    /// a glTF file with animations (`None` for any other scene or file); an
+    /// error for a file that has animations raylab cannot follow, or that
+    /// cannot be read.
+    pub fn load_if_animated(
+        spec: &str,
+        policy: super::refs::RefPolicy,
+        flag: &str,
+    ) -> Result<Option<Animation>> {
+        let is_gltf = super::is_scene_file(spec)
+            && std::path::Path::new(spec)
+                .extension()
+                .and_then(|e| e.to_str())
+                .is_some_and(|e| e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb"));
+        if is_gltf {
+            let path = std::path::Path::new(spec);
+            if super::gltf_motion::load(path, policy)?.is_none() {
+                return Ok(None);
+            }
+        } else if !Self::names_one(spec) {
+            return Ok(None);
+        }
+        Self::load(spec, policy, flag).map(Some)
     }
 
     /// Whether `name` is an animated built-in's name (with any `N`).

@@ -101,25 +101,23 @@ pub struct AnimationPoint {
 }
 
 /// The animations of `cfg`'s scenes (animated built-ins, and glTF files
-/// that have animations), or the defaults when none moves.
-fn animations(cfg: &BenchConfig) -> Vec<String> {
-    let named: Vec<String> = cfg
-        .scenes
-        .iter()
-        .filter(|s| {
-            Animation::names_one(s)
-                || (crate::scene::is_scene_file(s)
-                    && Animation::load(s, cfg.ref_policy, "SCENE").is_ok())
-        })
-        .cloned()
-        .collect();
-    if !named.is_empty() {
-        return named;
+/// that have animations), or the defaults when none moves. A scene file
+/// whose animations cannot be followed is an error, not a scene that does
+/// not move: the part would otherwise time the defaults in its place.
+fn animations(cfg: &BenchConfig) -> Result<Vec<String>> {
+    let mut named = Vec::new();
+    for s in &cfg.scenes {
+        if Animation::load_if_animated(s, cfg.ref_policy, "SCENE")?.is_some() {
+            named.push(s.clone());
+        }
     }
-    DEFAULT_ANIMATIONS
+    if !named.is_empty() {
+        return Ok(named);
+    }
+    Ok(DEFAULT_ANIMATIONS
         .iter()
         .map(|(full, quick)| if cfg.quick { quick } else { full }.to_string())
-        .collect()
+        .collect())
 }
 
 /// Frames per animation.
@@ -132,7 +130,8 @@ fn frames(cfg: &BenchConfig) -> usize {
 }
 
 pub fn steps(cfg: &BenchConfig, _scenes: &[Scene]) -> u64 {
-    (animations(cfg).len() * frames(cfg)) as u64
+    // A scene the part refuses is refused when it runs.
+    (animations(cfg).map_or(1, |a| a.len()) * frames(cfg)) as u64
 }
 
 /// One frame's rays to trace: per kind (primary, shadow, AO) a window of
@@ -306,7 +305,7 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<An
     };
     let strategies = Strategy::compared(&factors);
     let mut out = Vec::new();
-    for name in animations(cfg) {
+    for name in animations(cfg)? {
         let animation = Animation::load(&name, cfg.ref_policy, "SCENE")?;
         let n = frames(cfg);
         let times: Vec<f32> = (0..n)
