@@ -195,6 +195,34 @@ fn bench_refuses_an_animated_file_it_cannot_follow() {
     std::fs::remove_dir_all(&d).ok();
 }
 
+/// Memory that runs out (here under `ulimit -v`; on a machine, a scene or
+/// image within the budgets but past its memory) ends raylab with one line
+/// and exit status 1, not Rust's abort (SIGABRT and a backtrace), and
+/// writes no image.
+#[cfg(target_os = "linux")]
+#[test]
+fn running_out_of_memory_is_one_line_not_an_abort() {
+    let d = temp_dir("hostile-oom");
+    let png = d.join("big.png");
+    // 8000x6000 pixels need about 1.2 GB of image buffers, past 400 MB.
+    let out = std::process::Command::new("sh")
+        .arg("-c")
+        .arg(r#"ulimit -v 400000 && exec "$0" render cornell-empty --size 8000x6000 -q -o "$1""#)
+        .arg(env!("CARGO_BIN_EXE_raylab"))
+        .arg(&png)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("raylab: out of memory:") && err.contains("--max-pixels"),
+        "{err}"
+    );
+    assert!(!png.exists());
+    std::fs::remove_dir_all(&d).ok();
+}
+
 /// Rays no backend may crash on: non-finite, zero directions, tmin past
 /// tmax, denormals, and finite coordinates past Embree's limit or whose move
 /// to tmin overflows f32 (for the libraries without tmin). Each with whether
