@@ -62,6 +62,11 @@ pub(super) struct Placement {
 /// flattened, every placement its own vertices (animations move them).
 pub(super) fn load_parts(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Loaded> {
     let (doc, buffers) = read_document(bytes, path, policy)?;
+    flattened_parts(doc, buffers, path)
+}
+
+/// [`load_parts`] on a document already read.
+fn flattened_parts(doc: gltf::Document, buffers: Vec<Vec<u8>>, path: &Path) -> Result<Loaded> {
     let roots = root_nodes(&doc).map_err(|m| parse_error(path, m))?;
     check_budget(&roots).map_err(|m| parse_error(path, m))?;
     let (scene, placements) = flatten(&roots, &buffers, path)?;
@@ -199,7 +204,48 @@ fn mesh_nodes<'a>(
 /// an instance), else flattened as [`load_parts`] does.
 fn load_instanced(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Scene> {
     let (doc, buffers) = read_document(bytes, path, policy)?;
+    if needs_pose(&doc) {
+        return posed(doc, buffers, path);
+    }
     Ok(instanced(&doc, &buffers, path, false)?.0)
+}
+
+/// Whether a node places a mesh that its skin or its morph weights deform:
+/// the file's static pose is not its meshes' vertices as stored, so it is
+/// loaded through [`posed`].
+pub(super) fn needs_pose(doc: &gltf::Document) -> bool {
+    doc.nodes().any(|node| {
+        let Some(mesh) = node.mesh() else {
+            return false;
+        };
+        let morphed = mesh
+            .primitives()
+            .any(|p| p.morph_targets().next().is_some())
+            && node
+                .weights()
+                .or_else(|| mesh.weights())
+                .is_some_and(|w| w.iter().any(|&w| w != 0.0));
+        node.skin().is_some() || morphed
+    })
+}
+
+/// The file flattened with its skinned and morphed meshes posed as the
+/// format defines the static scene: morph targets at the node's (else the
+/// mesh's) default weights, skins over their joints' rest transforms (an
+/// animation's time 0 is `render --time 0`). The shading normals are
+/// dropped, as an animation's frames drop them: they were the unposed mesh's.
+fn posed(doc: gltf::Document, buffers: Vec<Vec<u8>>, path: &Path) -> Result<Scene> {
+    let mut loaded = flattened_parts(doc, buffers, path)?;
+    let motion =
+        super::gltf_motion::NodeMotion::posed(&loaded).map_err(|m| parse_error(path, m))?;
+    motion
+        .positions_at(0.0, &mut loaded.scene.positions)
+        .map_err(|m| parse_error(path, m))?;
+    loaded.scene.normals = None;
+    let extra = loaded.scene.lights.extra;
+    loaded.scene.lights = loaded.scene.find_lights();
+    loaded.scene.lights.extra = extra;
+    Ok(loaded.scene)
 }
 
 /// The file `loaded` read as an instanced scene whatever its meshes' uses

@@ -111,11 +111,22 @@ fn floats(
 impl NodeMotion {
     /// The animations of a loaded file; `None` when it has none.
     pub(super) fn of(loaded: &Loaded) -> std::result::Result<Option<NodeMotion>, String> {
-        let doc = &loaded.doc;
-        let buffers = &loaded.buffers;
-        if doc.animations().next().is_none() {
+        if loaded.doc.animations().next().is_none() {
             return Ok(None);
         }
+        Self::build(loaded).map(Some)
+    }
+
+    /// The file's nodes, skins and morph targets, with its animations if it
+    /// has any: what poses a static file's skinned and morphed meshes
+    /// ([`super::gltf::needs_pose`]) at time 0.
+    pub(super) fn posed(loaded: &Loaded) -> std::result::Result<NodeMotion, String> {
+        Self::build(loaded)
+    }
+
+    fn build(loaded: &Loaded) -> std::result::Result<NodeMotion, String> {
+        let doc = &loaded.doc;
+        let buffers = &loaded.buffers;
         let count = doc.nodes().count();
         let mut parents = vec![None; count];
         for node in doc.nodes() {
@@ -270,13 +281,13 @@ impl NodeMotion {
                 skin,
             });
         }
-        Ok(Some(NodeMotion {
+        Ok(NodeMotion {
             nodes,
             parents,
             channels,
             placed,
             duration,
-        }))
+        })
     }
 
     /// Whether every placed mesh moves rigidly with its node: no skin, no
@@ -623,6 +634,77 @@ mod tests {
             times[1]
         )
         .into_bytes()
+    }
+
+    /// A triangle (0,0,0) (1,0,0) (0,1,0) with no animation: with `morph`,
+    /// one morph target moving its third vertex by (0,2,0) at the mesh's
+    /// default weight 0.5; else skinned, its third vertex bound to joint
+    /// node 2 at (3,3,0) and the others to joint node 1 at the origin.
+    fn still_deformed_triangle(morph: bool) -> Vec<u8> {
+        use base64::Engine;
+        let floats: Vec<f32> = [
+            // 0: the triangle, 36 bytes
+            vec![0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+            // 36: the morph target's displacements, 36 bytes
+            vec![0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0],
+            // 72: the joint weights, 48 bytes
+            vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+        ]
+        .concat();
+        let mut bin: Vec<u8> = floats.iter().flat_map(|f| f.to_le_bytes()).collect();
+        // 120: the joints (u8 VEC4), 12 bytes
+        bin.extend([0u8, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0]);
+        let uri = format!(
+            "data:application/octet-stream;base64,{}",
+            base64::engine::general_purpose::STANDARD.encode(&bin)
+        );
+        let (node, prim, extra) = if morph {
+            (
+                r#"{"mesh":0}"#,
+                r#"{"attributes":{"POSITION":0},"targets":[{"POSITION":1}]}],"weights":[0.5]"#,
+                "",
+            )
+        } else {
+            (
+                r#"{"mesh":0,"skin":0},{"translation":[0,0,0]},{"translation":[3,3,0]}"#,
+                r#"{"attributes":{"POSITION":0,"WEIGHTS_0":2,"JOINTS_0":3}}]"#,
+                r#","skins":[{"joints":[1,2]}]"#,
+            )
+        };
+        format!(
+            r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],
+            "nodes":[{node}],
+            "meshes":[{{"primitives":[{prim}}}],
+            "buffers":[{{"byteLength":{},"uri":"{uri}"}}],
+            "bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":36}},
+                           {{"buffer":0,"byteOffset":36,"byteLength":36}},
+                           {{"buffer":0,"byteOffset":72,"byteLength":48}},
+                           {{"buffer":0,"byteOffset":120,"byteLength":12}}],
+            "accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}},
+                         {{"bufferView":1,"componentType":5126,"count":3,"type":"VEC3"}},
+                         {{"bufferView":2,"componentType":5126,"count":3,"type":"VEC4"}},
+                         {{"bufferView":3,"componentType":5121,"count":3,"type":"VEC4"}}]{extra}}}"#,
+            bin.len(),
+        )
+        .into_bytes()
+    }
+
+    #[test]
+    fn a_still_files_morph_weights_and_skins_pose_its_vertices() {
+        let path = std::path::Path::new("still.gltf");
+        for (morph, third) in [
+            (true, Vec3::new(0.0, 2.0, 0.0)),
+            (false, Vec3::new(3.0, 4.0, 0.0)),
+        ] {
+            let bytes = still_deformed_triangle(morph);
+            let scene = super::super::gltf::load_gltf_bytes_with(&bytes, path, Default::default())
+                .unwrap_or_else(|e| panic!("morph {morph}: {e}"));
+            let tri = scene.triangles[0].map(|v| scene.positions[v as usize]);
+            assert_eq!(tri[0], Vec3::ZERO, "morph {morph}");
+            assert_eq!(tri[1], Vec3::X, "morph {morph}");
+            assert_eq!(tri[2], third, "morph {morph}");
+            assert!(scene.normals.is_none());
+        }
     }
 
     fn motion_of(bytes: &[u8]) -> std::result::Result<NodeMotion, String> {
