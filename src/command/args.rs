@@ -83,6 +83,9 @@ impl ViewArgs {
             return Err(Error::usage("--size", msg));
         }
         scene.check_traceable()?;
+        if let Some(w) = scene.precision_warning() {
+            scene.warnings.push(w);
+        }
         let light = self.light.map(|l| l.emitter(&scene.bounds(), self.up));
         scene.set_extra_light(light, self.up);
         self.check_lights(scene)?;

@@ -58,6 +58,11 @@ pub const MAX_TRACEABLE_COORDINATE: f32 = 2e12;
 /// rounds onto the point it looks at.
 pub const MIN_TRACEABLE_EXTENT: f32 = 1e-10;
 
+/// Fewer f32 steps of its coordinates than this across, and a scene is
+/// rendered with a warning ([`Scene::precision_warning`]): far:N (a mesh
+/// about 10 units across at 1e5, where a step is 0.0078) has about 1,300.
+pub const MIN_STEPS_ACROSS: f32 = 256.0;
+
 /// The MTL values the shader uses; everything else in an MTL file is ignored.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Material {
@@ -414,6 +419,25 @@ impl Scene {
         })
     }
 
+    /// A warning when the scene is so small for where it lies that f32
+    /// rounds its shape, its shading points and the lights placed by its
+    /// size coarsely: fewer than [`MIN_STEPS_ACROSS`] f32 steps of its
+    /// farthest coordinate across (a 0.125-unit triangle at 1e6, where a
+    /// step is 0.0625, was 3 steps across, and the default light, a third of
+    /// a step above it, rounded into its plane: no direct light at all).
+    pub fn precision_warning(&self) -> Option<String> {
+        let b = self.bounds();
+        let reach = b.min.abs().max(b.max.abs()).max_element();
+        let step = reach.next_up() - reach;
+        let extent = (b.max - b.min).length();
+        let steps = extent / step;
+        (steps < MIN_STEPS_ACROSS).then(|| {
+            format!(
+                "the scene is {extent:.3e} across where its coordinates reach {reach:.3e}, and f32 steps there are {step:.3e}: {steps:.0} steps across, so its shape, shading and lighting are rounded coarsely (move it near the origin)"
+            )
+        })
+    }
+
     /// Bounds of all referenced vertices, in world space (an instanced
     /// scene's: every instance's mesh box, moved by its transform).
     pub fn bounds(&self) -> Aabb {
@@ -480,6 +504,32 @@ mod tests {
             vec![0, 1, 0],
             vec![Material::default_grey(), light],
         )
+    }
+
+    #[test]
+    fn a_scene_few_f32_steps_across_where_it_lies_gets_a_warning() {
+        let at = |offset: f32, size: f32| {
+            let o = Vec3::splat(offset);
+            Scene::new(
+                "t",
+                vec![o, o + Vec3::X * size, o + Vec3::Y * size],
+                None,
+                vec![[0, 1, 2]],
+                vec![0],
+                vec![Material::default_grey()],
+            )
+            .unwrap()
+            .precision_warning()
+        };
+        let w = at(1e6, 0.125).expect("3 steps across at 1e6");
+        assert!(w.contains("3 steps across"), "{w}");
+        assert!(at(1e5, 0.125).is_some());
+        assert!(at(0.0, 0.125).is_none());
+        assert!(at(1e6, 1000.0).is_none());
+        assert!(crate::scene::builtin::builtin("far:2000")
+            .unwrap()
+            .precision_warning()
+            .is_none());
     }
 
     #[test]
