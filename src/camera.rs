@@ -45,6 +45,13 @@ impl Camera {
                 "width and height must be at least 1",
             ));
         }
+        let narrowest = narrowest_fov_deg(height);
+        if fov_deg < narrowest {
+            return Err(Error::usage(
+                "--fov",
+                format!("{fov_deg} degrees is narrower than f32 rays resolve at {height} pixels tall (neighbouring pixels' directions would round together); the narrowest is {narrowest:.4}"),
+            ));
+        }
         let forward = (look - eye).normalize_or_zero();
         if forward == Vec3::ZERO {
             return Err(Error::usage("--look", "look-at point equals the eye"));
@@ -79,6 +86,27 @@ impl Camera {
     }
 }
 
+/// The smallest step between neighbouring pixels' directions, relative to
+/// the forward one (of length 1) they are offsets from: 2^-20, 16 f32 steps
+/// of it, so pixels stay apart to a sixteenth of a pixel.
+const MIN_PIXEL_STEP: f32 = 1.0 / (1u32 << 20) as f32;
+
+/// The narrowest half-angle the framing of a default view computes with.
+const FRAMING_MIN_HALF_ANGLE: f32 = 1e-4;
+
+/// The narrowest vertical field of view, in degrees, an image `height`
+/// pixels tall is rendered with: neighbouring pixels' directions apart by at
+/// least [`MIN_PIXEL_STEP`] (at `--fov 1e-6` a 48-pixel image was a sliver,
+/// its rays rounded onto a few directions), and no narrower than the
+/// framing's [`FRAMING_MIN_HALF_ANGLE`] (below it a default view was framed
+/// for a wider lens and cropped the scene).
+pub fn narrowest_fov_deg(height: u32) -> f32 {
+    let half = (height as f32 * 0.5 * MIN_PIXEL_STEP)
+        .atan()
+        .max(FRAMING_MIN_HALF_ANGLE);
+    (2.0 * half).to_degrees()
+}
+
 /// The direction, from the scene's centre, of the default view of a scene that
 /// is not a built-in box, in the frame of [`crate::scene::light::frame_axes`]:
 /// mostly from the front, a little from the right and from above.
@@ -109,7 +137,7 @@ pub fn framing(
     let forward = -dir;
     let cam_right = forward.cross(up).normalize();
     let cam_up = cam_right.cross(forward);
-    let half_v = (fov_deg.to_radians() * 0.5).clamp(1e-4, 1.55);
+    let half_v = (fov_deg.to_radians() * 0.5).clamp(FRAMING_MIN_HALF_ANGLE, 1.55);
     let tan_v = half_v.tan() * (1.0 - FRAMING_MARGIN);
     let tan_h = half_v.tan() * width as f32 / height.max(1) as f32 * (1.0 - FRAMING_MARGIN);
     // A point at offset c from the centre lies at depth dist - c.dir in front of
@@ -259,6 +287,15 @@ mod tests {
     fn bad_parameters_name_their_flag() {
         let e = Vec3::new(0.0, 1.0, 3.0);
         let l = Vec3::new(0.0, 1.0, 0.0);
+        for (fov, height) in [(0.04, 768), (0.01, 48), (1e-6, 48)] {
+            let err = Camera::new(e, l, Vec3::Y, fov, height, height).unwrap_err();
+            assert!(
+                err.to_string().starts_with("--fov") && err.to_string().contains("narrowest"),
+                "{err}"
+            );
+        }
+        assert!(Camera::new(e, l, Vec3::Y, 0.05, 1024, 768).is_ok());
+        assert!(Camera::new(e, l, Vec3::Y, 0.012, 64, 48).is_ok());
         for fov in [0.0, 180.0, -5.0, f32::NAN] {
             let err = Camera::new(e, l, Vec3::Y, fov, 10, 10).unwrap_err();
             assert!(err.to_string().starts_with("--fov"), "{err}");
