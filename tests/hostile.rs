@@ -223,6 +223,42 @@ fn running_out_of_memory_is_one_line_not_an_abort() {
     std::fs::remove_dir_all(&d).ok();
 }
 
+/// A plain chain of nodes is a legal tree however deep: 300 levels load
+/// (256 were once refused as "a cycle?"), and past raylab's limit the
+/// refusal says it is a limit.
+#[test]
+fn deep_node_chains_load_up_to_a_stated_limit() {
+    let d = temp_dir("hostile-deep");
+    let chain = |n: usize| {
+        let mut nodes: Vec<String> = (1..n).map(|c| format!(r#"{{"children":[{c}]}}"#)).collect();
+        nodes.push(r#"{"mesh":0}"#.into());
+        format!(r#""nodes":[{}]"#, nodes.join(","))
+    };
+    let deep = |n: usize| triangle_gltf(|j| j.replacen(r#""nodes":[{"mesh":0}]"#, &chain(n), 1));
+    let ok = write(&d, "chain300.gltf", deep(300));
+    let png = d.join("chain300.png");
+    let out = raylab(&[
+        "render",
+        ok.to_str().unwrap(),
+        "--size",
+        "16x12",
+        "-q",
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let refused = write(&d, "chain5000.gltf", deep(5000));
+    assert_refused(
+        &refused,
+        &["chain5000.gltf", "levels deep, past raylab's limit"],
+    );
+    std::fs::remove_dir_all(&d).ok();
+}
+
 /// Rays no backend may crash on: non-finite, zero directions, tmin past
 /// tmax, denormals, and finite coordinates past Embree's limit or whose move
 /// to tmin overflows f32 (for the libraries without tmin). Each with whether

@@ -184,7 +184,7 @@ fn mesh_nodes<'a>(
     while let Some((node, parent, depth)) = stack.pop() {
         if depth > MAX_DEPTH {
             return Err(format!(
-                "node {} is nested over {MAX_DEPTH} deep (a cycle?)",
+                "node {} is nested over {MAX_DEPTH} levels deep, past raylab's limit",
                 node.index()
             ));
         }
@@ -858,8 +858,10 @@ struct Flattened {
     placements: Vec<Placement>,
 }
 
-/// Node nesting deeper than this is taken for a cycle (the format forbids them).
-const MAX_DEPTH: usize = 256;
+/// Node nesting deeper than this is refused. Cycles are refused before any
+/// walk ([`root_nodes`]) and the walks keep their own stacks, so this only
+/// bounds the work a file can ask for; 256 refused a plain 300-node chain.
+pub(super) const MAX_DEPTH: usize = 4096;
 
 impl Flattened {
     /// Every primitive of `mesh`, placed by `node` at `world`.

@@ -15,7 +15,7 @@
 
 use glam::{Mat4, Quat, Vec3};
 
-use super::gltf::{decode_float, read_elements, read_vec3s, Loaded};
+use super::gltf::{decode_float, read_elements, read_vec3s, Loaded, MAX_DEPTH};
 use crate::error::{Error, Result};
 
 #[derive(Clone, Debug)]
@@ -87,9 +87,6 @@ pub struct NodeMotion {
     /// The last keyframe's time, seconds.
     pub duration: f32,
 }
-
-/// Node nesting past this is taken for a cycle.
-const MAX_DEPTH: usize = 256;
 
 fn floats(
     a: &gltf::Accessor,
@@ -368,7 +365,9 @@ impl NodeMotion {
                 }
                 chain.push(p);
                 if chain.len() > MAX_DEPTH {
-                    return Err(format!("node {i} is nested over {MAX_DEPTH} deep"));
+                    return Err(format!(
+                        "node {i} is nested over {MAX_DEPTH} levels deep, past raylab's limit"
+                    ));
                 }
             }
             let mut m = Mat4::IDENTITY;
