@@ -220,6 +220,59 @@ fn bad_animation_flags_get_one_line_errors() {
     );
 }
 
+/// A frame that cannot be rendered (here a triangle scaled to nothing at
+/// 1 s) fails `--frames` with one line naming the frame, its time and the
+/// frames already written.
+#[test]
+fn a_failing_frame_is_named_with_the_frames_written_before_it() {
+    use base64::Engine;
+    let floats: [f32; 17] = [
+        0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, // the triangle
+        0.0, 1.0, // keyframe times
+        1.0, 1.0, 1.0, 0.0, 0.0, 0.0, // scales: 1, then 0
+    ];
+    let bin: Vec<u8> = floats.iter().flat_map(|f| f.to_le_bytes()).collect();
+    let data = base64::engine::general_purpose::STANDARD.encode(&bin);
+    let gltf = format!(
+        r#"{{"asset":{{"version":"2.0"}},"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
+        "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}}}}]}}],
+        "buffers":[{{"uri":"data:application/octet-stream;base64,{data}","byteLength":68}}],
+        "bufferViews":[{{"buffer":0,"byteLength":36}},{{"buffer":0,"byteOffset":36,"byteLength":8}},
+                       {{"buffer":0,"byteOffset":44,"byteLength":24}}],
+        "accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}},
+                     {{"bufferView":1,"componentType":5126,"count":2,"type":"SCALAR","min":[0],"max":[1]}},
+                     {{"bufferView":2,"componentType":5126,"count":2,"type":"VEC3"}}],
+        "animations":[{{"samplers":[{{"input":1,"output":2}}],
+                        "channels":[{{"sampler":0,"target":{{"node":0,"path":"scale"}}}}]}}]}}"#
+    );
+    let d = temp_dir("animation-failing-frame");
+    let file = d.join("shrink.gltf");
+    std::fs::write(&file, gltf).unwrap();
+    let out = d.join("f.png");
+    common::assert_one_line_error_naming(
+        &[
+            "render",
+            file.to_str().unwrap(),
+            "--frames",
+            "0..2",
+            "--fps",
+            "2",
+            "--size",
+            "16x12",
+            "-q",
+            "-o",
+            out.to_str().unwrap(),
+        ],
+        &[
+            "--frames: frame 2 (at 1 s)",
+            "too small",
+            "(frames 0..1 written)",
+        ],
+    );
+    assert!(d.join("f_0001.png").exists() && !d.join("f_0002.png").exists());
+    std::fs::remove_dir_all(&d).ok();
+}
+
 /// Rays from above and beside the belt of rocks towards points in it, in
 /// runs of neighbours, over a scene's `bounds`.
 fn belt_rays(n: usize, seed: u64, min: Vec3, max: Vec3) -> Vec<Ray> {

@@ -231,10 +231,24 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     let fixed = (args.view.prepare(&mut framing)?, framing.lights.extra);
     for f in first..=last {
         let start = Instant::now();
-        let frame = frame_at(f as f32 / fps)?;
+        let t = f as f32 / fps;
         let output = numbered(&args.output, f);
         let fixed = (!args.follow).then_some(&fixed);
-        render_scene(args, &spec, threads, frame, start.elapsed(), &output, fixed)?;
+        // Which frame failed, and which were written: a frame's scene can
+        // fail (a node scaled through zero cannot be framed) after earlier
+        // frames rendered.
+        frame_at(t)
+            .and_then(|frame| {
+                render_scene(args, &spec, threads, frame, start.elapsed(), &output, fixed)
+            })
+            .map_err(|e| {
+                let written = if f > first {
+                    format!("frames {first}..{} written", f - 1)
+                } else {
+                    "no frame written".into()
+                };
+                Error::Other(format!("--frames: frame {f} (at {t} s): {e} ({written})"))
+            })?;
     }
     Ok(())
 }
