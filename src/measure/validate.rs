@@ -48,24 +48,43 @@ pub fn t_scale(ray: &Ray, a: f32, b: f32) -> f32 {
     a.abs().max(b.abs()).max(origin).max(f32::MIN_POSITIVE)
 }
 
-fn same_t(ray: &Ray, a: f32, b: f32) -> bool {
-    (a - b).abs() <= T_TOLERANCE * t_scale(ray, a, b)
-}
-
 /// Cosines below this count as this (a ray within the plane has no t error
 /// bound at all; a floor keeps the bound finite).
 const MIN_GRAZING_COS: f32 = 1e-4;
 
-/// [`same_t`] with the tolerance divided by the cosine between the ray and the
-/// triangle's plane normal: both tests' rounding moves the plane by a few ulps,
-/// which moves the hit along a ray at angle theta by that over cos(theta).
-fn same_t_grazing(ray: &Ray, a: f32, b: f32, tri: &[Vec3; 3]) -> bool {
-    let n = crate::geometry::triangle_unit_normal(tri);
-    let cos = n
-        .dot(ray.dir.normalize_or_zero())
-        .abs()
-        .max(MIN_GRAZING_COS);
-    (a - b).abs() <= T_TOLERANCE * t_scale(ray, a, b) / cos
+/// The most a triangle's shape multiplies the `t` error by ([`same_t_on`]).
+const MAX_SLIVER_FACTOR: f32 = 1e3;
+
+/// Whether `a` and `b` are the same distance up to rounding, for hits on the
+/// plane of `tri` (and of `other`, a second triangle hit at the other `t`,
+/// if any): [`T_TOLERANCE`] of [`t_scale`] divided by the
+/// cosine between the ray and the plane's normal (both tests' rounding moves
+/// the plane by a few ulps, which moves the hit along a ray at angle theta
+/// by that over cos(theta)), and multiplied by how badly the triangle's
+/// shape conditions its plane, the longest edge squared over twice its area
+/// (1/sin of its sharpest angle, up to [`MAX_SLIVER_FACTOR`]): Moller-Trumbore
+/// and Embree take the plane from two edges, and a sliver's edges nearly
+/// cancel. A convex 400-gon fanned from one vertex (triangles of 0.45
+/// degrees there) gave its primary rays t 2e-5 apart from raylab and Embree
+/// on neighbouring coplanar triangles: 328 "genuine" disagreements where
+/// the exact reference found both right.
+fn same_t_on(ray: &Ray, a: f32, b: f32, tri: &[Vec3; 3], other: Option<&[Vec3; 3]>) -> bool {
+    let factor = |t: &[Vec3; 3]| {
+        let n = crate::geometry::triangle_unit_normal(t);
+        let cos = n
+            .dot(ray.dir.normalize_or_zero())
+            .abs()
+            .max(MIN_GRAZING_COS);
+        let longest = [t[1] - t[0], t[2] - t[1], t[0] - t[2]]
+            .map(|e| e.length())
+            .into_iter()
+            .fold(0.0f32, f32::max);
+        let area2 = crate::geometry::triangle_normal(t).length();
+        let sliver = (longest * longest / area2).clamp(1.0, MAX_SLIVER_FACTOR);
+        sliver / cos
+    };
+    let f = other.map_or(factor(tri), |o| factor(tri).max(factor(o)));
+    (a - b).abs() <= T_TOLERANCE * t_scale(ray, a, b) * f
 }
 
 /// Whether triangles `a` and `b` share at least one vertex position.
@@ -115,11 +134,19 @@ pub fn classify(ray: &Ray, a: Option<Hit>, b: Option<Hit>, triangles: &[[Vec3; 3
         // plane, amplified by how nearly the ray runs along it (a shadow ray
         // grazing a wall at cos 0.003 gets t 3.5e-5 apart from MT and Embree).
         (Some(x), Some(y))
-            if x.tri == y.tri && same_t_grazing(ray, x.t, y.t, &triangles[x.tri as usize]) =>
+            if x.tri == y.tri && same_t_on(ray, x.t, y.t, &triangles[x.tri as usize], None) =>
         {
             Agreement::Same
         }
-        (Some(x), Some(y)) if same_t(ray, x.t, y.t) => {
+        (Some(x), Some(y))
+            if same_t_on(
+                ray,
+                x.t,
+                y.t,
+                &triangles[x.tri as usize],
+                Some(&triangles[y.tri as usize]),
+            ) =>
+        {
             let (ta, tb) = (&triangles[x.tri as usize], &triangles[y.tri as usize]);
             if x.tri == y.tri {
                 Agreement::Same
@@ -139,7 +166,7 @@ pub fn classify(ray: &Ray, a: Option<Hit>, b: Option<Hit>, triangles: &[[Vec3; 3
         // raylab's 2e-4 inside, and the exact reference with raylab).
         (Some(h), None) | (None, Some(h))
             if ray.tmax.is_finite()
-                && same_t_grazing(ray, h.t, ray.tmax, &triangles[h.tri as usize]) =>
+                && same_t_on(ray, h.t, ray.tmax, &triangles[h.tri as usize], None) =>
         {
             Agreement::Tie
         }
@@ -764,6 +791,41 @@ mod tests {
         // Other triangles get no such slack.
         assert_eq!(
             classify(&grazing, hit(t, 0), hit(t + 0.1, 1), &tris),
+            Agreement::Genuine
+        );
+    }
+
+    #[test]
+    fn t_tolerance_grows_on_slivers_and_on_both_triangles_of_a_tie() {
+        // A sliver of a fan (its sharpest angle 0.45 degrees, 1/sin about
+        // 127) and its neighbour, in z = 0, hit head on; dt 4e-5 of the
+        // ray's scale (its origin's 1.0), twice what raylab and Embree gave
+        // on a fanned 400-gon, and twice a right triangle's tolerance.
+        let a = (0.45f32).to_radians();
+        let rim = |k: f32| Vec3::new(2.0 * (k * a).cos(), 2.0 * (k * a).sin(), 0.0);
+        let tris = [
+            [Vec3::ZERO, rim(0.0), rim(1.0)],
+            [Vec3::ZERO, rim(1.0), rim(2.0)],
+            [Vec3::ZERO, Vec3::X, Vec3::Y],
+        ];
+        let (t, dt) = (0.5, 4e-5);
+        let head_on = Ray::new(Vec3::new(1.0, 0.0078, -0.5), Vec3::Z);
+        assert_eq!(
+            classify(&head_on, hit(t, 0), hit(t + dt, 0), &tris),
+            Agreement::Same
+        );
+        assert_eq!(
+            classify(&head_on, hit(t, 0), hit(t + dt, 1), &tris),
+            Agreement::Tie
+        );
+        // A well-shaped triangle gets no such slack, and neither does a
+        // difference past it on the sliver.
+        assert_eq!(
+            classify(&head_on, hit(t, 2), hit(t + dt, 2), &tris),
+            Agreement::Genuine
+        );
+        assert_eq!(
+            classify(&head_on, hit(t, 0), hit(t + 0.01, 0), &tris),
             Agreement::Genuine
         );
     }
