@@ -73,21 +73,27 @@ fn the_most_negative_obj_index_is_refused() {
 #[test]
 fn gltf_that_the_gltf_crate_would_panic_on_is_refused() {
     let d = temp_dir("hostile-gltf");
-    let ok = write(&d, "ok.gltf", triangle_gltf(|j| j));
-    let png = d.join("ok.png");
-    let out = raylab(&[
-        "render",
-        ok.to_str().unwrap(),
-        "--size",
-        "16x12",
-        "-o",
-        png.to_str().unwrap(),
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    // A UTF-8 byte order mark before the JSON is read past.
+    for (name, text) in [
+        ("ok.gltf", triangle_gltf(|j| j)),
+        ("bom.gltf", format!("\u{feff}{}", triangle_gltf(|j| j))),
+    ] {
+        let ok = write(&d, name, text);
+        let png = d.join("ok.png");
+        let out = raylab(&[
+            "render",
+            ok.to_str().unwrap(),
+            "--size",
+            "16x12",
+            "-o",
+            png.to_str().unwrap(),
+        ]);
+        assert!(
+            out.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
     for (name, from, to, needle) in [
         (
             "float-index.gltf",

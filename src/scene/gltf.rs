@@ -95,6 +95,9 @@ fn read_document(
     policy: RefPolicy,
 ) -> Result<(gltf::Document, Vec<Vec<u8>>)> {
     let err = |msg: String| parse_error(path, msg);
+    // A UTF-8 byte order mark before the JSON: the format says there is
+    // none, and JSON readers may ignore one; serde_json does not.
+    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
     let gltf = gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| {
         if is_gltf1(bytes) {
             err(format!("a glTF 1.0 file: {}", super::READS))

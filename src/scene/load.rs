@@ -99,7 +99,7 @@ pub fn detect(path: &Path, bytes: &[u8]) -> Result<Format> {
     }
     if bytes.starts_with(&[0xFF, 0xFE]) || bytes.starts_with(&[0xFE, 0xFF]) {
         return Err(fail(
-            "UTF-16 text: save it as UTF-8 (raylab reads OBJ as UTF-8 or ASCII)".into(),
+            "UTF-16 text: save it as UTF-8 (raylab reads OBJ, PLY headers and glTF JSON as UTF-8 or ASCII)".into(),
         ));
     }
     if let Some((_, name)) = OTHER_FORMATS.iter().find(|(e, _)| *e == ext) {
