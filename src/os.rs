@@ -334,6 +334,81 @@ pub fn peak_memory_bytes() -> Option<u64> {
     Some(kb * 1024)
 }
 
+/// The binary's global allocator: the system's, except that an allocation
+/// it cannot make ends raylab with one line on stderr and exit status 1,
+/// where Rust would abort (SIGABRT, a backtrace). A scene within the
+/// triangle budget can still need more memory than the machine (or a
+/// `ulimit -v`) gives: 10^8 instanced triangles flattened are 1.2 GB of
+/// vertices before any tree. Every allocation is infallible to raylab's
+/// code (it never calls `try_reserve`), so ending here loses nothing a
+/// caller could have handled.
+pub struct OutOfMemoryIsAnError;
+
+impl OutOfMemoryIsAnError {
+    /// `ptr` when it is not null; else the one line, and the end.
+    #[inline]
+    fn checked(ptr: *mut u8, size: usize) -> *mut u8 {
+        if ptr.is_null() {
+            out_of_memory(size);
+        }
+        ptr
+    }
+}
+
+// SAFETY: every method forwards its arguments unchanged to `System`, whose
+// implementation upholds `GlobalAlloc`'s contract; a null result ends the
+// process instead of being returned, which no caller can observe.
+unsafe impl std::alloc::GlobalAlloc for OutOfMemoryIsAnError {
+    unsafe fn alloc(&self, layout: std::alloc::Layout) -> *mut u8 {
+        // SAFETY: the caller's `layout` contract is `System.alloc`'s.
+        Self::checked(unsafe { std::alloc::System.alloc(layout) }, layout.size())
+    }
+
+    unsafe fn alloc_zeroed(&self, layout: std::alloc::Layout) -> *mut u8 {
+        // SAFETY: as `alloc`.
+        Self::checked(
+            unsafe { std::alloc::System.alloc_zeroed(layout) },
+            layout.size(),
+        )
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: std::alloc::Layout, new_size: usize) -> *mut u8 {
+        // SAFETY: `ptr` came from this allocator, which is `System`'s, with
+        // `layout`; the caller's contract is `System.realloc`'s.
+        Self::checked(
+            unsafe { std::alloc::System.realloc(ptr, layout, new_size) },
+            new_size,
+        )
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: std::alloc::Layout) {
+        // SAFETY: `ptr` came from `System` through this allocator with `layout`.
+        unsafe { std::alloc::System.dealloc(ptr, layout) }
+    }
+}
+
+/// Writes the out-of-memory line to stderr and ends the process, without
+/// allocating (the line is formatted on the stack) and without running
+/// anything that might (`_exit`, not `exit`).
+#[cold]
+fn out_of_memory(size: usize) -> ! {
+    use std::io::Write;
+    let mut line = [0u8; 320];
+    let mut cursor = std::io::Cursor::new(&mut line[..]);
+    let _ = writeln!(
+        cursor,
+        "raylab: out of memory: {size} bytes could not be allocated; lower --max-triangles or --max-pixels, or trace an instanced scene without --flatten (its two-level tree holds each mesh once)"
+    );
+    let len = cursor.position() as usize;
+    // SAFETY: `line[..len]` is initialised and lives across the call; fd 2
+    // is stderr (a closed one makes write fail, which is ignored). `_exit`
+    // ends the process at once.
+    unsafe {
+        libc::write(2, line.as_ptr().cast(), len);
+        libc::_exit(1)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -431,80 +506,5 @@ mod tests {
                 (n as u64) * (n as u64).saturating_sub(1) / 2
             );
         }
-    }
-}
-
-/// The binary's global allocator: the system's, except that an allocation
-/// it cannot make ends raylab with one line on stderr and exit status 1,
-/// where Rust would abort (SIGABRT, a backtrace). A scene within the
-/// triangle budget can still need more memory than the machine (or a
-/// `ulimit -v`) gives: 10^8 instanced triangles flattened are 1.2 GB of
-/// vertices before any tree. Every allocation is infallible to raylab's
-/// code (it never calls `try_reserve`), so ending here loses nothing a
-/// caller could have handled.
-pub struct OutOfMemoryIsAnError;
-
-impl OutOfMemoryIsAnError {
-    /// `ptr` when it is not null; else the one line, and the end.
-    #[inline]
-    fn checked(ptr: *mut u8, size: usize) -> *mut u8 {
-        if ptr.is_null() {
-            out_of_memory(size);
-        }
-        ptr
-    }
-}
-
-// SAFETY: every method forwards its arguments unchanged to `System`, whose
-// implementation upholds `GlobalAlloc`'s contract; a null result ends the
-// process instead of being returned, which no caller can observe.
-unsafe impl std::alloc::GlobalAlloc for OutOfMemoryIsAnError {
-    unsafe fn alloc(&self, layout: std::alloc::Layout) -> *mut u8 {
-        // SAFETY: the caller's `layout` contract is `System.alloc`'s.
-        Self::checked(unsafe { std::alloc::System.alloc(layout) }, layout.size())
-    }
-
-    unsafe fn alloc_zeroed(&self, layout: std::alloc::Layout) -> *mut u8 {
-        // SAFETY: as `alloc`.
-        Self::checked(
-            unsafe { std::alloc::System.alloc_zeroed(layout) },
-            layout.size(),
-        )
-    }
-
-    unsafe fn realloc(&self, ptr: *mut u8, layout: std::alloc::Layout, new_size: usize) -> *mut u8 {
-        // SAFETY: `ptr` came from this allocator, which is `System`'s, with
-        // `layout`; the caller's contract is `System.realloc`'s.
-        Self::checked(
-            unsafe { std::alloc::System.realloc(ptr, layout, new_size) },
-            new_size,
-        )
-    }
-
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: std::alloc::Layout) {
-        // SAFETY: `ptr` came from `System` through this allocator with `layout`.
-        unsafe { std::alloc::System.dealloc(ptr, layout) }
-    }
-}
-
-/// Writes the out-of-memory line to stderr and ends the process, without
-/// allocating (the line is formatted on the stack) and without running
-/// anything that might (`_exit`, not `exit`).
-#[cold]
-fn out_of_memory(size: usize) -> ! {
-    use std::io::Write;
-    let mut line = [0u8; 320];
-    let mut cursor = std::io::Cursor::new(&mut line[..]);
-    let _ = writeln!(
-        cursor,
-        "raylab: out of memory: {size} bytes could not be allocated; lower --max-triangles or --max-pixels, or trace an instanced scene without --flatten (its two-level tree holds each mesh once)"
-    );
-    let len = cursor.position() as usize;
-    // SAFETY: `line[..len]` is initialised and lives across the call; fd 2
-    // is stderr (a closed one makes write fail, which is ignored). `_exit`
-    // ends the process at once.
-    unsafe {
-        libc::write(2, line.as_ptr().cast(), len);
-        libc::_exit(1)
     }
 }
