@@ -21,20 +21,14 @@ use super::refs::{RefPolicy, Refs};
 use super::{Material, Scene};
 use crate::error::{Error, Result};
 
-/// Loads a glTF file's bytes (JSON or GLB); external buffers are read from
-/// `path`'s folder, never outside it (the unit tests' entry).
+/// Loads a glTF file's bytes (JSON or GLB) as stored; external buffers are
+/// read from `path`'s folder, never outside it (the unit tests' entry; files
+/// load through `gltf_motion::load_still`, which poses skinned and morphed
+/// meshes first).
 #[cfg(test)]
 fn load_gltf_bytes(bytes: &[u8], path: &Path) -> Result<Scene> {
-    load_gltf_bytes_with(bytes, path, RefPolicy::default())
-}
-
-/// Loads a glTF file's bytes (JSON or GLB), external buffers read where
-/// `policy` allows.
-/// A file that places a mesh more than once loads as an instanced scene
-/// ([`Scene::instanced`]); `--flatten` and the commands that trace one list
-/// bake it ([`Scene::flattened`]).
-pub fn load_gltf_bytes_with(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Scene> {
-    load_instanced(bytes, path, policy)
+    let (doc, buffers) = read_document(bytes, path, RefPolicy::default())?;
+    load_document(&doc, &buffers, path)
 }
 
 /// A loaded glTF file: the flattened scene, and what its animations are
@@ -58,7 +52,7 @@ pub(super) struct Placement {
     pub count: usize,
 }
 
-/// [`load_gltf_bytes_with`], keeping what animations need: the scene
+/// [`load_document`], keeping what animations need: the scene
 /// flattened, every placement its own vertices (animations move them).
 pub(super) fn load_parts(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Loaded> {
     let (doc, buffers) = read_document(bytes, path, policy)?;
@@ -66,7 +60,11 @@ pub(super) fn load_parts(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result
 }
 
 /// [`load_parts`] on a document already read.
-fn flattened_parts(doc: gltf::Document, buffers: Vec<Vec<u8>>, path: &Path) -> Result<Loaded> {
+pub(super) fn flattened_parts(
+    doc: gltf::Document,
+    buffers: Vec<Vec<u8>>,
+    path: &Path,
+) -> Result<Loaded> {
     let roots = root_nodes(&doc).map_err(|m| parse_error(path, m))?;
     check_budget(&roots).map_err(|m| parse_error(path, m))?;
     let (scene, placements) = flatten(&roots, &buffers, path)?;
@@ -80,7 +78,7 @@ fn flattened_parts(doc: gltf::Document, buffers: Vec<Vec<u8>>, path: &Path) -> R
 }
 
 /// One line naming the file.
-fn parse_error(path: &Path, msg: String) -> Error {
+pub(super) fn parse_error(path: &Path, msg: String) -> Error {
     Error::Parse {
         path: path.to_path_buf(),
         line: 0,
@@ -89,7 +87,7 @@ fn parse_error(path: &Path, msg: String) -> Error {
 }
 
 /// The document, validated, and its buffers, read and checked.
-fn read_document(
+pub(super) fn read_document(
     bytes: &[u8],
     path: &Path,
     policy: RefPolicy,
@@ -202,53 +200,18 @@ fn mesh_nodes<'a>(
     Ok(out)
 }
 
-/// A glTF file as an instanced scene when a mesh is placed by more than
-/// one node (each mesh stored once, in its own space; each node placing it
-/// an instance), else flattened as [`load_parts`] does.
-fn load_instanced(bytes: &[u8], path: &Path, policy: RefPolicy) -> Result<Scene> {
-    let (doc, buffers) = read_document(bytes, path, policy)?;
-    if needs_pose(&doc) {
-        return posed(doc, buffers, path);
-    }
-    Ok(instanced(&doc, &buffers, path, false)?.0)
-}
-
-/// Whether a node places a mesh that its skin or its morph weights deform:
-/// the file's static pose is not its meshes' vertices as stored, so it is
-/// loaded through [`posed`].
-pub(super) fn needs_pose(doc: &gltf::Document) -> bool {
-    doc.nodes().any(|node| {
-        let Some(mesh) = node.mesh() else {
-            return false;
-        };
-        let morphed = mesh
-            .primitives()
-            .any(|p| p.morph_targets().next().is_some())
-            && node
-                .weights()
-                .or_else(|| mesh.weights())
-                .is_some_and(|w| w.iter().any(|&w| w != 0.0));
-        node.skin().is_some() || morphed
-    })
-}
-
-/// The file flattened with its skinned and morphed meshes posed as the
-/// format defines the static scene: morph targets at the node's (else the
-/// mesh's) default weights, skins over their joints' rest transforms (an
-/// animation's time 0 is `render --time 0`). The shading normals are
-/// dropped, as an animation's frames drop them: they were the unposed mesh's.
-fn posed(doc: gltf::Document, buffers: Vec<Vec<u8>>, path: &Path) -> Result<Scene> {
-    let mut loaded = flattened_parts(doc, buffers, path)?;
-    let motion =
-        super::gltf_motion::NodeMotion::posed(&loaded).map_err(|m| parse_error(path, m))?;
-    motion
-        .positions_at(0.0, &mut loaded.scene.positions)
-        .map_err(|m| parse_error(path, m))?;
-    loaded.scene.normals = None;
-    let extra = loaded.scene.lights.extra;
-    loaded.scene.lights = loaded.scene.find_lights();
-    loaded.scene.lights.extra = extra;
-    Ok(loaded.scene)
+/// A read glTF file as an instanced scene when a mesh is placed by more
+/// than one node (each mesh stored once, in its own space; each node placing
+/// it an instance), else flattened as [`load_parts`] does. A file that places
+/// a mesh more than once loads as an instanced scene ([`Scene::instanced`]);
+/// `--flatten` and the commands that trace one list bake it
+/// ([`Scene::flattened`]).
+pub(super) fn load_document(
+    doc: &gltf::Document,
+    buffers: &[Vec<u8>],
+    path: &Path,
+) -> Result<Scene> {
+    Ok(instanced(doc, buffers, path, false)?.0)
 }
 
 /// The file `loaded` read as an instanced scene whatever its meshes' uses
@@ -259,7 +222,7 @@ pub(super) fn load_placed_instances(loaded: &Loaded, path: &Path) -> Result<(Sce
     instanced(&loaded.doc, &loaded.buffers, path, true)
 }
 
-/// [`load_instanced`]'s work: instanced when a mesh is placed more than
+/// [`load_document`]'s work: instanced when a mesh is placed more than
 /// once or `always`, with the node of each instance (none when flattened).
 fn instanced(
     doc: &gltf::Document,

@@ -15,7 +15,7 @@
 
 use glam::{Mat4, Quat, Vec3};
 
-use super::gltf::{decode_float, read_elements, read_vec3s, Loaded, MAX_DEPTH};
+use super::gltf::{decode_float, parse_error, read_elements, read_vec3s, Loaded, MAX_DEPTH};
 use crate::error::{Error, Result};
 
 #[derive(Clone, Debug)]
@@ -557,6 +557,62 @@ pub(super) fn file_error(path: &std::path::Path, msg: String) -> Error {
     }
 }
 
+/// A glTF file's static scene (what `render` without `--time` shows): its
+/// meshes as stored, or, where a skin or non-zero morph weights deform a
+/// placed mesh, the file flattened and posed ([`posed`]).
+pub(super) fn load_still(
+    bytes: &[u8],
+    path: &std::path::Path,
+    policy: super::refs::RefPolicy,
+) -> Result<super::Scene> {
+    let (doc, buffers) = super::gltf::read_document(bytes, path, policy)?;
+    if needs_pose(&doc) {
+        return posed(doc, buffers, path);
+    }
+    super::gltf::load_document(&doc, &buffers, path)
+}
+
+/// Whether a node places a mesh that its skin or its morph weights deform:
+/// the file's static pose is not its meshes' vertices as stored, so it is
+/// loaded through [`posed`].
+fn needs_pose(doc: &gltf::Document) -> bool {
+    doc.nodes().any(|node| {
+        let Some(mesh) = node.mesh() else {
+            return false;
+        };
+        let morphed = mesh
+            .primitives()
+            .any(|p| p.morph_targets().next().is_some())
+            && node
+                .weights()
+                .or_else(|| mesh.weights())
+                .is_some_and(|w| w.iter().any(|&w| w != 0.0));
+        node.skin().is_some() || morphed
+    })
+}
+
+/// The file flattened with its skinned and morphed meshes posed as the
+/// format defines the static scene: morph targets at the node's (else the
+/// mesh's) default weights, skins over their joints' rest transforms (an
+/// animation's time 0 is `render --time 0`). The shading normals are
+/// dropped, as an animation's frames drop them: they were the unposed mesh's.
+fn posed(
+    doc: gltf::Document,
+    buffers: Vec<Vec<u8>>,
+    path: &std::path::Path,
+) -> Result<super::Scene> {
+    let mut loaded = super::gltf::flattened_parts(doc, buffers, path)?;
+    let motion = NodeMotion::posed(&loaded).map_err(|m| parse_error(path, m))?;
+    motion
+        .positions_at(0.0, &mut loaded.scene.positions)
+        .map_err(|m| parse_error(path, m))?;
+    loaded.scene.normals = None;
+    let extra = loaded.scene.lights.extra;
+    loaded.scene.lights = loaded.scene.find_lights();
+    loaded.scene.lights.extra = extra;
+    Ok(loaded.scene)
+}
+
 /// A glTF file's animations, as loaded: over the flattened scene (its
 /// vertices move), or, when every placed mesh moves rigidly with its node,
 /// over an instanced scene whose instances move (a two-level tree follows
@@ -696,7 +752,7 @@ mod tests {
             (false, Vec3::new(3.0, 4.0, 0.0)),
         ] {
             let bytes = still_deformed_triangle(morph);
-            let scene = super::super::gltf::load_gltf_bytes_with(&bytes, path, Default::default())
+            let scene = super::load_still(&bytes, path, Default::default())
                 .unwrap_or_else(|e| panic!("morph {morph}: {e}"));
             let tri = scene.triangles[0].map(|v| scene.positions[v as usize]);
             assert_eq!(tri[0], Vec3::ZERO, "morph {morph}");

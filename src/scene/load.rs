@@ -6,7 +6,7 @@
 use std::path::Path;
 
 use super::refs::RefPolicy;
-use super::{gltf, is_scene_file, obj, ply, Scene, READS};
+use super::{is_scene_file, obj, ply, Scene, READS};
 use crate::error::{Error, Result};
 
 /// Extensions of 3D formats raylab does not read, with their names.
@@ -54,7 +54,7 @@ pub fn load_file_with(path: &Path, policy: RefPolicy) -> Result<Scene> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     match detect(path, &bytes)? {
         Format::Ply => ply::load_ply_bytes(&bytes, path),
-        Format::Gltf => gltf::load_gltf_bytes_with(&bytes, path, policy),
+        Format::Gltf => super::gltf_motion::load_still(&bytes, path, policy),
         Format::Obj => {
             let text = String::from_utf8_lossy(&bytes);
             // A UTF-8 byte-order mark would make the first record unknown.
