@@ -265,6 +265,43 @@ fn deep_node_chains_load_up_to_a_stated_limit() {
     std::fs::remove_dir_all(&d).ok();
 }
 
+/// A `TRIANGLES` primitive whose index count is not a multiple of 3 (the
+/// format forbids it) renders its whole triangles, with a warning that the
+/// rest was dropped.
+#[test]
+fn a_partial_triangle_is_dropped_with_a_warning() {
+    let d = temp_dir("hostile-partial");
+    let f = write(
+        &d,
+        "four.gltf",
+        triangle_gltf(|j| {
+            j.replacen(
+                r#""componentType":5123,"count":3"#,
+                r#""componentType":5123,"count":4"#,
+                1,
+            )
+        }),
+    );
+    let png = d.join("four.png");
+    let out = raylab(&[
+        "render",
+        f.to_str().unwrap(),
+        "--size",
+        "16x12",
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains(
+            "four.gltf: 1 triangle primitives have an index count that is not a multiple of 3"
+        ),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&d).ok();
+}
+
 /// Rays no backend may crash on: non-finite, zero directions, tmin past
 /// tmax, denormals, and finite coordinates past Embree's limit or whose move
 /// to tmin overflows f32 (for the libraries without tmin). Each with whether

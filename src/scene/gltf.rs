@@ -134,7 +134,7 @@ fn flatten(
     if out.triangles.is_empty() {
         return Err(err(no_triangles(out.skipped_primitives)));
     }
-    let warnings = skipped_warning(path, out.skipped_primitives);
+    let warnings = skipped_warning(path, out.skipped_primitives, out.partial_primitives);
     let any_normals = out.normals.iter().any(|n| *n != Vec3::ZERO);
     let scene = Scene::from_file(
         path,
@@ -158,14 +158,21 @@ fn no_triangles(skipped_primitives: usize) -> String {
     msg
 }
 
-fn skipped_warning(path: &Path, skipped_primitives: usize) -> Vec<String> {
-    if skipped_primitives == 0 {
-        return Vec::new();
+fn skipped_warning(path: &Path, skipped_primitives: usize, partial: usize) -> Vec<String> {
+    let mut warnings = Vec::new();
+    if skipped_primitives > 0 {
+        warnings.push(format!(
+            "{}: skipped {skipped_primitives} point and line primitives (not surfaces)",
+            path.display()
+        ));
     }
-    vec![format!(
-        "{}: skipped {skipped_primitives} point and line primitives (not surfaces)",
-        path.display()
-    )]
+    if partial > 0 {
+        warnings.push(format!(
+            "{}: {partial} triangle primitives have an index count that is not a multiple of 3 (the format asks for whole triangles): their last one or two indices were dropped",
+            path.display()
+        ));
+    }
+    warnings
 }
 
 /// The nodes that place a mesh, with the mesh and their world transforms (composed
@@ -265,6 +272,7 @@ fn instanced(
     let mut slot: Vec<Option<u32>> = vec![None; uses.len()];
     let mut meshes = Vec::new();
     let mut skipped_primitives = 0;
+    let mut partial_primitives = 0;
     let mut empty = 0;
     let mut placements = Vec::with_capacity(placed.len());
     let mut nodes = Vec::with_capacity(placed.len());
@@ -277,6 +285,7 @@ fn instanced(
             }
             // Counted as placed, as the flattened file counts them.
             skipped_primitives += out.skipped_primitives * uses[m];
+            partial_primitives += out.partial_primitives;
             let any_normals = out.normals.iter().any(|n| *n != Vec3::ZERO);
             // A mesh of points, lines or only degenerate triangles places
             // nothing to trace: its instances are left out.
@@ -328,7 +337,7 @@ fn instanced(
             Error::Scene { msg, .. } => err(msg),
             other => other,
         })?;
-    let mut warnings = skipped_warning(path, skipped_primitives);
+    let mut warnings = skipped_warning(path, skipped_primitives, partial_primitives);
     if empty > 0 {
         warnings.push(format!(
             "{}: {empty} meshes have no triangles with area: their instances place nothing",
@@ -821,6 +830,9 @@ struct Flattened {
     /// glTF material index (None: the default) -> index into `materials`.
     material_of: HashMap<Option<usize>, u32>,
     skipped_primitives: usize,
+    /// `TRIANGLES` primitives whose index (or vertex) count is not a
+    /// multiple of 3, their last one or two dropped.
+    partial_primitives: usize,
     placements: Vec<Placement>,
 }
 
@@ -921,7 +933,11 @@ impl Flattened {
         };
         match prim.mode() {
             Mode::Triangles => {
-                for t in indices.chunks_exact(3) {
+                let whole = indices.chunks_exact(3);
+                if !whole.remainder().is_empty() {
+                    self.partial_primitives += 1;
+                }
+                for t in whole {
                     push(t[0], t[1], t[2]);
                 }
             }
