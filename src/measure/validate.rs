@@ -83,7 +83,8 @@ fn same_t_on(ray: &Ray, a: f32, b: f32, tri: &[Vec3; 3], other: Option<&[Vec3; 3
         let sliver = (longest * longest / area2).clamp(1.0, MAX_SLIVER_FACTOR);
         sliver / cos
     };
-    let f = other.map_or(factor(tri), |o| factor(tri).max(factor(o)));
+    let own = factor(tri);
+    let f = other.map_or(own, |o| own.max(factor(o)));
     (a - b).abs() <= T_TOLERANCE * t_scale(ray, a, b) * f
 }
 

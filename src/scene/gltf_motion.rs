@@ -111,17 +111,13 @@ impl NodeMotion {
         if loaded.doc.animations().next().is_none() {
             return Ok(None);
         }
-        Self::build(loaded).map(Some)
+        Self::posed(loaded).map(Some)
     }
 
     /// The file's nodes, skins and morph targets, with its animations if it
     /// has any: what poses a static file's skinned and morphed meshes
-    /// ([`super::gltf::needs_pose`]) at time 0.
+    /// ([`needs_pose`]) at time 0, and what [`NodeMotion::of`] animates.
     pub(super) fn posed(loaded: &Loaded) -> std::result::Result<NodeMotion, String> {
-        Self::build(loaded)
-    }
-
-    fn build(loaded: &Loaded) -> std::result::Result<NodeMotion, String> {
         let doc = &loaded.doc;
         let buffers = &loaded.buffers;
         let count = doc.nodes().count();
@@ -606,10 +602,9 @@ fn posed(
     motion
         .positions_at(0.0, &mut loaded.scene.positions)
         .map_err(|m| parse_error(path, m))?;
+    // Found anew over the posed vertices, as an animation's frames find them.
     loaded.scene.normals = None;
-    let extra = loaded.scene.lights.extra;
     loaded.scene.lights = loaded.scene.find_lights();
-    loaded.scene.lights.extra = extra;
     Ok(loaded.scene)
 }
 

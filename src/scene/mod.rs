@@ -63,6 +63,16 @@ pub const MIN_TRACEABLE_EXTENT: f32 = 1e-10;
 /// about 10 units across at 1e5, where a step is 0.0078) has about 1,300.
 pub const MIN_STEPS_ACROSS: f32 = 256.0;
 
+/// A box's farthest coordinate from the origin and its diagonal: what f32
+/// rays can and cannot trace ([`Scene::check_traceable`],
+/// [`Scene::precision_warning`]).
+fn reach_and_extent(b: &Aabb) -> (f32, f32) {
+    (
+        b.min.abs().max(b.max.abs()).max_element(),
+        (b.max - b.min).length(),
+    )
+}
+
 /// The MTL values the shader uses; everything else in an MTL file is ignored.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Material {
@@ -399,9 +409,7 @@ impl Scene {
     /// [`MAX_TRACEABLE_COORDINATE`] and its extent at least
     /// [`MIN_TRACEABLE_EXTENT`]; else the error says which, and what to do.
     pub fn check_traceable(&self) -> Result<()> {
-        let b = self.bounds();
-        let reach = b.min.abs().max(b.max.abs()).max_element();
-        let extent = (b.max - b.min).length();
+        let (reach, extent) = reach_and_extent(&self.bounds());
         let msg = if reach > MAX_TRACEABLE_COORDINATE {
             format!(
                 "too large to frame and trace with f32 rays: its coordinates reach {reach:e}, past {MAX_TRACEABLE_COORDINATE:e}, where ray/triangle tests (products of three coordinates) overflow; scale the scene down (and move it near the origin)"
@@ -426,10 +434,8 @@ impl Scene {
     /// step is 0.0625, was 3 steps across, and the default light, a third of
     /// a step above it, rounded into its plane: no direct light at all).
     pub fn precision_warning(&self) -> Option<String> {
-        let b = self.bounds();
-        let reach = b.min.abs().max(b.max.abs()).max_element();
+        let (reach, extent) = reach_and_extent(&self.bounds());
         let step = reach.next_up() - reach;
-        let extent = (b.max - b.min).length();
         let steps = extent / step;
         (steps < MIN_STEPS_ACROSS).then(|| {
             format!(

@@ -115,6 +115,36 @@ fn unit_hash(k: u32, salt: u32) -> f32 {
     (x >> 8) as f32 / (1u32 << 24) as f32
 }
 
+/// Whether `path` names a glTF file (.gltf, .glb), the files animations are
+/// read from.
+fn is_gltf(path: &std::path::Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb"))
+}
+
+/// Why scene `spec` (named by `flag`) is not an animation.
+fn does_not_move(spec: &str, flag: &str) -> Error {
+    let path = std::path::Path::new(spec);
+    if super::is_scene_file(spec) && is_gltf(path) {
+        return super::gltf_motion::file_error(path, "the file has no animations".into());
+    }
+    if super::is_scene_file(spec) {
+        return Error::usage(
+            flag,
+            format!("{spec} does not move: raylab reads animations from glTF files (.gltf, .glb) and has the animated built-ins explode:N, cloth:N and asteroids:N"),
+        );
+    }
+    let names: Vec<&str> = ANIMATED_SCENES.iter().map(|(n, _)| *n).collect();
+    Error::usage(
+        flag,
+        format!(
+            "'{spec}' does not move: animated scenes are glTF files with animations and the built-ins {}",
+            names.join(", ")
+        ),
+    )
+}
+
 impl Animation {
     /// The animation `name` names; `None` when `name` is not an animated
     /// built-in (a file or a still built-in), an error when it is one with a
@@ -133,92 +163,53 @@ impl Animation {
     /// animations (read where `policy` allows); an error for any other file
     /// or name, saying which scenes move.
     pub fn load(spec: &str, policy: super::refs::RefPolicy, flag: &str) -> Result<Animation> {
-        if super::is_scene_file(spec) {
-            let path = std::path::Path::new(spec);
-            let is_gltf = path
-                .extension()
-                .and_then(|e| e.to_str())
-                .is_some_and(|e| e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb"));
-            if !is_gltf {
-                return Err(Error::usage(
-                    flag,
-                    format!("{spec} does not move: raylab reads animations from glTF files (.gltf, .glb) and has the animated built-ins explode:N, cloth:N and asteroids:N"),
-                ));
-            }
-            let file_error = |m| super::gltf_motion::file_error(path, m);
-            let Some(followed) = super::gltf_motion::load(path, policy)? else {
-                return Err(file_error("the file has no animations".into()));
-            };
-            return match followed {
-                Followed::Vertices(mut rest, motion) => {
-                    let duration = motion.duration;
-                    let mut positions = rest.positions.clone();
-                    motion
-                        .positions_at(0.0, &mut positions)
-                        .map_err(file_error)?;
-                    rest.positions = positions;
-                    Ok(Animation {
-                        rest,
-                        motion: Motion::Nodes(Box::new(motion)),
-                        duration,
-                    })
-                }
-                Followed::Instances(placed, motion, nodes) => {
-                    let duration = motion.duration;
-                    let rest = placed
-                        .moved_instances(&motion.transforms_at(0.0, &nodes).map_err(file_error)?)?;
-                    Ok(Animation {
-                        rest,
-                        motion: Motion::Placed(Box::new((motion, nodes))),
-                        duration,
-                    })
-                }
-            };
-        }
-        Animation::parse(spec).unwrap_or_else(|| {
-            let names: Vec<&str> = ANIMATED_SCENES.iter().map(|(n, _)| *n).collect();
-            Err(Error::usage(
-                flag,
-                format!(
-                    "'{spec}' does not move: animated scenes are glTF files with animations and the built-ins {}",
-                    names.join(", ")
-                ),
-            ))
-        })
+        Self::load_if_animated(spec, policy)?.ok_or_else(|| does_not_move(spec, flag))
     }
 
     /// The animation of scene `spec` if it moves: an animated built-in, or
-    /// a glTF file with animations (`None` for any other scene or file); an
-    /// error for a file that has animations raylab cannot follow, or that
-    /// cannot be read.
+    /// a glTF file with animations (`None` for any other scene or file, each
+    /// read once); an error for a file that has animations raylab cannot
+    /// follow, or that cannot be read, and for a built-in with a bad `N`.
     pub fn load_if_animated(
         spec: &str,
         policy: super::refs::RefPolicy,
-        flag: &str,
     ) -> Result<Option<Animation>> {
-        let is_gltf = super::is_scene_file(spec)
-            && std::path::Path::new(spec)
-                .extension()
-                .and_then(|e| e.to_str())
-                .is_some_and(|e| e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb"));
-        if is_gltf {
-            let path = std::path::Path::new(spec);
-            if super::gltf_motion::load(path, policy)?.is_none() {
-                return Ok(None);
-            }
-        } else if !Self::names_one(spec) {
+        if !super::is_scene_file(spec) {
+            return Animation::parse(spec).transpose();
+        }
+        let path = std::path::Path::new(spec);
+        if !is_gltf(path) {
             return Ok(None);
         }
-        Self::load(spec, policy, flag).map(Some)
-    }
-
-    /// Whether `name` is an animated built-in's name (with any `N`).
-    pub fn names_one(name: &str) -> bool {
-        name.split_once(':').is_some_and(|(p, _)| {
-            ANIMATED_SCENES
-                .iter()
-                .any(|(a, _)| a.split(':').next() == Some(p))
-        })
+        let Some(followed) = super::gltf_motion::load(path, policy)? else {
+            return Ok(None);
+        };
+        let file_error = |m| super::gltf_motion::file_error(path, m);
+        match followed {
+            Followed::Vertices(mut rest, motion) => {
+                let duration = motion.duration;
+                let mut positions = rest.positions.clone();
+                motion
+                    .positions_at(0.0, &mut positions)
+                    .map_err(file_error)?;
+                rest.positions = positions;
+                Ok(Some(Animation {
+                    rest,
+                    motion: Motion::Nodes(Box::new(motion)),
+                    duration,
+                }))
+            }
+            Followed::Instances(placed, motion, nodes) => {
+                let duration = motion.duration;
+                let rest = placed
+                    .moved_instances(&motion.transforms_at(0.0, &nodes).map_err(file_error)?)?;
+                Ok(Some(Animation {
+                    rest,
+                    motion: Motion::Placed(Box::new((motion, nodes))),
+                    duration,
+                }))
+            }
+        }
     }
 
     fn explode(name: &str) -> Result<Animation> {

@@ -101,23 +101,30 @@ pub struct AnimationPoint {
 }
 
 /// The animations of `cfg`'s scenes (animated built-ins, and glTF files
-/// that have animations), or the defaults when none moves. A scene file
-/// whose animations cannot be followed is an error, not a scene that does
-/// not move: the part would otherwise time the defaults in its place.
-fn animations(cfg: &BenchConfig) -> Result<Vec<String>> {
+/// that have animations), each with its name, or the defaults when none
+/// moves. A scene file whose animations cannot be followed is an error, not
+/// a scene that does not move: the part would otherwise time the defaults in
+/// its place.
+fn animations(cfg: &BenchConfig) -> Result<Vec<(String, Animation)>> {
     let mut named = Vec::new();
     for s in &cfg.scenes {
-        if Animation::load_if_animated(s, cfg.ref_policy, "SCENE")?.is_some() {
-            named.push(s.clone());
+        if let Some(animation) = Animation::load_if_animated(s, cfg.ref_policy)? {
+            named.push((s.clone(), animation));
         }
     }
     if !named.is_empty() {
         return Ok(named);
     }
-    Ok(DEFAULT_ANIMATIONS
+    DEFAULT_ANIMATIONS
         .iter()
-        .map(|(full, quick)| if cfg.quick { quick } else { full }.to_string())
-        .collect())
+        .map(|(full, quick)| {
+            let name = if cfg.quick { quick } else { full };
+            Ok((
+                name.to_string(),
+                Animation::load(name, cfg.ref_policy, "SCENE")?,
+            ))
+        })
+        .collect()
 }
 
 /// Frames per animation.
@@ -305,8 +312,7 @@ pub fn run(cfg: &BenchConfig, _scenes: &[Scene], bar: &StepBar) -> Result<Vec<An
     };
     let strategies = Strategy::compared(&factors);
     let mut out = Vec::new();
-    for name in animations(cfg)? {
-        let animation = Animation::load(&name, cfg.ref_policy, "SCENE")?;
+    for (name, animation) in animations(cfg)? {
         let n = frames(cfg);
         let times: Vec<f32> = (0..n)
             .map(|f| animation.duration * f as f32 / (n - 1) as f32)
