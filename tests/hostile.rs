@@ -12,22 +12,31 @@ use common::{raylab, temp_dir};
 /// Runs `raylab render FILE --size 16x12` and asserts a one-line error with
 /// exit 1 holding every one of `needles`.
 fn assert_refused(file: &Path, needles: &[&str]) {
-    let out_png = file.with_extension("png");
-    let out = raylab(&[
-        "render",
-        file.to_str().unwrap(),
-        "--size",
-        "16x12",
-        "-o",
-        out_png.to_str().unwrap(),
-    ]);
-    let err = String::from_utf8_lossy(&out.stderr);
+    let (out, err) = render_16x12(file, &[]);
     assert_eq!(out.status.code(), Some(1), "{}: {err}", file.display());
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     for n in needles {
         assert!(err.contains(n), "expected '{n}' in: {err}");
     }
-    assert!(!out_png.exists());
+    assert!(!file.with_extension("png").exists());
+}
+
+/// Renders `file` at 16x12 into `file` with the extension `png`, with the
+/// `extra` flags: the run and its stderr.
+fn render_16x12(file: &Path, extra: &[&str]) -> (std::process::Output, String) {
+    let png = file.with_extension("png");
+    let mut args = vec![
+        "render",
+        file.to_str().unwrap(),
+        "--size",
+        "16x12",
+        "-o",
+        png.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let out = raylab(&args);
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    (out, err)
 }
 
 /// Writes `text` to `name` in `dir`.
@@ -78,21 +87,8 @@ fn gltf_that_the_gltf_crate_would_panic_on_is_refused() {
         ("ok.gltf", triangle_gltf(|j| j)),
         ("bom.gltf", format!("\u{feff}{}", triangle_gltf(|j| j))),
     ] {
-        let ok = write(&d, name, text);
-        let png = d.join("ok.png");
-        let out = raylab(&[
-            "render",
-            ok.to_str().unwrap(),
-            "--size",
-            "16x12",
-            "-o",
-            png.to_str().unwrap(),
-        ]);
-        assert!(
-            out.status.success(),
-            "{name}: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        let (out, err) = render_16x12(&write(&d, name, text), &[]);
+        assert!(out.status.success(), "{name}: {err}");
     }
     for (name, from, to, needle) in [
         (
@@ -241,22 +237,8 @@ fn deep_node_chains_load_up_to_a_stated_limit() {
         format!(r#""nodes":[{}]"#, nodes.join(","))
     };
     let deep = |n: usize| triangle_gltf(|j| j.replacen(r#""nodes":[{"mesh":0}]"#, &chain(n), 1));
-    let ok = write(&d, "chain300.gltf", deep(300));
-    let png = d.join("chain300.png");
-    let out = raylab(&[
-        "render",
-        ok.to_str().unwrap(),
-        "--size",
-        "16x12",
-        "-q",
-        "-o",
-        png.to_str().unwrap(),
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let (out, err) = render_16x12(&write(&d, "chain300.gltf", deep(300)), &[]);
+    assert!(out.status.success(), "{err}");
     let refused = write(&d, "chain5000.gltf", deep(5000));
     assert_refused(
         &refused,
@@ -282,16 +264,7 @@ fn a_partial_triangle_is_dropped_with_a_warning() {
             )
         }),
     );
-    let png = d.join("four.png");
-    let out = raylab(&[
-        "render",
-        f.to_str().unwrap(),
-        "--size",
-        "16x12",
-        "-o",
-        png.to_str().unwrap(),
-    ]);
-    let err = String::from_utf8_lossy(&out.stderr);
+    let (out, err) = render_16x12(&f, &[]);
     assert!(out.status.success(), "{err}");
     assert!(
         err.contains(
@@ -587,16 +560,7 @@ fn blender_279_mtl_loads_with_one_warning() {
         "b.obj",
         "mtllib b.mtl\nusemtl skin\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
     );
-    let png = d.join("b.png");
-    let out = raylab(&[
-        "render",
-        obj.to_str().unwrap(),
-        "--size",
-        "16x12",
-        "-o",
-        png.to_str().unwrap(),
-    ]);
-    let err = String::from_utf8_lossy(&out.stderr);
+    let (out, err) = render_16x12(&obj, &[]);
     assert!(out.status.success(), "{err}");
     assert_eq!(
         err.lines()
@@ -618,18 +582,7 @@ fn obvhs_refuses_a_chain_of_identical_triangles_in_one_line() {
         // stack) past the limit, in a fifth of the build time.
         "v 0 0 0\nv 1 0 0\nv 0 1 0\n".to_string() + &"f 1 2 3\n".repeat(5_000),
     );
-    let png = d.join("s.png");
-    let out = raylab(&[
-        "render",
-        obj.to_str().unwrap(),
-        "--backend",
-        "obvhs",
-        "--size",
-        "16x12",
-        "-o",
-        png.to_str().unwrap(),
-    ]);
-    let err = String::from_utf8_lossy(&out.stderr);
+    let (out, err) = render_16x12(&obj, &["--backend", "obvhs"]);
     if err.contains("built without") {
         return;
     }
