@@ -402,6 +402,20 @@ fn validated(mut json: gltf::json::Root) -> std::result::Result<gltf::Document, 
             }
         }
     }
+    // Integer POSITION and NORMAL are KHR_mesh_quantization's; without it a
+    // file's integer positions are a mistake (floats' bytes read as u8 end
+    // as degenerate triangles), named here rather than left to "no
+    // triangles". Attribute accessors were checked to exist just above.
+    let quantized = json
+        .extensions_used
+        .iter()
+        .chain(&json.extensions_required)
+        .any(|e| e == "KHR_mesh_quantization");
+    if !quantized {
+        if let Some(msg) = unquantized_integer_attribute(&json) {
+            return Err(msg);
+        }
+    }
     // The crate checks a channel's sampler but not the node it targets.
     let nodes = json.nodes.len();
     for (a, anim) in json.animations.iter().enumerate() {
@@ -445,6 +459,45 @@ fn validated(mut json: gltf::json::Root) -> std::result::Result<gltf::Document, 
     json.extensions_required
         .retain(|e| !READ_EXTENSIONS.contains(&e.as_str()));
     gltf::Document::from_json(json).map_err(|e| format!("glTF: {}", first_complaint(&e)))
+}
+
+/// The first POSITION or NORMAL accessor (of a primitive or a morph target)
+/// whose components are not FLOAT, as a refusal naming it: core glTF 2.0
+/// allows only FLOAT there.
+fn unquantized_integer_attribute(json: &gltf::json::Root) -> Option<String> {
+    use gltf::json::accessor::{ComponentType, GenericComponentType};
+    use gltf::json::validation::Checked;
+    use gltf::Semantic;
+    for (m, mesh) in json.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            let targets = prim.targets.iter().flatten().flat_map(|t| {
+                [("POSITION", t.positions), ("NORMAL", t.normals)]
+                    .into_iter()
+                    .filter_map(|(name, a)| Some((name, a?)))
+            });
+            let attributes = prim.attributes.iter().filter_map(|(sem, a)| match sem {
+                Checked::Valid(Semantic::Positions) => Some(("POSITION", *a)),
+                Checked::Valid(Semantic::Normals) => Some(("NORMAL", *a)),
+                _ => None,
+            });
+            for (name, a) in attributes.chain(targets) {
+                let Some(accessor) = json.accessors.get(a.value()) else {
+                    continue; // named by the checks that follow
+                };
+                let ty = match accessor.component_type {
+                    Checked::Valid(GenericComponentType(ty)) => ty,
+                    Checked::Invalid => continue,
+                };
+                if ty != ComponentType::F32 {
+                    return Some(format!(
+                        "mesh {m} primitive {p}: {name} accessor {} has {ty:?} components; glTF allows them only with KHR_mesh_quantization, which the file does not declare in extensionsUsed",
+                        a.value()
+                    ));
+                }
+            }
+        }
+    }
+    None
 }
 
 /// The nodes the scene is made of: the default scene's roots (or the first
@@ -1351,6 +1404,22 @@ mod tests {
               {"bufferView":1,"componentType":5120,"normalized":true,"count":3,"type":"VEC3"}]}"#;
         let s = load_gltf_bytes(&glb(json, &bin), Path::new("q.glb")).unwrap();
         assert_eq!(s.positions, vec![Vec3::ZERO, Vec3::X, Vec3::Y]);
+        // Declared used only (not required): read the same.
+        let used_only = json.replace(r#""extensionsRequired":["KHR_mesh_quantization"],"#, "");
+        let s = load_gltf_bytes(&glb(&used_only, &bin), Path::new("q.glb")).unwrap();
+        assert_eq!(s.positions, vec![Vec3::ZERO, Vec3::X, Vec3::Y]);
+        // Not declared: integer positions are refused by name, not read.
+        let undeclared = used_only.replace(r#""extensionsUsed":["KHR_mesh_quantization"],"#, "");
+        let e = load_gltf_bytes(&glb(&undeclared, &bin), Path::new("q.glb"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("q.glb")
+                && e.contains("mesh 0 primitive 0: POSITION accessor 0 has U16 components")
+                && e.contains("KHR_mesh_quantization"),
+            "{e}"
+        );
+        assert_eq!(e.lines().count(), 1);
         assert_eq!(s.shading_normal(0, 0.2, 0.2), Some(Vec3::Z));
         assert_eq!(
             decode_float(gltf::accessor::DataType::I8, true, &[0x80]),

@@ -408,10 +408,33 @@ pub(crate) fn huge_faces_warning(path: &Path, count: usize) -> String {
     )
 }
 
+/// The file's lines, ended by `\n`, `\r\n` or a lone `\r`: classic Mac OS
+/// exporters end OBJ and MTL lines with `\r` alone, and `str::lines` would
+/// read such a file as one line.
+fn physical_lines(text: &str) -> impl Iterator<Item = &str> + '_ {
+    let mut rest = text;
+    std::iter::from_fn(move || {
+        if rest.is_empty() {
+            return None;
+        }
+        let Some(end) = rest.find(['\n', '\r']) else {
+            return Some(std::mem::take(&mut rest));
+        };
+        let line = &rest[..end];
+        let skip = if rest[end..].starts_with("\r\n") {
+            2
+        } else {
+            1
+        };
+        rest = &rest[end + skip..];
+        Some(line)
+    })
+}
+
 /// The file's records with their 1-based line numbers: a line ending in `\`
 /// continues on the next one (the record keeps the first line's number).
 fn logical_lines(text: &str) -> impl Iterator<Item = (usize, String)> + '_ {
-    let mut lines = text.lines().enumerate();
+    let mut lines = physical_lines(text).enumerate();
     std::iter::from_fn(move || {
         let (n, first) = lines.next()?;
         let mut record = String::from(first);
@@ -596,6 +619,24 @@ mod tests {
             s.warnings
         );
         assert_eq!(*s.material_of(0), Material::default_grey());
+    }
+
+    #[test]
+    fn lines_may_end_in_cr_alone_or_crlf() {
+        // Classic Mac OS exporters end lines with CR alone; error lines are
+        // counted the same way.
+        for nl in ["\r", "\r\n", "\n"] {
+            let text = [
+                "v 0 0 0", "v 1 0 0", "v 0 1 0", "", "f 1 2 3", "f 1 2 9", "",
+            ]
+            .join(nl);
+            let e = error_of(&text);
+            assert!(e.starts_with("fixture.obj:6:"), "{nl:?}: {e}");
+            let s = load(&text.replace("f 1 2 9", "v 1 1 0")).unwrap();
+            assert_eq!(s.triangle_count(), 1, "{nl:?}");
+        }
+        let s = load("v 0 0 0\rv 1 0 0\r\nv 0 1 0\nf 1 2 3").unwrap();
+        assert_eq!(s.triangle_count(), 1);
     }
 
     fn error_of(text: &str) -> String {
