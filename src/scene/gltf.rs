@@ -196,7 +196,7 @@ fn mesh_nodes<'a>(
                 node.index()
             ));
         }
-        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+        let world = parent * local_matrix(&node);
         // Children in reverse, so they pop in order.
         let children: Vec<gltf::Node> = node.children().collect();
         stack.extend(children.into_iter().rev().map(|c| (c, world, depth + 1)));
@@ -416,6 +416,19 @@ fn validated(mut json: gltf::json::Root) -> std::result::Result<gltf::Document, 
             return Err(msg);
         }
     }
+    // A zero quaternion is no rotation at all: the crate's matrix would read
+    // it as the identity, the animation code's normalising as NaN.
+    for (n, node) in json.nodes.iter().enumerate() {
+        if let Some(q) = &node.rotation {
+            let q = glam::Vec4::from(q.0);
+            if !(q.length_squared() > 1e-12) {
+                return Err(format!(
+                    "node {n}: rotation {:?} is not a rotation (glTF requires a unit quaternion)",
+                    q.to_array()
+                ));
+            }
+        }
+    }
     // The crate checks a channel's sampler but not the node it targets.
     let nodes = json.nodes.len();
     for (a, anim) in json.animations.iter().enumerate() {
@@ -459,6 +472,28 @@ fn validated(mut json: gltf::json::Root) -> std::result::Result<gltf::Document, 
     json.extensions_required
         .retain(|e| !READ_EXTENSIONS.contains(&e.as_str()));
     gltf::Document::from_json(json).map_err(|e| format!("glTF: {}", first_complaint(&e)))
+}
+
+/// A node's transform relative to its parent. A rotation that is not a
+/// unit quaternion to within rounding is normalised first, as the animation
+/// code does (the matrix of an unnormalised quaternion also scales and
+/// shears); a unit one is used as written, so that the matrix is the one
+/// every viewer computes.
+pub(super) fn local_matrix(node: &gltf::Node) -> Mat4 {
+    match node.transform() {
+        gltf::scene::Transform::Decomposed {
+            translation,
+            rotation,
+            scale,
+        } if (glam::Vec4::from(rotation).length_squared() - 1.0).abs() > 1e-5 => {
+            Mat4::from_scale_rotation_translation(
+                scale.into(),
+                glam::Quat::from_array(rotation).normalize(),
+                translation.into(),
+            )
+        }
+        t => Mat4::from_cols_array_2d(&t.matrix()),
+    }
 }
 
 /// The first POSITION or NORMAL accessor (of a primitive or a morph target)
@@ -771,7 +806,23 @@ pub(super) fn read_elements<T: Copy + Default>(
             gltf::accessor::sparse::IndexType::U16 => 2,
             gltf::accessor::sparse::IndexType::U32 => 4,
         };
-        for k in 0..sparse.count() {
+        // Both runs checked whole first, so that a short one is named as
+        // such whatever its contents.
+        let entries = sparse.count();
+        if entries
+            .checked_mul(index_size)
+            .is_none_or(|l| l > index_bytes.len())
+        {
+            return Err(bad("indices"));
+        }
+        if entries
+            .checked_mul(size * n)
+            .is_none_or(|l| l > value_bytes.len())
+        {
+            return Err(bad("values"));
+        }
+        let mut previous = None;
+        for k in 0..entries {
             let ib = index_bytes
                 .get(k * index_size..(k + 1) * index_size)
                 .ok_or_else(|| bad("indices"))?;
@@ -784,6 +835,15 @@ pub(super) fn read_elements<T: Copy + Default>(
                     a.index()
                 ));
             }
+            // The format requires them strictly increasing; a repeated one
+            // would make the value taken depend on the reader.
+            if previous.is_some_and(|p| target <= p) {
+                return Err(format!(
+                    "accessor {}: sparse index {k} ({target}) does not increase on the one before it, as glTF requires",
+                    a.index()
+                ));
+            }
+            previous = Some(target);
             let vb = value_bytes
                 .get(k * size * n..(k + 1) * size * n)
                 .ok_or_else(|| bad("values"))?;
@@ -1331,6 +1391,58 @@ mod tests {
               "sparse":{"count":5,"indices":{"bufferView":2,"componentType":5123},"values":{"bufferView":0}}}"#,
         );
         assert!(e.contains("accessor 0: sparse indices run past"), "{e}");
+    }
+
+    #[test]
+    fn sparse_indices_that_do_not_increase_are_refused() {
+        // The strip's view holds [0, 1, 3, 2].
+        let e = fixture_error(
+            r#""type":"VEC3","min":[0,0,0],"max":[1,1,0]}"#,
+            r#""type":"VEC3","min":[0,0,0],"max":[1,1,0],
+              "sparse":{"count":4,"indices":{"bufferView":2,"componentType":5123},"values":{"bufferView":0}}}"#,
+        );
+        assert!(
+            e.contains("accessor 0: sparse index 3 (2) does not increase"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn rotations_are_unit_quaternions_or_refused() {
+        let e = fixture_error(
+            r#"{"mesh":0,"translation":[5,0,0]}"#,
+            r#"{"mesh":0,"translation":[5,0,0],"rotation":[0,0,0,0]}"#,
+        );
+        assert!(
+            e.contains("node 0: rotation [0.0, 0.0, 0.0, 0.0] is not a rotation"),
+            "{e}"
+        );
+        assert_eq!(e.lines().count(), 1);
+        // A non-unit one is normalised (a quarter turn about z written at
+        // twice its length), not read as a scaling shear.
+        let load = |rotation: &str| {
+            let json = fixture_json(None).replacen(
+                r#"{"mesh":0,"translation":[5,0,0]}"#,
+                &format!(r#"{{"mesh":0,"translation":[5,0,0],"rotation":{rotation}}}"#),
+                1,
+            );
+            load_gltf_bytes(&glb(&json, &fixture_buffer()), Path::new("r.glb"))
+                .unwrap()
+                .flattened()
+                .unwrap()
+                .positions
+        };
+        let h = std::f32::consts::FRAC_1_SQRT_2;
+        let unit = load(&format!("[0,0,{h},{h}]"));
+        let long = load(&format!("[0,0,{},{}]", 2.0 * h, 2.0 * h));
+        for (a, b) in unit.iter().zip(&long) {
+            assert!(a.abs_diff_eq(*b, 1e-6), "{a} {b}");
+        }
+        assert!(
+            unit[1].abs_diff_eq(Vec3::new(5.0, 1.0, 0.0), 1e-6),
+            "{}",
+            unit[1]
+        );
     }
 
     #[test]
