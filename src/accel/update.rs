@@ -168,12 +168,12 @@ fn policy_cost(tree: &Tree) -> f64 {
 /// below [`PARALLEL_CUTOFF`] triangles as the builds are (waking a pool
 /// cost simple_skin's 8 triangles 0.1 ms a refit, 20x the refit).
 fn refit(tree: &mut Tree, frame: &Scene, threads: usize) -> Result<()> {
-    let mesh = frame.mesh();
-    if threads > 1 && frame.triangle_count() >= PARALLEL_CUTOFF {
-        crate::accel::bvh::in_pool(threads, || tree.refit(&mesh, true))
+    let threads = if frame.triangle_count() >= PARALLEL_CUTOFF {
+        threads
     } else {
-        tree.refit(&mesh, false)
-    }
+        1
+    };
+    tree.refit(&frame.mesh(), threads)
 }
 
 impl Follower {
@@ -296,14 +296,12 @@ impl Follower {
                 let rebuild = match self.strategy {
                     Strategy::Rebuild(_) => true,
                     _ => {
-                        let parallel = threads > 1 && frame.instance_count() >= PARALLEL_CUTOFF;
-                        if parallel {
-                            crate::accel::bvh::in_pool(threads, || {
-                                tree.refit_instances(frame, true)
-                            })?;
+                        let threads = if frame.instance_count() >= PARALLEL_CUTOFF {
+                            threads
                         } else {
-                            tree.refit_instances(frame, false)?;
-                        }
+                            1
+                        };
+                        tree.refit_instances(frame, threads)?;
                         match self.strategy {
                             Strategy::Policy { factor, .. } => {
                                 tree.tlas_cost(&REFIT_POLICY_COSTS) > factor as f64 * *built_cost

@@ -432,6 +432,10 @@ pub const REFIT_POLICY_COSTS: super::wide::TraversalCosts = super::wide::Travers
 /// Blocks per task of a parallel refit's vertex pass.
 pub const REFIT_CHUNK: usize = 256;
 
+/// How long a shared job's caller spins waiting for its helpers to finish
+/// (`pool::share`; an item's length) before it sleeps in the scope's wait.
+pub const SHARE_SPIN: std::time::Duration = std::time::Duration::from_micros(200);
+
 /// Levels of a wide tree whose subtrees a parallel refit fits in parallel
 /// (8-wide: up to 64 tasks under the root, enough for 2-16 threads).
 pub const REFIT_PARALLEL_DEPTH: u32 = 2;

@@ -19,6 +19,9 @@ use arrayvec::ArrayVec;
 use glam::Vec4;
 use rayon::prelude::*;
 
+use super::builder::pool::share;
+use super::in_pool;
+
 use super::leaf::{prefetch_triangles, Tri4, EMPTY_ID};
 use super::node::{padded, Bvh};
 use super::params::{FILL_AHEAD, REFIT_CHUNK, REFIT_PARALLEL_DEPTH};
@@ -54,26 +57,22 @@ fn lanes_box(block: &Tri4, lanes: u32) -> Aabb {
     }
 }
 
-/// Sets the lane boxes of the subtree whose root is node `first`, laid out
-/// depth-first in `nodes` (the root, then each child's subtree as a run, in
-/// index order), from the blocks' vertices; returns its unpadded box, or
-/// `None` as soon as the layout is not so (boxes set so far are right, and
-/// the caller refits the rest another way). Forks into the children's runs
-/// for `parallel_depth` levels.
-fn refit_run<const N: usize>(
-    nodes: &mut [WideNode<N>],
+/// The runs of `head`'s interior children in `rest` (the nodes after it in
+/// a depth-first layout: each child's subtree a run, in index order), as
+/// (lane, child, run); `None` when the layout is not so.
+#[allow(clippy::type_complexity)]
+fn child_runs<'a, const N: usize>(
+    head: &WideNode<N>,
     first: u32,
-    blocks: &[Tri4],
-    parallel_depth: u32,
-) -> Option<Aabb> {
-    let (head, mut rest) = nodes.split_first_mut()?;
+    mut rest: &'a mut [WideNode<N>],
+) -> Option<ArrayVec<(usize, u32, &'a mut [WideNode<N>]), N>> {
     // Interior lanes by child index: their runs follow one another.
     let mut kids: ArrayVec<(usize, u32), N> = (0..N)
         .filter(|&l| head.child[l] != EMPTY && head.child[l] & LEAF == 0)
         .map(|l| (l, head.child[l]))
         .collect();
     kids.sort_unstable_by_key(|&(_, c)| c);
-    let mut runs: ArrayVec<(usize, u32, &mut [WideNode<N>]), N> = ArrayVec::new();
+    let mut runs = ArrayVec::new();
     let mut at = first.checked_add(1)?;
     for (i, &(lane, child)) in kids.iter().enumerate() {
         if child != at {
@@ -91,29 +90,102 @@ fn refit_run<const N: usize>(
         rest = tail;
         at = at.checked_add(len as u32)?;
     }
-    if !rest.is_empty() {
-        return None;
-    }
-    let refit = |(lane, child, run): (usize, u32, &mut [WideNode<N>])| {
-        (
-            lane,
-            refit_run(run, child, blocks, parallel_depth.saturating_sub(1)),
-        )
-    };
-    let boxes: ArrayVec<(usize, Option<Aabb>), N> = if parallel_depth > 0 && runs.len() > 1 {
-        let v: Vec<_> = runs
-            .into_iter()
-            .collect::<Vec<_>>()
-            .into_par_iter()
-            .map(refit)
-            .collect();
-        v.into_iter().collect()
-    } else {
-        runs.into_iter().map(refit).collect()
-    };
+    rest.is_empty().then_some(runs)
+}
+
+/// Sets the lane boxes of the subtree whose root is node `first`, laid out
+/// depth-first in `nodes`, from the blocks' vertices; returns its unpadded
+/// box, or `None` as soon as the layout is not so (boxes set so far are
+/// right, and the caller refits the rest another way).
+fn refit_run<const N: usize>(
+    nodes: &mut [WideNode<N>],
+    first: u32,
+    blocks: &[Tri4],
+) -> Option<Aabb> {
+    let (head, rest) = nodes.split_first_mut()?;
+    let runs = child_runs(head, first, rest)?;
+    let boxes: ArrayVec<(usize, Option<Aabb>), N> = runs
+        .into_iter()
+        .map(|(lane, child, run)| (lane, refit_run(run, child, blocks)))
+        .collect();
     fit_lanes(head, blocks, |lane, _| {
         boxes.iter().find(|(l, _)| *l == lane)?.1
     })
+}
+
+/// What a lane of a top node has below it: a run (by its index in the
+/// runs) or another top node (by its index in the tops).
+#[derive(Clone, Copy)]
+enum Below {
+    Run(usize),
+    Top(usize),
+}
+
+/// A node of a tree's top levels, fitted after the runs below it.
+struct Top<'a, const N: usize> {
+    node: &'a mut WideNode<N>,
+    kids: ArrayVec<(usize, Below), N>,
+}
+
+/// The top `depth` levels of the subtree at `nodes` (root `first`, laid
+/// out depth-first) into `tops`, parents before children, and the subtrees
+/// under them into `runs` as (root, nodes); `None` when the layout is not
+/// depth-first (nothing is changed then).
+#[allow(clippy::type_complexity)]
+fn split_top<'a, const N: usize>(
+    nodes: &'a mut [WideNode<N>],
+    first: u32,
+    depth: u32,
+    tops: &mut Vec<Top<'a, N>>,
+    runs: &mut Vec<(u32, &'a mut [WideNode<N>])>,
+) -> Option<Below> {
+    if depth == 0 {
+        runs.push((first, nodes));
+        return Some(Below::Run(runs.len() - 1));
+    }
+    let (head, rest) = nodes.split_first_mut()?;
+    let children = child_runs(head, first, rest)?;
+    let me = tops.len();
+    tops.push(Top {
+        node: head,
+        kids: ArrayVec::new(),
+    });
+    for (lane, child, run) in children {
+        let below = split_top(run, child, depth - 1, tops, runs)?;
+        tops[me].kids.push((lane, below));
+    }
+    Some(Below::Top(me))
+}
+
+/// Pass 2 on a depth-first layout: the subtrees under the top `depth`
+/// levels refitted on their own slices, shared among `threads` threads
+/// (each claims the next subtree), then the top levels' nodes from their
+/// boxes. `false` when the layout is not depth-first (the caller refits the
+/// rest another way; boxes set so far are right).
+fn refit_depth_first<const N: usize>(
+    nodes: &mut [WideNode<N>],
+    blocks: &[Tri4],
+    depth: u32,
+    threads: usize,
+) -> bool {
+    let (mut tops, mut runs) = (Vec::new(), Vec::new());
+    if split_top(nodes, 0, depth, &mut tops, &mut runs).is_none() {
+        return false;
+    }
+    let run_boxes = share(threads, runs, |(first, run)| refit_run(run, first, blocks));
+    // Parents were listed before their children: fitted in reverse.
+    let mut top_boxes: Vec<Option<Aabb>> = vec![None; tops.len()];
+    for (i, top) in tops.into_iter().enumerate().rev() {
+        let kids = top.kids;
+        let b = fit_lanes(top.node, blocks, |lane, _| {
+            match kids.iter().find(|(l, _)| *l == lane)?.1 {
+                Below::Run(r) => run_boxes[r],
+                Below::Top(t) => top_boxes[t],
+            }
+        });
+        top_boxes[i] = b;
+    }
+    run_boxes.iter().all(Option::is_some) && top_boxes.iter().all(Option::is_some)
 }
 
 /// Sets every used lane of `node` to its padded box, a leaf's from
@@ -191,13 +263,13 @@ fn check_count(tree_tris: usize, triangles: usize) -> Result<()> {
 
 impl Tree {
     /// Refits the tree to `triangles` (the same triangles by index as it was
-    /// built over, moved), in parallel when `parallel` (on the current rayon
-    /// pool).
-    pub fn refit<T: Triangles + ?Sized>(&mut self, triangles: &T, parallel: bool) -> Result<()> {
+    /// built over, moved) on `threads` threads: the caller and the kept
+    /// pool's workers.
+    pub fn refit<T: Triangles + ?Sized>(&mut self, triangles: &T, threads: usize) -> Result<()> {
         match self {
-            Tree::Binary(t) => t.refit(triangles, parallel),
-            Tree::Wide4(t) => t.refit(triangles, parallel),
-            Tree::Wide8(t) => t.refit(triangles, parallel),
+            Tree::Binary(t) => in_pool(threads, || t.refit(triangles, threads > 1)),
+            Tree::Wide4(t) => t.refit(triangles, threads),
+            Tree::Wide8(t) => t.refit(triangles, threads),
         }
     }
 }
@@ -242,31 +314,27 @@ impl<const N: usize> WideBvh<N> {
     /// Refits the wide tree (see the module notes). Lane order is kept: the
     /// order the any-hit walk takes lanes in changes how soon an occluder is
     /// found, never whether.
-    pub fn refit<T: Triangles + ?Sized>(&mut self, triangles: &T, parallel: bool) -> Result<()> {
+    pub fn refit<T: Triangles + ?Sized>(&mut self, triangles: &T, threads: usize) -> Result<()> {
         // Pass 1: each block's vertices, and the triangles the tree indexes
         // (counted here rather than in a pass of their own over the blocks:
         // that pass was a tenth of a two-thread refit of cloth:20000).
+        // Runs of blocks, not single ones: a task per block cost more than
+        // it saved at 20k triangles.
         let count = triangles.count();
-        let indexed = if parallel {
-            // Runs of blocks, not single ones: a task per block cost more
-            // than it saved at 20k triangles.
-            self.blocks
-                .par_chunks_mut(REFIT_CHUNK)
-                .map(|run| update_blocks(run, triangles, count))
-                .max()
-                .unwrap_or(0)
-        } else {
-            update_blocks(&mut self.blocks, triangles, count)
-        };
+        let runs: Vec<&mut [Tri4]> = self.blocks.chunks_mut(REFIT_CHUNK).collect();
+        let indexed = share(threads, runs, |run| update_blocks(run, triangles, count))
+            .into_iter()
+            .max()
+            .unwrap_or(0);
         check_count(indexed, count)?;
         if self.nodes.is_empty() {
             return Ok(());
         }
         // Pass 2 on a depth-first layout (every subtree a run of nodes, as
-        // the builders lay them out): subtrees refitted on their own slices,
-        // the top levels' in parallel.
-        let depth = if parallel { REFIT_PARALLEL_DEPTH } else { 0 };
-        if refit_run(&mut self.nodes, 0, &self.blocks, depth).is_none() {
+        // the builders lay them out): the top levels' subtrees shared among
+        // the threads.
+        let depth = if threads > 1 { REFIT_PARALLEL_DEPTH } else { 0 };
+        if !refit_depth_first(&mut self.nodes, &self.blocks, depth, threads) {
             self.refit_nodes_any_layout();
         }
         Ok(())
@@ -336,10 +404,10 @@ mod tests {
         let naive = Naive::from_triangles(frame.clone());
         for builder in [BuilderKind::Sah, BuilderKind::Lbvh, BuilderKind::Sbvh] {
             for width in [2, 4, 8] {
-                for parallel in [false, true] {
+                for threads in [1, 2] {
                     let params = BuildParams::for_builder(builder).with_width(width);
                     let mut tree = build(&rest, &params).unwrap();
-                    tree.refit(&frame, parallel).unwrap();
+                    tree.refit(&frame, threads).unwrap();
                     let fresh = build(&frame, &params).unwrap();
                     for ray in &rays {
                         let want = naive.intersect(ray);
@@ -365,8 +433,8 @@ mod tests {
         let params = BuildParams::sah().with_width(2);
         let built = build(&rest, &params).unwrap();
         let mut tree = build(&rest, &params).unwrap();
-        tree.refit(&moved(&rest, 1), false).unwrap();
-        tree.refit(&rest, false).unwrap();
+        tree.refit(&moved(&rest, 1), 1).unwrap();
+        tree.refit(&rest, 1).unwrap();
         let (Tree::Binary(a), Tree::Binary(b)) = (&built, &tree) else {
             panic!("width 2 is binary")
         };
@@ -387,14 +455,14 @@ mod tests {
                     panic!("width 8")
                 };
                 let mut sweep = runs.clone();
-                runs.refit(&frame, true).unwrap();
-                sweep.refit(&frame, false).unwrap();
+                runs.refit(&frame, 2).unwrap();
+                sweep.refit(&frame, 1).unwrap();
                 sweep.refit_nodes_any_layout();
                 assert_eq!(runs.nodes, sweep.nodes, "{builder:?} optimize {optimize}");
                 // Every builder lays its tree out depth-first, so the runs
                 // path (not the fallback) did the work.
                 assert!(
-                    super::refit_run(&mut sweep.nodes, 0, &sweep.blocks, 0).is_some(),
+                    super::refit_run(&mut sweep.nodes, 0, &sweep.blocks).is_some(),
                     "{builder:?} optimize {optimize}: not depth-first"
                 );
             }
@@ -405,12 +473,12 @@ mod tests {
     fn a_refit_with_fewer_triangles_is_refused() {
         let rest = random_tris(100, 3);
         for width in [2, 8] {
-            for parallel in [false, true] {
+            for threads in [1, 2] {
                 let mut tree = build(&rest, &BuildParams::sah().with_width(width)).unwrap();
-                let err = tree.refit(&rest[..50], parallel).unwrap_err().to_string();
+                let err = tree.refit(&rest[..50], threads).unwrap_err().to_string();
                 assert!(err.contains("refit") && err.contains("100"), "{err}");
                 // Every triangle is counted, the highest index included.
-                tree.refit(&rest, parallel).unwrap();
+                tree.refit(&rest, threads).unwrap();
             }
         }
     }

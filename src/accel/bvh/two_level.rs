@@ -27,6 +27,7 @@ use rayon::prelude::*;
 
 use super::backend::BvhBackend;
 use super::builder::build;
+use super::in_pool;
 use super::params::{BuildParams, BuilderKind, Quality};
 use super::params::{CULL_SLACK, DEEP_STACK};
 use super::simd_packet::bits;
@@ -167,12 +168,13 @@ impl TwoLevel {
     }
 
     /// Follows `frame`, the same meshes with the instances moved: the TLAS's
-    /// boxes recomputed bottom-up over its kept topology (in parallel on the
-    /// current rayon pool when `parallel`), the meshes' trees untouched.
-    /// Fails for a frame that is not the same instances of the same meshes.
-    pub fn refit_instances(&mut self, frame: &Scene, parallel: bool) -> crate::Result<()> {
+    /// boxes recomputed bottom-up over its kept topology on `threads`
+    /// threads, the meshes' trees untouched. Fails for a frame that is not
+    /// the same instances of the same meshes.
+    pub fn refit_instances(&mut self, frame: &Scene, threads: usize) -> crate::Result<()> {
         let moved = self.moved(frame)?;
-        self.tlas.refit(&tlas_boxes(&moved), parallel)?;
+        let boxes = in_pool(threads, || tlas_boxes(&moved, threads > 1));
+        self.tlas.refit(&boxes, threads)?;
         self.instancing = moved;
         Ok(())
     }
@@ -360,19 +362,23 @@ impl Scratch {
 /// so that rounding never culls an instance its mesh's tree would hit: it
 /// grows by 2^-20 of its largest coordinate, far above the transform's
 /// rounding (a few ulps) and far below any scene's detail.
-fn tlas_boxes(instancing: &Instancing) -> Vec<[Vec3; 3]> {
-    (0..instancing.instances.len())
-        .into_par_iter()
-        .map(|i| {
-            let b = instancing.world_box(i);
-            let pad = Vec3::splat(b.min.abs().max(b.max.abs()).max_element() * (1.0 / 1_048_576.0));
-            let b = Aabb {
-                min: b.min - pad,
-                max: b.max + pad,
-            };
-            [b.min, b.max, b.min]
-        })
-        .collect()
+/// In parallel on the current pool when `parallel`.
+fn tlas_boxes(instancing: &Instancing, parallel: bool) -> Vec<[Vec3; 3]> {
+    let instance_box = |i: usize| {
+        let b = instancing.world_box(i);
+        let pad = Vec3::splat(b.min.abs().max(b.max.abs()).max_element() * (1.0 / 1_048_576.0));
+        let b = Aabb {
+            min: b.min - pad,
+            max: b.max + pad,
+        };
+        [b.min, b.max, b.min]
+    };
+    let count = instancing.instances.len();
+    if parallel {
+        (0..count).into_par_iter().map(instance_box).collect()
+    } else {
+        (0..count).map(instance_box).collect()
+    }
 }
 
 /// How the TLAS is built at a rung: one instance per leaf, 8 wide; the low
@@ -410,7 +416,7 @@ pub fn fresh_tlas_cost(
 /// The 8-wide tree over the instances' boxes ([`tlas_boxes`]), built as
 /// `params` say ([`tlas_params`]).
 fn tlas(instancing: &Instancing, params: &BuildParams) -> crate::Result<Bvh8> {
-    let Tree::Wide8(bvh) = build(&tlas_boxes(instancing), params)? else {
+    let Tree::Wide8(bvh) = build(&tlas_boxes(instancing, params.threads > 1), params)? else {
         unreachable!("a width-8 build is 8-wide")
     };
     if bvh.stack_need > DEEP_STACK {
@@ -658,10 +664,10 @@ mod tests {
         let mut two = TwoLevel::new(rest, &params, Intersector::Mt, Query::Single).unwrap();
         let built = (two.tlas.nodes.clone(), two.tlas.blocks.clone());
         let cost = two.tlas_cost(&crate::accel::bvh::params::REFIT_POLICY_COSTS);
-        two.refit_instances(&animation.frame(2.0).unwrap(), false)
+        two.refit_instances(&animation.frame(2.0).unwrap(), 1)
             .unwrap();
         assert_ne!(two.tlas.nodes, built.0, "the boxes moved");
-        two.refit_instances(rest, false).unwrap();
+        two.refit_instances(rest, 1).unwrap();
         assert_eq!(two.tlas.nodes, built.0, "node for node");
         assert_eq!(two.tlas.blocks, built.1);
         assert_eq!(
@@ -672,12 +678,12 @@ mod tests {
         // and leaves the tree as it was.
         for other in ["asteroids:199", "forest:200"] {
             let other = builtin(other).unwrap();
-            let err = two.refit_instances(&other, false).unwrap_err().to_string();
+            let err = two.refit_instances(&other, 1).unwrap_err().to_string();
             assert!(err.contains("cannot update the two-level tree"), "{err}");
             assert!(two.rebuild_instances(&other, Quality::Low, 1).is_err());
         }
         let flat = builtin("cornell-sphere").unwrap();
-        assert!(two.refit_instances(&flat, false).is_err());
+        assert!(two.refit_instances(&flat, 1).is_err());
         assert_eq!(two.tlas.nodes, built.0);
     }
 

@@ -14,11 +14,22 @@
 /// per build also gave each build fresh per-thread heaps whose pages all
 /// faulted again (mesh:1e5 on 2 threads: 1770 page faults a build).
 pub(crate) fn in_pool<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> R {
+    match kept_pool(threads) {
+        Some(pool) => pool.install(f),
+        // One thread, or no threads to be had: the same result, computed
+        // serially.
+        None => f(),
+    }
+}
+
+/// The kept pool of `threads` threads; `None` for one thread, or where no
+/// threads can be started.
+fn kept_pool(threads: usize) -> Option<std::sync::Arc<rayon::ThreadPool>> {
     if threads <= 1 {
-        return f();
+        return None;
     }
     static POOLS: KeptPerThreads<rayon::ThreadPool> = KeptPerThreads::new();
-    let pool = POOLS
+    POOLS
         .get(threads, || {
             rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
@@ -30,12 +41,90 @@ pub(crate) fn in_pool<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> 
                 .build()
                 .map(std::sync::Arc::new)
         })
-        .ok();
-    match pool {
-        Some(pool) => pool.install(f),
-        // No threads to be had: the same result, computed serially.
-        None => f(),
+        .ok()
+}
+
+/// The kept pool of `helpers` threads that help a calling thread
+/// ([`share`]); not pinned, unlike the build pools, whose callers sleep
+/// while they work: a helper pinned to the caller's CPU would wait for the
+/// caller to finish.
+fn helper_pool(helpers: usize) -> Option<std::sync::Arc<rayon::ThreadPool>> {
+    if helpers == 0 {
+        return None;
     }
+    static POOLS: KeptPerThreads<rayon::ThreadPool> = KeptPerThreads::new();
+    POOLS
+        .get(helpers, || {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(helpers)
+                .build()
+                .map(std::sync::Arc::new)
+        })
+        .ok()
+}
+
+/// `work` on every item, shared between the calling thread and the other
+/// `threads - 1` workers of the kept pool, each claiming the next item
+/// until none is left; the results in the items' order.
+///
+/// For work of a few hundred microseconds (a refit): `in_pool` first waits
+/// for a sleeping worker to wake, about 40 us a call on the 2-core machine
+/// (an eighth of a cloth:20000 refit), and wakes the caller when done. Here
+/// the caller starts at once, a worker that wakes late finds less to do,
+/// and the caller waits for the last items by spinning, briefly, before the
+/// scope's own wait. Work far shorter than a wake-up still waits for one
+/// (the scope ends when its helpers have run): keep it for work well over
+/// 40 us, as the callers' cut-offs do.
+pub(crate) fn share<T: Send, R: Send>(
+    threads: usize,
+    items: Vec<T>,
+    work: impl Fn(T) -> R + Sync,
+) -> Vec<R> {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::sync::Mutex;
+    let n = items.len();
+    let helpers = threads.min(n).saturating_sub(1);
+    let Some(pool) = helper_pool(helpers) else {
+        return items.into_iter().map(work).collect();
+    };
+    let items: Vec<Mutex<Option<T>>> = items.into_iter().map(|t| Mutex::new(Some(t))).collect();
+    let results: Vec<Mutex<Option<R>>> = (0..n).map(|_| Mutex::new(None)).collect();
+    let next = AtomicUsize::new(0);
+    let claim = || loop {
+        let i = next.fetch_add(1, Ordering::Relaxed);
+        let Some(slot) = items.get(i) else { break };
+        let item = slot.lock().unwrap_or_else(|p| p.into_inner()).take();
+        if let Some(item) = item {
+            let r = work(item);
+            *results[i].lock().unwrap_or_else(|p| p.into_inner()) = Some(r);
+        }
+    };
+    let finished = AtomicUsize::new(0);
+    pool.in_place_scope(|scope| {
+        for _ in 0..helpers {
+            scope.spawn(|_| {
+                claim();
+                finished.fetch_add(1, Ordering::Release);
+            });
+        }
+        claim();
+        // Spinning, not sleeping in the scope's wait: a caller put to sleep
+        // (its CPU idle) is slow to wake on a virtual machine. Bounded: a
+        // helper that panicked never finishes (the scope's wait then passes
+        // the panic on).
+        let until = std::time::Instant::now() + crate::accel::bvh::params::SHARE_SPIN;
+        while finished.load(Ordering::Acquire) < helpers && std::time::Instant::now() < until {
+            std::hint::spin_loop();
+        }
+    });
+    results
+        .into_iter()
+        .map(|r| {
+            r.into_inner()
+                .unwrap_or_else(|p| p.into_inner())
+                .expect("every item was claimed and run")
+        })
+        .collect()
 }
 
 /// Values made once per thread count and kept for the process: the build
@@ -69,5 +158,35 @@ impl<T> KeptPerThreads<T> {
         let value = make()?;
         kept.insert(threads, value.clone());
         Ok(value)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::share;
+
+    #[test]
+    fn shared_work_runs_every_item_once_and_keeps_their_order() {
+        for threads in [1, 2, 3, 8] {
+            for n in [0, 1, 2, 5, 300] {
+                let ran = std::sync::atomic::AtomicUsize::new(0);
+                let items: Vec<usize> = (0..n).collect();
+                let out = share(threads, items, |i| {
+                    ran.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    i * 3
+                });
+                assert_eq!(out, (0..n).map(|i| i * 3).collect::<Vec<_>>());
+                assert_eq!(ran.into_inner(), n, "{threads} threads, {n} items");
+            }
+        }
+        // Items may borrow mutably: disjoint chunks of one array.
+        let mut data = vec![1u32; 1000];
+        let chunks: Vec<&mut [u32]> = data.chunks_mut(64).collect();
+        let sums = share(2, chunks, |c| {
+            c.iter_mut().for_each(|x| *x += 1);
+            c.iter().sum::<u32>()
+        });
+        assert_eq!(sums.iter().sum::<u32>(), 2000);
+        assert!(data.iter().all(|&x| x == 2));
     }
 }
