@@ -25,40 +25,45 @@ pub(crate) fn in_pool<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> 
 /// The kept pool of `threads` threads; `None` for one thread, or where no
 /// threads can be started.
 fn kept_pool(threads: usize) -> Option<std::sync::Arc<rayon::ThreadPool>> {
-    if threads <= 1 {
-        return None;
-    }
-    static POOLS: KeptPerThreads<rayon::ThreadPool> = KeptPerThreads::new();
-    POOLS
-        .get(threads, || {
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                // One CPU each, so that waking workers are not stacked on
-                // one CPU (see `os::pin_to_allowed_cpu`).
-                .start_handler(|worker| {
-                    crate::os::pin_to_allowed_cpu(worker);
-                })
-                .build()
-                .map(std::sync::Arc::new)
-        })
-        .ok()
+    (threads > 1)
+        .then(|| pool_of(threads, Placement::Pinned))
+        .flatten()
 }
 
 /// The kept pool of `helpers` threads that help a calling thread
-/// ([`share`]); not pinned, unlike the build pools, whose callers sleep
-/// while they work: a helper pinned to the caller's CPU would wait for the
-/// caller to finish.
+/// ([`share`]); `None` for none.
 fn helper_pool(helpers: usize) -> Option<std::sync::Arc<rayon::ThreadPool>> {
-    if helpers == 0 {
-        return None;
-    }
+    (helpers > 0)
+        .then(|| pool_of(helpers, Placement::Free))
+        .flatten()
+}
+
+/// Where a pool's workers run.
+#[derive(Clone, Copy, PartialEq)]
+enum Placement {
+    /// One CPU each, so that waking workers are not stacked on one CPU (see
+    /// `os::pin_to_allowed_cpu`): the build pools, whose callers sleep
+    /// while they work.
+    Pinned,
+    /// Where the kernel puts them: [`share`]'s helpers, whose caller works
+    /// too (a helper pinned to the caller's CPU would wait for the caller).
+    Free,
+}
+
+/// The kept pool of `threads` workers placed as `placement` says.
+fn pool_of(threads: usize, placement: Placement) -> Option<std::sync::Arc<rayon::ThreadPool>> {
     static POOLS: KeptPerThreads<rayon::ThreadPool> = KeptPerThreads::new();
+    let key = 2 * threads + usize::from(placement == Placement::Pinned);
     POOLS
-        .get(helpers, || {
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(helpers)
-                .build()
-                .map(std::sync::Arc::new)
+        .get(key, || {
+            let builder = rayon::ThreadPoolBuilder::new().num_threads(threads);
+            let builder = match placement {
+                Placement::Pinned => builder.start_handler(|worker| {
+                    crate::os::pin_to_allowed_cpu(worker);
+                }),
+                Placement::Free => builder,
+            };
+            builder.build().map(std::sync::Arc::new)
         })
         .ok()
 }
