@@ -1,8 +1,9 @@
-//! The build thread pools and other values kept per thread count: made once
-//! and kept for the process, as Embree keeps its threads, so that starting
-//! threads is never part of a timed build. The builders themselves only take
-//! `parallel` and run on whatever pool they are called in; the entry point
-//! ([`super::build`]) chooses the pool.
+//! The build thread pools, the helpers of shared work ([`share`]) and
+//! other values kept per thread count: made once and kept for the process,
+//! as Embree keeps its threads, so that starting threads is never part of a
+//! timed build. The builders themselves only take `parallel` and run on
+//! whatever pool they are called in; the entry point ([`super::build`])
+//! chooses the pool.
 
 /// Runs `f` on a pool of `threads` threads (on the calling thread for one).
 /// Code inside passes `parallel = threads > 1` down and runs serially when
@@ -68,9 +69,9 @@ fn pool_of(threads: usize, placement: Placement) -> Option<std::sync::Arc<rayon:
         .ok()
 }
 
-/// `work` on every item, shared between the calling thread and the other
-/// `threads - 1` workers of the kept pool, each claiming the next item
-/// until none is left; the results in the items' order.
+/// `work` on every item, shared between the calling thread and
+/// `threads - 1` helpers (a kept pool of unpinned workers), each claiming
+/// the next item until none is left; the results in the items' order.
 ///
 /// For work of a few hundred microseconds (a refit): `in_pool` first waits
 /// for a sleeping worker to wake, about 40 us a call on the 2-core machine
