@@ -479,7 +479,7 @@ fn validated(mut json: gltf::json::Root) -> std::result::Result<gltf::Document, 
 /// code does (the matrix of an unnormalised quaternion also scales and
 /// shears); a unit one is used as written, so that the matrix is the one
 /// every viewer computes.
-pub(super) fn local_matrix(node: &gltf::Node) -> Mat4 {
+fn local_matrix(node: &gltf::Node) -> Mat4 {
     match node.transform() {
         gltf::scene::Transform::Decomposed {
             translation,

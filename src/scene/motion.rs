@@ -125,11 +125,11 @@ fn is_gltf(path: &std::path::Path) -> bool {
 
 /// Why scene `spec` (named by `flag`) is not an animation.
 fn does_not_move(spec: &str, flag: &str) -> Error {
-    let path = std::path::Path::new(spec);
-    if super::is_scene_file(spec) && is_gltf(path) {
-        return super::gltf_motion::file_error(path, "the file has no animations".into());
-    }
     if super::is_scene_file(spec) {
+        let path = std::path::Path::new(spec);
+        if is_gltf(path) {
+            return super::gltf_motion::file_error(path, "the file has no animations".into());
+        }
         return Error::usage(
             flag,
             format!("{spec} does not move: raylab reads animations from glTF files (.gltf, .glb) and has the animated built-ins explode:N, cloth:N and asteroids:N"),

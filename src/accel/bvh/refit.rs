@@ -169,23 +169,26 @@ fn refit_depth_first<const N: usize>(
     threads: usize,
 ) -> bool {
     let (mut tops, mut runs) = (Vec::new(), Vec::new());
-    if split_top(nodes, 0, depth, &mut tops, &mut runs).is_none() {
+    let Some(root) = split_top(nodes, 0, depth, &mut tops, &mut runs) else {
         return false;
-    }
+    };
     let run_boxes = share(threads, runs, |(first, run)| refit_run(run, first, blocks));
-    // Parents were listed before their children: fitted in reverse.
+    // Parents were listed before their children: fitted in reverse. A box
+    // is `None` when the layout failed below it, so the root's says whether
+    // the whole tree was refitted.
     let mut top_boxes: Vec<Option<Aabb>> = vec![None; tops.len()];
+    let box_of = |below: Below, top_boxes: &[Option<Aabb>]| match below {
+        Below::Run(r) => run_boxes[r],
+        Below::Top(t) => top_boxes[t],
+    };
     for (i, top) in tops.into_iter().enumerate().rev() {
         let kids = top.kids;
         let b = fit_lanes(top.node, blocks, |lane, _| {
-            match kids.iter().find(|(l, _)| *l == lane)?.1 {
-                Below::Run(r) => run_boxes[r],
-                Below::Top(t) => top_boxes[t],
-            }
+            box_of(kids.iter().find(|(l, _)| *l == lane)?.1, &top_boxes)
         });
         top_boxes[i] = b;
     }
-    run_boxes.iter().all(Option::is_some) && top_boxes.iter().all(Option::is_some)
+    box_of(root, &top_boxes).is_some()
 }
 
 /// Sets every used lane of `node` to its padded box, a leaf's from
