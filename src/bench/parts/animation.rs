@@ -28,7 +28,7 @@ use crate::accel::update::{fresh_cost, Follower, Strategy};
 use crate::accel::{build_scene_backend, BackendSpec, Query};
 use crate::bench::charts::{
     color, distinct, legend, line_with_points, log_axis, log_label, log_range, save_chart,
-    DrawResult, FONT,
+    side_legend, DrawResult, Swatch, FONT, SIDE_LEGEND,
 };
 use crate::bench::config::BenchConfig;
 use crate::bench::measure::Stat;
@@ -635,7 +635,9 @@ where
         // Update plus trace per frame, log.
         let per = |p: &AnimationPoint| (p.update_ms + p.frame_trace_ms).max(1e-3);
         let y = log_range(pts.iter().map(|p| per(p)));
-        let mut chart = ChartBuilder::on(&rows[2 * s + 1])
+        let (width, _) = rows[2 * s + 1].dim_in_pixel();
+        let (plot, side) = rows[2 * s + 1].split_horizontally(width.saturating_sub(SIDE_LEGEND));
+        let mut chart = ChartBuilder::on(&plot)
             .caption(
                 format!("{scene}: update + trace ms per frame (1 spp)"),
                 (FONT, 18),
@@ -658,6 +660,15 @@ where
                 .collect();
             line_with_points(&mut chart, &line, color(i), st)?;
         }
+        // Every strategy, Embree's too (the left panel's legend has
+        // raylab's only: Embree reports no SAH cost), beside the plot, where
+        // it covers no line.
+        let entries: Vec<(String, RGBAColor)> = strategies
+            .iter()
+            .enumerate()
+            .map(|(i, st)| (st.to_string(), color(i)))
+            .collect();
+        side_legend(&side, &entries, Swatch::Dot)?;
     }
     root.present()?;
     Ok(())
