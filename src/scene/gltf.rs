@@ -429,6 +429,33 @@ fn validated(mut json: gltf::json::Root) -> std::result::Result<gltf::Document, 
             }
         }
     }
+    // glTF allows a matrix or TRS properties, not both. Where a file has
+    // both and they agree (an exporter writing the identity TRS beside its
+    // matrix), the matrix is the node's transform; where they disagree,
+    // which one the author meant is a guess (three.js takes the matrix,
+    // others the TRS), so the file is refused rather than drawn one way.
+    for (n, node) in json.nodes.iter().enumerate() {
+        let Some(matrix) = node.matrix else { continue };
+        if node.translation.is_none() && node.rotation.is_none() && node.scale.is_none() {
+            continue;
+        }
+        let trs = Mat4::from_scale_rotation_translation(
+            node.scale.unwrap_or([1.0; 3]).into(),
+            glam::Quat::from_array(node.rotation.as_ref().map_or([0.0, 0.0, 0.0, 1.0], |q| q.0))
+                .normalize(),
+            node.translation.unwrap_or([0.0; 3]).into(),
+        );
+        let agree = trs
+            .to_cols_array()
+            .iter()
+            .zip(&matrix)
+            .all(|(a, b)| (a - b).abs() <= 1e-5 * a.abs().max(b.abs()).max(1.0));
+        if !agree {
+            return Err(format!(
+                "node {n}: has both a matrix and translation/rotation/scale, and they disagree (glTF allows one or the other)"
+            ));
+        }
+    }
     // The crate checks a channel's sampler but not the node it targets.
     let nodes = json.nodes.len();
     for (a, anim) in json.animations.iter().enumerate() {
@@ -1405,6 +1432,33 @@ mod tests {
             e.contains("accessor 0: sparse index 3 (2) does not increase"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn a_matrix_beside_trs_that_disagrees_is_refused() {
+        let identity = "[1,0,0,0,0,1,0,0,0,0,1,0,0,0,0,1]";
+        let e = fixture_error(
+            r#"{"mesh":0,"translation":[5,0,0]}"#,
+            &format!(r#"{{"mesh":0,"translation":[5,0,0],"matrix":{identity}}}"#),
+        );
+        assert!(
+            e.contains(
+                "node 0: has both a matrix and translation/rotation/scale, and they disagree"
+            ),
+            "{e}"
+        );
+        assert_eq!(e.lines().count(), 1);
+        // Both given and the same transform (the translation written in the
+        // matrix's last column too, an identity scale): read as the matrix.
+        let json = fixture_json(None).replacen(
+            r#"{"mesh":0,"translation":[5,0,0]}"#,
+            r#"{"mesh":0,"translation":[5,0,0],"scale":[1,1,1],"matrix":[1,0,0,0,0,1,0,0,0,0,1,0,5,0,0,1]}"#,
+            1,
+        );
+        let both = load_gltf_bytes(&glb(&json, &fixture_buffer()), Path::new("m.glb")).unwrap();
+        let json = fixture_json(None);
+        let trs = load_gltf_bytes(&glb(&json, &fixture_buffer()), Path::new("t.glb")).unwrap();
+        assert_eq!(both.positions, trs.positions);
     }
 
     #[test]
