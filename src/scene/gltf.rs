@@ -445,11 +445,20 @@ fn validated(mut json: gltf::json::Root) -> std::result::Result<gltf::Document, 
                 .normalize(),
             node.translation.unwrap_or([0.0; 3]).into(),
         );
-        let agree = trs
-            .to_cols_array()
-            .iter()
-            .zip(&matrix)
-            .all(|(a, b)| (a - b).abs() <= 1e-5 * a.abs().max(b.abs()).max(1.0));
+        // Within rounding, measured against each column's largest entry:
+        // a rotation's zeros come out of the quaternion near 1e-7, and the
+        // scale multiplies its column (a 90-degree turn at scale 100 is a
+        // real export).
+        let trs = trs.to_cols_array();
+        let agree = (0..4).all(|c| {
+            let col = 4 * c..4 * c + 4;
+            let size = trs[col.clone()]
+                .iter()
+                .chain(&matrix[col.clone()])
+                .fold(1.0f32, |m, v| m.max(v.abs()));
+            col.clone()
+                .all(|i| (trs[i] - matrix[i]).abs() <= 1e-5 * size)
+        });
         if !agree {
             return Err(format!(
                 "node {n}: has both a matrix and translation/rotation/scale, and they disagree (glTF allows one or the other)"
@@ -1459,6 +1468,23 @@ mod tests {
         let json = fixture_json(None);
         let trs = load_gltf_bytes(&glb(&json, &fixture_buffer()), Path::new("t.glb")).unwrap();
         assert_eq!(both.positions, trs.positions);
+        // A quarter turn about z (glTF's x, y, z, w) at scale 100, with the
+        // default translation, beside its matrix (column-major): agrees,
+        // though the quaternion's zeros round near 1e-7 times the scale.
+        let h = std::f32::consts::FRAC_1_SQRT_2;
+        let node = |matrix: &str| {
+            format!(
+                r#"{{"mesh":0,"rotation":[0,0,{h},{h}],"scale":[100,100,100],"matrix":{matrix}}}"#
+            )
+        };
+        let turn = "[0,100,0,0, -100,0,0,0, 0,0,100,0, 0,0,0,1]";
+        let json =
+            fixture_json(None).replacen(r#"{"mesh":0,"translation":[5,0,0]}"#, &node(turn), 1);
+        load_gltf_bytes(&glb(&json, &fixture_buffer()), Path::new("q.glb")).unwrap();
+        // Its transpose (the matrix read row by row) turns the other way.
+        let transposed = "[0,-100,0,0, 100,0,0,0, 0,0,100,0, 0,0,0,1]";
+        let e = fixture_error(r#"{"mesh":0,"translation":[5,0,0]}"#, &node(transposed));
+        assert!(e.contains("node 0: has both a matrix"), "{e}");
     }
 
     #[test]
