@@ -564,7 +564,14 @@ pub fn charts(dir: &Path, points: &[AnimationPoint]) -> Result<Vec<String>> {
     }
     let scenes = distinct(points.iter().map(|p| p.scene.as_str())).len() as u32;
     Ok(vec![
-        save_chart!(dir, SECTION.stem, (1200, 420 * scenes), draw_frames, points)?,
+        // Wider by the legend strip the right-hand panels give up.
+        save_chart!(
+            dir,
+            SECTION.stem,
+            (1200 + SIDE_LEGEND, 420 * scenes),
+            draw_frames,
+            points
+        )?,
         save_chart!(
             dir,
             "animation-totals",
