@@ -11,7 +11,7 @@
 //! [`Avx2`] value can only be made by [`Avx2::detect`], which checks the CPU,
 //! so holding one is the proof every `unsafe` block below relies on.
 
-use glam::Vec4;
+use glam::{Vec3, Vec4};
 
 use super::wide::WideNode;
 use crate::geometry::SlabRay;
@@ -33,10 +33,97 @@ pub struct WideRay {
     /// `a` (the minimum for a positive direction, the maximum for a negative one).
     pub near: [usize; 3],
     pub far: [usize; 3],
+    /// The fused kernel's planes ([`fused_slab_test_scalar`]), meaningful
+    /// when [`Self::fused`].
+    pub planes: FusedPlanes,
+    /// Whether this is a ray for the fused kernel ([`WideRay::fused`]),
+    /// whose unfused fields are not set, or for the unfused ones
+    /// ([`WideRay::new`]), whose planes are not.
+    pub fused: bool,
 }
 
+/// A ray's planes for the fused kernel, per axis: each distance is
+/// `bound * inv + shift` in one fused multiply-add.
+#[derive(Clone, Copy, Debug)]
+pub struct FusedPlanes {
+    /// `inv_dir` times [`FUSED_NEAR_SCALE`].
+    pub inv_near: [f32; 3],
+    /// `-(near_origin * inv_near)` rounded, then moved down past its
+    /// rounding ([`FusedPlanes::new`]): at most the exact value.
+    pub near_shift: [f32; 3],
+    /// `inv_far` times [`FUSED_FAR_SCALE`].
+    pub inv_far: [f32; 3],
+    /// `-(far_origin * inv_far)` rounded, moved up past its rounding: at
+    /// least the exact value.
+    pub far_shift: [f32; 3],
+}
+
+impl FusedPlanes {
+    /// The planes of a ray whose near and far planes are measured from
+    /// `near_origin` and `far_origin` with reciprocals `inv` and `inv_far`
+    /// ([`WideRay`]'s), and whether the fused kernel may use them (finite
+    /// shifts, normal reciprocals).
+    ///
+    /// A shift is `p -+ (|p| * 2^-23 + 2 * MIN_POSITIVE)` for `p` the
+    /// rounded `-origin * inv`: at least an ulp of `p` from it (an ulp of a
+    /// normal `p` is at most `|p| * 2^-23`, and `2 * MIN_POSITIVE` covers
+    /// the ulps below that), rounding being monotone, so past the product's
+    /// rounding, in a few vector operations (per-ray work weighs on short
+    /// rays: `next_down` per axis cost shadow rays on plane:20000 twice
+    /// their time). The `2 * MIN_POSITIVE` also keeps a shift away from
+    /// zero and the subnormals when the origin's coordinate is zero (the
+    /// camera at x = 0): a subnormal operand costs an FMA a microcode
+    /// assist on Intel, and primary rays took 3.4-4.5x their time on
+    /// grass:3000 and mesh:20000 so.
+    #[inline(always)]
+    fn new(near_origin: Vec3, far_origin: Vec3, inv: Vec3, inv_far: Vec3) -> (FusedPlanes, bool) {
+        // Four lanes, the fourth 1.0 (see above).
+        let (o_near, o_far) = (near_origin.extend(1.0), far_origin.extend(1.0));
+        let (inv, inv_far) = (inv.extend(1.0), inv_far.extend(1.0));
+        let inv_near = inv * FUSED_NEAR_SCALE;
+        let fused_far = inv_far * FUSED_FAR_SCALE;
+        // -origin * inv with the reciprocal scaled both ways past the
+        // product's rounding; the lower of the two is below the exact
+        // value whichever sign it has, the higher above it. Two products
+        // and a min from the reciprocal: a short chain before the first
+        // node's FMA.
+        let near_shift = (o_near * (inv * -SHIFT_NEAR_UP)).min(o_near * (inv * -SHIFT_NEAR_DOWN));
+        let far_shift =
+            (o_far * (inv_far * -SHIFT_FAR_UP)).max(o_far * (inv_far * -SHIFT_FAR_DOWN));
+        let fused = near_shift.is_finite()
+            && far_shift.is_finite()
+            && inv.abs().cmpge(Vec4::splat(1e-30)).all();
+        let planes = FusedPlanes {
+            inv_near: inv_near.truncate().to_array(),
+            near_shift: near_shift.truncate().to_array(),
+            inv_far: fused_far.truncate().to_array(),
+            far_shift: far_shift.truncate().to_array(),
+        };
+        (planes, fused)
+    }
+}
+
+/// The near shift's reciprocal scales: the near planes' scale times `1 +-
+/// 8u` (`4 * EPSILON`), past the two roundings of the scaled reciprocal and
+/// the product.
+const SHIFT_NEAR_UP: f32 = FUSED_NEAR_SCALE * (1.0 + 4.0 * f32::EPSILON);
+const SHIFT_NEAR_DOWN: f32 = FUSED_NEAR_SCALE * (1.0 - 4.0 * f32::EPSILON);
+/// The far shift's, as the near's.
+const SHIFT_FAR_UP: f32 = FUSED_FAR_SCALE * (1.0 + 4.0 * f32::EPSILON);
+const SHIFT_FAR_DOWN: f32 = FUSED_FAR_SCALE * (1.0 - 4.0 * f32::EPSILON);
+
+/// How much the fused kernel shrinks the near planes' reciprocal, `1 - 8u`
+/// (`u = 2^-24`): with it a near distance is at most the unfused test's
+/// (see [`fused_slab_test_scalar`]).
+pub const FUSED_NEAR_SCALE: f32 = 1.0 - 4.0 * f32::EPSILON;
+/// How much the fused kernel grows the far planes' reciprocal, `1 + 8u`.
+pub const FUSED_FAR_SCALE: f32 = 1.0 + 4.0 * f32::EPSILON;
+
 impl WideRay {
-    #[inline]
+    /// Always inlined: into the AVX2 entry points, where it is compiled
+    /// with their features; called out of line it was 19% of the time of
+    /// plane:20000's shadow rays (one node visit each).
+    #[inline(always)]
     pub fn new(slab: &SlabRay) -> WideRay {
         // The sign of the reciprocal decides: safe_reciprocal keeps the sign of
         // a zero component, so -0.0 counts as negative, as the slab test needs.
@@ -59,14 +146,52 @@ impl WideRay {
                 }
             },
         );
+        let near_origin = [near_origin(0), near_origin(1), near_origin(2)];
+        let far_origin = [far_origin(0), far_origin(1), far_origin(2)];
+        let inv_far = slab.inv_far.to_array();
         WideRay {
-            near_origin: [near_origin(0), near_origin(1), near_origin(2)],
-            far_origin: [far_origin(0), far_origin(1), far_origin(2)],
+            near_origin,
+            far_origin,
             inv_dir: inv_dir.to_array(),
-            inv_far: slab.inv_far.to_array(),
+            inv_far,
             near: [row(0), row(1), row(2)],
             far: [row(0) ^ 1, row(1) ^ 1, row(2) ^ 1],
+            planes: FusedPlanes {
+                inv_near: [0.0; 3],
+                near_shift: [0.0; 3],
+                inv_far: [0.0; 3],
+                far_shift: [0.0; 3],
+            },
+            fused: false,
         }
+    }
+
+    /// The ray for the fused kernel alone (its rows and planes; the unfused
+    /// test's fields left zero, so that none of their work is done), or
+    /// `None` where the fused kernel may not take it (an axis the ray lies
+    /// in, shifts that overflow, a subnormal reciprocal).
+    #[inline(always)]
+    pub fn fused(slab: &SlabRay) -> Option<WideRay> {
+        let inv_dir = slab.inv_dir;
+        // Outside any axis plane the planes are measured from the origin.
+        if slab.from_min != slab.from_max {
+            return None;
+        }
+        let (planes, fused) = FusedPlanes::new(slab.from_min, slab.from_min, inv_dir, slab.inv_far);
+        if !fused {
+            return None;
+        }
+        let row = |a: usize| if inv_dir[a] >= 0.0 { 2 * a } else { 2 * a + 1 };
+        Some(WideRay {
+            near_origin: [0.0; 3],
+            far_origin: [0.0; 3],
+            inv_dir: [0.0; 3],
+            inv_far: [0.0; 3],
+            near: [row(0), row(1), row(2)],
+            far: [row(0) ^ 1, row(1) ^ 1, row(2) ^ 1],
+            planes,
+            fused: true,
+        })
     }
 }
 
@@ -137,6 +262,61 @@ pub fn slab_test_scalar<const N: usize>(
     (mask, near)
 }
 
+/// The slab test of the AVX2 kernel for rays with [`WideRay::fused`], one
+/// lane at a time: the reference that kernel is tested against bit for bit.
+///
+/// Each plane's distance is one fused multiply-add, `bound * inv + shift`:
+/// one rounding, not the subtract's and the multiply's, and one step less
+/// between a node's load and its mask. Embree computes it so, with `shift`
+/// the rounded `-origin * inv`, whose error is relative to itself, not to
+/// the distance, which is why that form misses boxes far from the origin.
+/// Here the shift is moved past its rounding ([`FusedPlanes`]), so the sum
+/// before rounding is at most the exact near distance (with the near
+/// reciprocal) and at least the exact far one; rounding is monotone, so
+/// each distance is within one rounding of exact. The reciprocals are
+/// scaled by `1 -+ 8u` ([`FUSED_NEAR_SCALE`], [`FUSED_FAR_SCALE`]), more
+/// than the unfused test's two roundings and one less, so every near
+/// distance is at most [`slab_test_scalar`]'s and every far one at least
+/// its: **every box the unfused test keeps, this one keeps**, with an entry
+/// no farther (a few ulps looser at most). The traversals' answers are the
+/// same bits (the triangles decide the hits; the test
+/// `fused_kernel_keeps_what_the_unfused_keeps` checks the claim, and
+/// `..._every_box_the_ray_reaches` against f64).
+///
+/// The reductions and the compare are on the floats' bits as signed
+/// integers (one cycle each on AVX2, against four for float min and max):
+/// the floats' order for the values that decide. `tmin` is taken as `+0.0`
+/// or above, so the entry is never below it and never negative; a far
+/// distance below zero rejects the box whichever negative one the minimum
+/// picks, as the floats do, except `-0.0`, which the floats would keep
+/// against an entry of zero: the shifts make a fused far distance
+/// positive wherever the unfused one is a zero.
+pub fn fused_slab_test_scalar<const N: usize>(
+    node: &WideNode<N>,
+    ray: &WideRay,
+    tmin: f32,
+    tmax: f32,
+) -> (u32, [f32; N]) {
+    let bits = |x: f32| x.to_bits() as i32;
+    let p = &ray.planes;
+    let tmin = if tmin > 0.0 { tmin } else { 0.0 };
+    let mut mask = 0;
+    let mut near = [0f32; N];
+    for (lane, slot) in near.iter_mut().enumerate() {
+        let entry =
+            |a: usize| bits(node.bounds[ray.near[a]][lane].mul_add(p.inv_near[a], p.near_shift[a]));
+        let exit =
+            |a: usize| bits(node.bounds[ray.far[a]][lane].mul_add(p.inv_far[a], p.far_shift[a]));
+        let n = entry(0).max(entry(1)).max(entry(2).max(bits(tmin)));
+        let f = exit(0).min(exit(1)).min(exit(2).min(bits(tmax)));
+        if n <= f {
+            mask |= 1 << lane;
+        }
+        *slot = f32::from_bits(n as u32);
+    }
+    (mask, near)
+}
+
 /// Asks the CPU to bring the cache lines of `*value` (up to four) into L1, so
 /// that a child selected by a node test is on its way while the traversal does
 /// other work (as Embree does for every hit child). A hint: no effect on
@@ -180,15 +360,16 @@ pub fn bin_indices(f: Vec4, last: usize) -> [u32; 4] {
     [f.x as u32, f.y as u32, f.z as u32, f.w as u32]
 }
 
-/// Proof that this CPU runs AVX2 (and BMI1 and POPCNT, which the traversal's
-/// bit scans use): only [`Avx2::detect`] makes one.
+/// Proof that this CPU runs AVX2 (and FMA, which the node kernel uses, and
+/// BMI1 and POPCNT, which the traversal's bit scans use): only
+/// [`Avx2::detect`] makes one. Every CPU with AVX2 has FMA3.
 #[derive(Clone, Copy, Debug)]
 pub struct Avx2 {
     _checked: (),
 }
 
 impl Avx2 {
-    /// `Some` when the CPU has AVX2, BMI1 and POPCNT (checked once by the
+    /// `Some` when the CPU has AVX2, FMA, BMI1 and POPCNT (checked once by the
     /// standard library, cached), unless `RAYLAB_SIMD=portable` asks for the
     /// portable kernels.
     pub fn detect() -> Option<Avx2> {
@@ -197,6 +378,7 @@ impl Avx2 {
         }
         #[cfg(target_arch = "x86_64")]
         if is_x86_feature_detected!("avx2")
+            && is_x86_feature_detected!("fma")
             && is_x86_feature_detected!("bmi1")
             && is_x86_feature_detected!("popcnt")
         {
@@ -336,11 +518,77 @@ impl NodeKernel<8> for Avx2 {
     }
 }
 
+/// The AVX2 kernel for rays with [`WideRay::fused`]:
+/// [`fused_slab_test_scalar`]'s operations, eight lanes at once. A kernel
+/// of its own, not a branch in [`Avx2`]'s: with both forms in one loop the
+/// traversal kept both rays' constants live and spilled them (394
+/// instructions moving YMM registers to and from the stack in the
+/// closest-hit walks, against 108).
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy, Debug)]
+pub struct Avx2Fused(pub Avx2);
+
+#[cfg(target_arch = "x86_64")]
+impl NodeKernel<8> for Avx2Fused {
+    #[inline(always)]
+    fn intersect(self, node: &WideNode<8>, ray: &WideRay, tmin: f32, tmax: f32) -> (u32, [f32; 8]) {
+        use std::arch::x86_64::*;
+        debug_assert!(ray.fused);
+        // SAFETY: `self.0` proves the CPU has AVX2 and FMA (see
+        // `Avx2::detect`). Each row of `node.bounds` is eight f32 behind a
+        // live reference, 32-byte aligned (the node is 64-byte aligned and
+        // rows are 32 bytes); `out` is eight writable f32.
+        unsafe {
+            let b = &node.bounds;
+            // `fused_slab_test_scalar`'s operations, eight lanes at once.
+            let fused = |row: usize, inv: f32, shift: f32| {
+                _mm256_castps_si256(_mm256_fmadd_ps(
+                    _mm256_load_ps(b[row].as_ptr()),
+                    _mm256_set1_ps(inv),
+                    _mm256_set1_ps(shift),
+                ))
+            };
+            let p = &ray.planes;
+            let (inv, inv_far) = (p.inv_near, p.inv_far);
+            let (sn, sf) = (p.near_shift, p.far_shift);
+            let (nx, ny, nz) = (
+                fused(ray.near[0], inv[0], sn[0]),
+                fused(ray.near[1], inv[1], sn[1]),
+                fused(ray.near[2], inv[2], sn[2]),
+            );
+            let (fx, fy, fz) = (
+                fused(ray.far[0], inv_far[0], sf[0]),
+                fused(ray.far[1], inv_far[1], sf[1]),
+                fused(ray.far[2], inv_far[2], sf[2]),
+            );
+            let tmin = if tmin > 0.0 { tmin } else { 0.0 };
+            let near = _mm256_max_epi32(
+                _mm256_max_epi32(nx, ny),
+                _mm256_max_epi32(nz, _mm256_set1_epi32(tmin.to_bits() as i32)),
+            );
+            let far = _mm256_min_epi32(
+                _mm256_min_epi32(fx, fy),
+                _mm256_min_epi32(fz, _mm256_set1_epi32(tmax.to_bits() as i32)),
+            );
+            let beyond = _mm256_cmpgt_epi32(near, far);
+            let mask = !(_mm256_movemask_ps(_mm256_castsi256_ps(beyond)) as u32) & 0xFF;
+            let mut out = [0f32; 8];
+            _mm256_storeu_ps(out.as_mut_ptr(), _mm256_castsi256_ps(near));
+            (mask, out)
+        }
+    }
+
+    #[inline(always)]
+    fn avx2(self) -> Option<Avx2> {
+        Some(self.0)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::accel::bvh::wide::WideNode;
-    use crate::geometry::{Ray, SlabRay};
+    use crate::geometry::{Aabb, Ray, SlabRay};
     use crate::rng::Rng;
     use glam::Vec3;
 
@@ -360,7 +608,10 @@ mod tests {
         node
     }
 
-    fn check<const N: usize, K: NodeKernel<N>>(kernel: K) {
+    /// `kernel` against its scalar reference on random nodes and rays:
+    /// [`fused_slab_test_scalar`] when `fused` (the rays it takes), else
+    /// [`slab_test_scalar`] and [`Aabb::intersect`].
+    fn check<const N: usize, K: NodeKernel<N>>(kernel: K, fused: bool) {
         let mut rng = Rng::for_pixel(4, 2, 8);
         let mut hits = 0;
         for k in 0..20_000 {
@@ -391,16 +642,36 @@ mod tests {
             }
             let ray = Ray::new(o, d);
             let slab = SlabRay::new(&ray);
-            let wray = WideRay::new(&slab);
+            let wray = if fused {
+                match WideRay::fused(&slab) {
+                    Some(w) => w,
+                    None => continue, // the fused kernel is not handed such rays
+                }
+            } else {
+                WideRay::new(&slab)
+            };
             let tmax = if k % 3 == 0 {
                 f32::INFINITY
             } else {
                 rng.next_f32() * 5.0
             };
             let (mask, near) = kernel.intersect(&node, &wray, 0.0, tmax);
-            let (want_mask, want_near) = slab_test_scalar(&node, &wray, 0.0, tmax);
+            let (want_mask, want_near) = if fused {
+                fused_slab_test_scalar(&node, &wray, 0.0, tmax)
+            } else {
+                slab_test_scalar(&node, &wray, 0.0, tmax)
+            };
             assert_eq!(mask, want_mask, "ray {k}");
             for lane in 0..N {
+                if fused {
+                    // The fused test is its own reference's (above); how it
+                    // stands to the unfused one, `fused_kernel_keeps_...`.
+                    if mask >> lane & 1 == 1 {
+                        assert_eq!(near[lane].to_bits(), want_near[lane].to_bits(), "ray {k}");
+                        hits += 1;
+                    }
+                    continue;
+                }
                 if mask >> lane & 1 == 1 {
                     assert_eq!(near[lane].to_bits(), want_near[lane].to_bits(), "ray {k}");
                     // And the box test every other backend uses agrees.
@@ -438,15 +709,215 @@ mod tests {
 
     #[test]
     fn portable_kernels_equal_the_scalar_slab_test() {
-        check::<4, _>(Portable);
-        check::<8, _>(Portable);
+        check::<4, _>(Portable, false);
+        check::<8, _>(Portable, false);
     }
 
     #[test]
     fn avx2_kernel_equals_the_scalar_slab_test() {
         match Avx2::detect() {
-            Some(k) => check::<8, _>(k),
+            Some(k) => {
+                check::<8, _>(k, false);
+                check::<8, _>(Avx2Fused(k), true);
+            }
             None => eprintln!("no AVX2 on this CPU: the AVX2 kernel is not tested"),
         }
+    }
+
+    /// Random and adversarial cases, as `check` makes them, and more: origins
+    /// far from the boxes' scale, origins on faces, `tmin` above zero.
+    /// Every lane the unfused test keeps, the fused one keeps, with an entry
+    /// no farther; and it keeps few more. (Its margin is an ulp of
+    /// `origin * inv`, so at 10^6 from the origin it keeps boxes within
+    /// about 0.1 of the origin that a `tmin` of 0.5 excludes: those are
+    /// not counted.)
+    #[test]
+    fn fused_kernel_keeps_what_the_unfused_keeps() {
+        let mut rng = Rng::for_pixel(5, 1, 3);
+        let (mut kept, mut extra, mut fused_rays) = (0usize, 0usize, 0usize);
+        for k in 0..60_000 {
+            let scale = [1.0f32, 1.0, 1e4, 1e6][k % 4];
+            let node = random_node::<8>(&mut rng);
+            let mut node = node;
+            for row in node.bounds.iter_mut() {
+                for b in row.iter_mut().filter(|b| b.is_finite()) {
+                    *b = *b * scale + scale;
+                }
+            }
+            let mut o = (Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 6.0 - 3.0)
+                * scale
+                + Vec3::splat(scale);
+            let mut d = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
+            if k % 5 == 0 {
+                d.x = 0.0;
+            }
+            if k % 11 == 0 {
+                d.z = -0.0;
+            }
+            let lane = k / 3 % 8;
+            if k % 3 == 0 && node.child[lane] != super::super::wide::EMPTY {
+                // On a face or a corner of a child.
+                let b = node.lane_bounds(lane);
+                o.x = if k % 2 == 0 { b.min.x } else { b.max.x };
+                if k % 9 == 0 {
+                    o.y = b.max.y;
+                    o.z = b.min.z;
+                }
+            }
+            let mut ray = Ray::new(o, d);
+            ray.tmin = [0.0, 0.0, 1e-4 * scale, 0.5][k / 4 % 4];
+            let slab = SlabRay::new(&ray);
+            let Some(wray) = WideRay::fused(&slab) else {
+                continue;
+            };
+            let unfused = WideRay::new(&slab);
+            fused_rays += 1;
+            let tmin = ray.tmin * (1.0 - crate::accel::bvh::params::SLAB_SLACK);
+            let tmax = if k % 3 == 1 {
+                f32::INFINITY
+            } else {
+                rng.next_f32() * 5.0 * scale
+            };
+            let (mask, near) = fused_slab_test_scalar(&node, &wray, tmin, tmax);
+            let (old_mask, old_near) = slab_test_scalar(&node, &unfused, tmin, tmax);
+            for lane in 0..8 {
+                if old_mask >> lane & 1 == 1 {
+                    kept += 1;
+                    assert!(mask >> lane & 1 == 1, "ray {k} lane {lane}: {ray:?}");
+                    assert!(near[lane] <= old_near[lane], "ray {k} lane {lane}: {ray:?}");
+                } else if mask >> lane & 1 == 1 && scale < 1e6 {
+                    extra += 1;
+                }
+            }
+        }
+        assert!(
+            fused_rays > 40_000 && kept > 9_000,
+            "{fused_rays} rays, {kept} kept"
+        );
+        assert!(
+            extra * 500 < kept,
+            "the fused test kept {extra} more than {kept}"
+        );
+    }
+
+    /// The exact slab test in f64 (every f32 is exact in f64, and the
+    /// distances' rounding is far below the margins that matter here):
+    /// whether the box meets the ray's segment `[tmin, tmax]`.
+    fn reaches_exactly(b: &Aabb, ray: &Ray, tmin: f32, tmax: f32) -> bool {
+        let (mut near, mut far) = (tmin as f64, tmax as f64);
+        for a in 0..3 {
+            let (o, d) = (ray.origin[a] as f64, ray.dir[a] as f64);
+            let (lo, hi) = (b.min[a] as f64, b.max[a] as f64);
+            if d == 0.0 {
+                if o < lo || o > hi {
+                    return false;
+                }
+                continue;
+            }
+            let (t0, t1) = ((lo - o) / d, (hi - o) / d);
+            near = near.max(t0.min(t1));
+            far = far.min(t0.max(t1));
+        }
+        near <= far
+    }
+
+    /// The fused test keeps every box the ray reaches in exact arithmetic,
+    /// on the cases that break an unguarded one: origins far from the
+    /// boxes' scale (where `origin * inv` rounds by more than a box is
+    /// wide), flat boxes a ray grazes, boxes met at one point, and rays
+    /// lying in a box's face. The other side of the trade (it is not much
+    /// looser) is what the traversal's node counts show.
+    #[test]
+    fn fused_kernel_keeps_every_box_the_ray_reaches() {
+        let mut rng = Rng::for_pixel(7, 3, 1);
+        let mut reached = 0;
+        let mut fused_rays = 0;
+        for k in 0..40_000 {
+            let scale = [1.0f32, 1e3, 1e5, 3e6][k % 4];
+            let center = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * scale;
+            let size = [1e-3f32, 1.0, 1e-5][k / 4 % 3] * scale.sqrt();
+            let mut p =
+                || center + Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * size;
+            let mut node = WideNode::<8>::empty();
+            let mut boxes = Vec::new();
+            for lane in 0..8 {
+                let (a, mut b) = (p(), p());
+                if lane % 3 == 0 {
+                    b.z = a.z; // flat
+                }
+                let bx = Aabb::from_points(&[a, b]);
+                node.set_lane(lane, &bx, 0);
+                boxes.push(bx);
+            }
+            // A ray from far off aimed at a corner, a face's point or a
+            // random point of one box.
+            let target_box = boxes[k % 8];
+            let target = match k % 3 {
+                0 => target_box.min,
+                1 => Vec3::new(target_box.min.x, target_box.center().y, target_box.max.z),
+                _ => p(),
+            };
+            let away = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
+            let mut origin = target + away * scale * 0.5;
+            let mut dir = target - origin;
+            if k % 7 == 0 {
+                dir.y = 0.0; // in a plane of y
+                origin.y = target_box.max.y;
+            }
+            if dir == Vec3::ZERO {
+                continue;
+            }
+            let ray = Ray::new(origin, dir);
+            let Some(wray) = WideRay::fused(&SlabRay::new(&ray)) else {
+                continue; // in an axis plane: the unfused kernel's
+            };
+            fused_rays += 1;
+            let tmax = if k % 2 == 0 {
+                f32::INFINITY
+            } else {
+                1.0 + rng.next_f32()
+            };
+            let tmin = ray.tmin * (1.0 - crate::accel::bvh::params::SLAB_SLACK);
+            let (mask, near) = fused_slab_test_scalar(&node, &wray, tmin, tmax);
+            if let Some(avx2) = Avx2::detect() {
+                let (avx_mask, avx_near) = Avx2Fused(avx2).intersect(&node, &wray, tmin, tmax);
+                assert_eq!(avx_mask, mask, "ray {k}");
+                assert_eq!(
+                    avx_near.map(f32::to_bits),
+                    near.map(f32::to_bits),
+                    "ray {k}"
+                );
+            }
+            for (lane, bx) in boxes.iter().enumerate() {
+                if reaches_exactly(bx, &ray, ray.tmin, tmax) {
+                    reached += 1;
+                    assert!(
+                        mask >> lane & 1 == 1,
+                        "ray {k}: {ray:?} reaches {bx:?} but the fused test drops it"
+                    );
+                }
+            }
+        }
+        assert!(
+            reached > 10_000,
+            "too few boxes reached to mean anything: {reached}"
+        );
+        assert!(
+            fused_rays > 30_000,
+            "too few rays took the fused test: {fused_rays}"
+        );
+    }
+
+    /// Rays whose shifts overflow (an origin far out on an axis the ray
+    /// lies in) are marked to take the unfused test.
+    #[test]
+    fn rays_whose_shifts_overflow_are_not_fused() {
+        // 1e9 times a reciprocal clamped to 1e30 overflows.
+        let far_out = Ray::new(Vec3::new(1e9, 0.0, 0.0), Vec3::new(1e-32, 1.0, 0.0));
+        assert!(WideRay::fused(&SlabRay::new(&far_out)).is_none());
+        let in_plane = Ray::new(Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.0, 1.0, 0.0));
+        assert!(WideRay::fused(&SlabRay::new(&in_plane)).is_none());
+        let near = Ray::new(Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.5, 1.0, 0.25));
+        assert!(WideRay::fused(&SlabRay::new(&near)).is_some());
     }
 }

@@ -10,7 +10,9 @@ use arrayvec::ArrayVec;
 
 use super::super::leaf::{BlockTest, Ray4, LANES};
 use super::super::params::{CULL_SLACK, DEEP_STACK, SLAB_SLACK, STACK};
-use super::super::simd::{prefetch, Avx2, Avx512, Kernel, NodeKernel, Portable, WideRay};
+use super::super::simd::{
+    prefetch, Avx2, Avx2Fused, Avx512, Kernel, NodeKernel, Portable, WideRay,
+};
 #[cfg(target_arch = "x86_64")]
 use super::super::simd_lanes::Lanes;
 #[cfg(target_arch = "x86_64")]
@@ -58,12 +60,27 @@ impl<const N: usize> WideBvh<N> {
         kernel: K,
         ray: &Ray,
         start: u32,
+        best: Option<Hit>,
+        counter: &mut C,
+    ) -> Option<Hit> {
+        let wray = WideRay::new(&SlabRay::new(ray));
+        self.closest_walk::<K, T, C, S>(kernel, ray, &wray, start, best, counter)
+    }
+
+    /// [`Self::closest_from`] with the ray already prepared for the node
+    /// kernel (`wray`, made from `ray`).
+    #[inline(always)]
+    pub(crate) fn closest_walk<K: NodeKernel<N>, T: BlockTest, C: Counter, const S: usize>(
+        &self,
+        kernel: K,
+        ray: &Ray,
+        wray: &WideRay,
+        start: u32,
         mut best: Option<Hit>,
         counter: &mut C,
     ) -> Option<Hit> {
         let prepared = T::prepare(ray);
         let ray4 = Ray4::new(ray);
-        let wray = WideRay::new(&SlabRay::new(ray));
         let tmin = ray.tmin * (1.0 - SLAB_SLACK);
         // Triangles are tested with `tmax` just above the best t, so that a hit
         // at the same t with a lower index is still found; `is_closer_than`
@@ -95,7 +112,7 @@ impl<const N: usize> WideBvh<N> {
             } else {
                 counter.node();
                 let node = &self.nodes[current as usize];
-                let (mask, near) = kernel.intersect(node, &wray, tmin, cut);
+                let (mask, near) = kernel.intersect(node, wray, tmin, cut);
                 if mask != 0 {
                     // The nearest hit child is visited next (no prefetch: it
                     // is loaded next), the others pushed farthest first, so
@@ -158,9 +175,22 @@ impl<const N: usize> WideBvh<N> {
         start: u32,
         counter: &mut C,
     ) -> bool {
+        let wray = WideRay::new(&SlabRay::new(ray));
+        self.any_walk::<K, T, C, S>(kernel, ray, &wray, start, counter)
+    }
+
+    /// [`Self::any_from`] with the ray already prepared for the node kernel.
+    #[inline(always)]
+    pub(crate) fn any_walk<K: NodeKernel<N>, T: BlockTest, C: Counter, const S: usize>(
+        &self,
+        kernel: K,
+        ray: &Ray,
+        wray: &WideRay,
+        start: u32,
+        counter: &mut C,
+    ) -> bool {
         let prepared = T::prepare(ray);
         let ray4 = Ray4::new(ray);
-        let wray = WideRay::new(&SlabRay::new(ray));
         let (tmin, tmax) = (ray.tmin * (1.0 - SLAB_SLACK), ray.tmax * (1.0 + SLAB_SLACK));
         let mut stack: ArrayVec<u32, S> = ArrayVec::new();
         let mut current = start;
@@ -176,7 +206,7 @@ impl<const N: usize> WideBvh<N> {
             } else {
                 counter.node();
                 let node = &self.nodes[current as usize];
-                let (mut mask, _) = kernel.intersect(node, &wray, tmin, tmax);
+                let (mut mask, _) = kernel.intersect(node, wray, tmin, tmax);
                 if mask != 0 {
                     current = node.child[mask.trailing_zeros() as usize];
                     self.prefetch_child(current);
@@ -195,6 +225,59 @@ impl<const N: usize> WideBvh<N> {
                 None => return false,
             }
         }
+    }
+}
+
+impl WideBvh<8> {
+    /// [`Self::closest_from`] on the AVX2 kernel's fused form
+    /// ([`Avx2Fused`]) where `kernel` is the AVX2 one and the ray allows it
+    /// ([`WideRay::fused`]), else on `kernel`: the single-ray closest hit of
+    /// the 8-wide tree's AVX2 entry points. The same hits either way (the
+    /// fused test keeps every box the other keeps). Two loops, not a branch
+    /// per node (which spilled registers); the ray is made for the one
+    /// chosen only (making both cost short rays their gain, docs/results.md).
+    /// The packets' last rays keep the unfused kernel: with the fused one
+    /// their packets lost 1-8%.
+    #[inline(always)]
+    pub(crate) fn closest_single<K: NodeKernel<8>, T: BlockTest, C: Counter, const S: usize>(
+        &self,
+        kernel: K,
+        ray: &Ray,
+        start: u32,
+        best: Option<Hit>,
+        counter: &mut C,
+    ) -> Option<Hit> {
+        let slab = SlabRay::new(ray);
+        #[cfg(target_arch = "x86_64")]
+        if let Some(avx2) = kernel.avx2() {
+            if let Some(wray) = WideRay::fused(&slab) {
+                let fused = Avx2Fused(avx2);
+                return self.closest_walk::<_, T, C, S>(fused, ray, &wray, start, best, counter);
+            }
+        }
+        let wray = WideRay::new(&slab);
+        self.closest_walk::<K, T, C, S>(kernel, ray, &wray, start, best, counter)
+    }
+
+    /// [`Self::any_from`] on the fused kernel where it may, as
+    /// [`Self::closest_single`].
+    #[inline(always)]
+    pub(crate) fn any_single<K: NodeKernel<8>, T: BlockTest, C: Counter, const S: usize>(
+        &self,
+        kernel: K,
+        ray: &Ray,
+        start: u32,
+        counter: &mut C,
+    ) -> bool {
+        let slab = SlabRay::new(ray);
+        #[cfg(target_arch = "x86_64")]
+        if let Some(avx2) = kernel.avx2() {
+            if let Some(wray) = WideRay::fused(&slab) {
+                return self.any_walk::<_, T, C, S>(Avx2Fused(avx2), ray, &wray, start, counter);
+            }
+        }
+        let wray = WideRay::new(&slab);
+        self.any_walk::<K, T, C, S>(kernel, ray, &wray, start, counter)
     }
 }
 
@@ -344,12 +427,12 @@ impl WideBvh<8> {
         if let Kernel::Avx2(avx2) = self.kernel {
             if width == PACKET {
                 // SAFETY: an `Avx2` is made only by `Avx2::detect`, which
-                // checked that the CPU has AVX2, BMI1 and POPCNT.
+                // checked that the CPU has AVX2, FMA, BMI1 and POPCNT.
                 return unsafe { packet_avx2::<Q, T>(avx2, self, rays, out) };
             }
             if let Some(avx512) = Avx512::detect() {
                 // SAFETY: an `Avx512` is made only by `Avx512::detect`,
-                // which checked AVX-512F besides AVX2, BMI1 and POPCNT.
+                // which checked AVX-512F besides AVX2, FMA, BMI1 and POPCNT.
                 return unsafe { packet_avx512::<Q, T>(avx512, self, rays, out) };
             }
         }
@@ -444,12 +527,12 @@ impl WideBvh<8> {
         if let Kernel::Avx2(avx2) = self.kernel {
             if width == PACKET {
                 // SAFETY: an `Avx2` is made only by `Avx2::detect`, which
-                // checked that the CPU has AVX2, BMI1 and POPCNT.
+                // checked that the CPU has AVX2, FMA, BMI1 and POPCNT.
                 return unsafe { walk_packet_avx2(avx2, self, rays, nearest_first, visit) };
             }
             if let Some(avx512) = Avx512::detect() {
                 // SAFETY: an `Avx512` is made only by `Avx512::detect`,
-                // which checked AVX-512F besides AVX2, BMI1 and POPCNT.
+                // which checked AVX-512F besides AVX2, FMA, BMI1 and POPCNT.
                 return unsafe { walk_packet_avx512(avx512, self, rays, nearest_first, visit) };
             }
         }
@@ -465,7 +548,7 @@ impl WideBvh<8> {
 /// [`WideBvh::walk_ids_packet`] of 8 rays compiled with AVX2 enabled, as
 /// [`packet_avx2`].
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,bmi1,popcnt")]
+#[target_feature(enable = "avx2,fma,bmi1,popcnt")]
 fn walk_packet_avx2(
     avx2: Avx2,
     bvh: &WideBvh<8>,
@@ -478,7 +561,7 @@ fn walk_packet_avx2(
 
 /// [`WideBvh::walk_ids_packet`] of 16 rays compiled with AVX-512F enabled.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx2,bmi1,popcnt")]
+#[target_feature(enable = "avx512f,avx2,fma,bmi1,popcnt")]
 fn walk_packet_avx512(
     avx512: Avx512,
     bvh: &WideBvh<8>,
@@ -493,7 +576,7 @@ fn walk_packet_avx512(
 /// generic traversal and kernels are `#[inline(always)]`, so they are
 /// compiled into this function with every intrinsic inlined.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,bmi1,popcnt")]
+#[target_feature(enable = "avx2,fma,bmi1,popcnt")]
 fn packet_avx2<Q: PacketQuery, T: BlockTest>(
     avx2: Avx2,
     bvh: &WideBvh<8>,
@@ -506,7 +589,7 @@ fn packet_avx2<Q: PacketQuery, T: BlockTest>(
 /// [`WideBvh::packet_query`] of 16 rays compiled with AVX-512F enabled, as
 /// [`packet_avx2`].
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx2,bmi1,popcnt")]
+#[target_feature(enable = "avx512f,avx2,fma,bmi1,popcnt")]
 fn packet_avx512<Q: PacketQuery, T: BlockTest>(
     avx512: Avx512,
     bvh: &WideBvh<8>,
@@ -538,9 +621,12 @@ impl WideBvh<8> {
         }
         match self.kernel {
             #[cfg(target_arch = "x86_64")]
-            // SAFETY: the kernel value proves the CPU has AVX2, BMI1 and POPCNT.
+            // SAFETY: the kernel value proves the CPU has AVX2, FMA, BMI1 and POPCNT.
             Kernel::Avx2(k) => unsafe { walk_ids_avx2(k, self, ray, nearest_first, visit) },
-            _ => self.walk_ids_with(Portable, ray, nearest_first, visit),
+            _ => {
+                let wray = WideRay::new(&SlabRay::new(ray));
+                self.walk_ids_with(Portable, ray, &wray, nearest_first, visit)
+            }
         }
     }
 
@@ -549,10 +635,10 @@ impl WideBvh<8> {
         &self,
         kernel: K,
         ray: &Ray,
+        wray: &WideRay,
         nearest_first: bool,
         visit: &mut F,
     ) {
-        let wray = WideRay::new(&SlabRay::new(ray));
         let tmin = ray.tmin * (1.0 - SLAB_SLACK);
         let mut tmax = ray.tmax;
         let mut cut = tmax * (1.0 + CULL_SLACK);
@@ -575,7 +661,7 @@ impl WideBvh<8> {
                 cut = tmax * (1.0 + CULL_SLACK);
             } else {
                 let node = &self.nodes[current as usize];
-                let (mask, near) = kernel.intersect(node, &wray, tmin, cut);
+                let (mask, near) = kernel.intersect(node, wray, tmin, cut);
                 if mask != 0 {
                     let next = if nearest_first {
                         nearest_lane(mask, &near)
@@ -610,7 +696,7 @@ impl WideBvh<8> {
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,bmi1,popcnt")]
+#[target_feature(enable = "avx2,fma,bmi1,popcnt")]
 fn walk_ids_avx2<F: FnMut(u32, &mut f32) -> bool>(
     kernel: Avx2,
     bvh: &WideBvh<8>,
@@ -618,7 +704,12 @@ fn walk_ids_avx2<F: FnMut(u32, &mut f32) -> bool>(
     nearest_first: bool,
     visit: &mut F,
 ) {
-    bvh.walk_ids_with(kernel, ray, nearest_first, visit)
+    // The fused kernel where the ray allows it, as `closest_single`.
+    let slab = SlabRay::new(ray);
+    match WideRay::fused(&slab) {
+        Some(wray) => bvh.walk_ids_with(Avx2Fused(kernel), ray, &wray, nearest_first, visit),
+        None => bvh.walk_ids_with(kernel, ray, &WideRay::new(&slab), nearest_first, visit),
+    }
 }
 
 /// The wide trees' queries compiled with AVX2 enabled: the generic traversal
@@ -635,7 +726,7 @@ impl Avx2 {
     ) -> Option<Hit> {
         #[cfg(target_arch = "x86_64")]
         {
-            // SAFETY: `self` proves the CPU has AVX2, BMI1 and POPCNT.
+            // SAFETY: `self` proves the CPU has AVX2, FMA, BMI1 and POPCNT.
             unsafe { closest_avx2::<T, C, S>(self, bvh, ray, counter) }
         }
         #[cfg(not(target_arch = "x86_64"))]
@@ -660,23 +751,29 @@ impl Avx2 {
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,bmi1,popcnt")]
+#[target_feature(enable = "avx2,fma,bmi1,popcnt")]
 fn closest_avx2<T: BlockTest, C: Counter, const S: usize>(
     kernel: Avx2,
     bvh: &WideBvh<8>,
     ray: &Ray,
     counter: &mut C,
 ) -> Option<Hit> {
-    bvh.closest_with::<Avx2, T, C, S>(kernel, ray, counter)
+    if bvh.nodes.is_empty() || !ray.is_valid() {
+        return None;
+    }
+    bvh.closest_single::<Avx2, T, C, S>(kernel, ray, 0, None, counter)
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,bmi1,popcnt")]
+#[target_feature(enable = "avx2,fma,bmi1,popcnt")]
 fn any_avx2<T: BlockTest, C: Counter, const S: usize>(
     kernel: Avx2,
     bvh: &WideBvh<8>,
     ray: &Ray,
     counter: &mut C,
 ) -> bool {
-    bvh.any_with::<Avx2, T, C, S>(kernel, ray, counter)
+    if bvh.nodes.is_empty() || !ray.is_valid() {
+        return false;
+    }
+    bvh.any_single::<Avx2, T, C, S>(kernel, ray, 0, counter)
 }
