@@ -228,7 +228,12 @@ mod tests {
         let built = build_backend(&BackendSpec::bvh(BuildParams::sah()), &scene).unwrap();
         let backend = built.as_ref();
         let rays = recorded_rays(&scene, backend, &settings).unwrap().primary;
-        let (one_s, one) = trace(backend, true, &rays, 1, 1);
+        // One pass's time, the fastest of three: the first pass alone ran
+        // cold once in CI (2.1 ms against 40 passes' 5.4).
+        let (mut one_s, one) = trace(backend, true, &rays, 1, 1);
+        for _ in 0..2 {
+            one_s = one_s.min(trace(backend, true, &rays, 1, 1).0);
+        }
         assert!(one > 0, "some primary rays hit");
         for threads in [1, 2, 3] {
             let (s, sum) = trace(backend, true, &rays, threads, 40);
