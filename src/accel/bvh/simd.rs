@@ -59,37 +59,33 @@ pub struct FusedPlanes {
 }
 
 impl FusedPlanes {
-    /// The planes of a ray whose near and far planes are measured from
-    /// `near_origin` and `far_origin` with reciprocals `inv` and `inv_far`
-    /// ([`WideRay`]'s), and whether the fused kernel may use them (finite
-    /// shifts, normal reciprocals).
+    /// The planes of a ray from `origin` with reciprocals `inv` and
+    /// `inv_far` ([`WideRay`]'s; a ray in no axis plane measures both its
+    /// near and far planes from its origin), and whether the fused kernel
+    /// may use them (finite shifts, reciprocals well above the subnormals,
+    /// so that their scaling holds).
     ///
-    /// A shift is `p -+ (|p| * 2^-23 + 2 * MIN_POSITIVE)` for `p` the
-    /// rounded `-origin * inv`: at least an ulp of `p` from it (an ulp of a
-    /// normal `p` is at most `|p| * 2^-23`, and `2 * MIN_POSITIVE` covers
-    /// the ulps below that), rounding being monotone, so past the product's
-    /// rounding, in a few vector operations (per-ray work weighs on short
-    /// rays: `next_down` per axis cost shadow rays on plane:20000 twice
-    /// their time). The `2 * MIN_POSITIVE` also keeps a shift away from
-    /// zero and the subnormals when the origin's coordinate is zero (the
-    /// camera at x = 0): a subnormal operand costs an FMA a microcode
-    /// assist on Intel, and primary rays took 3.4-4.5x their time on
-    /// grass:3000 and mesh:20000 so.
+    /// Each shift is `-origin * inv` from the reciprocal scaled both ways
+    /// past the roundings of the scaled reciprocal and of the product
+    /// ([`SHIFT_NEAR_UP`] and the others): the lower of the two products is
+    /// below the exact value whichever sign it has, the higher above it.
+    /// Two products and a min from the reciprocal, a short chain before the
+    /// first node's FMA. An origin coordinate of zero gives a zero shift,
+    /// not a subnormal one (a subnormal operand costs an FMA a microcode
+    /// assist on Intel: with `next_down` of zero, primary rays took
+    /// 3.4-4.5x their time on grass:3000 and mesh:20000).
     #[inline(always)]
-    fn new(near_origin: Vec3, far_origin: Vec3, inv: Vec3, inv_far: Vec3) -> (FusedPlanes, bool) {
-        // Four lanes, the fourth 1.0 (see above).
-        let (o_near, o_far) = (near_origin.extend(1.0), far_origin.extend(1.0));
+    fn new(origin: Vec3, inv: Vec3, inv_far: Vec3) -> (FusedPlanes, bool) {
+        // Four lanes, the fourth 1.0: as `Vec3` the compiler filled a
+        // fourth lane with whatever the register held, and a subnormal there
+        // cost every ray a microcode assist.
+        let origin = origin.extend(1.0);
         let (inv, inv_far) = (inv.extend(1.0), inv_far.extend(1.0));
         let inv_near = inv * FUSED_NEAR_SCALE;
         let fused_far = inv_far * FUSED_FAR_SCALE;
-        // -origin * inv with the reciprocal scaled both ways past the
-        // product's rounding; the lower of the two is below the exact
-        // value whichever sign it has, the higher above it. Two products
-        // and a min from the reciprocal: a short chain before the first
-        // node's FMA.
-        let near_shift = (o_near * (inv * -SHIFT_NEAR_UP)).min(o_near * (inv * -SHIFT_NEAR_DOWN));
+        let near_shift = (origin * (inv * -SHIFT_NEAR_UP)).min(origin * (inv * -SHIFT_NEAR_DOWN));
         let far_shift =
-            (o_far * (inv_far * -SHIFT_FAR_UP)).max(o_far * (inv_far * -SHIFT_FAR_DOWN));
+            (origin * (inv_far * -SHIFT_FAR_UP)).max(origin * (inv_far * -SHIFT_FAR_DOWN));
         let fused = near_shift.is_finite()
             && far_shift.is_finite()
             && inv.abs().cmpge(Vec4::splat(1e-30)).all();
@@ -146,14 +142,11 @@ impl WideRay {
                 }
             },
         );
-        let near_origin = [near_origin(0), near_origin(1), near_origin(2)];
-        let far_origin = [far_origin(0), far_origin(1), far_origin(2)];
-        let inv_far = slab.inv_far.to_array();
         WideRay {
-            near_origin,
-            far_origin,
+            near_origin: [near_origin(0), near_origin(1), near_origin(2)],
+            far_origin: [far_origin(0), far_origin(1), far_origin(2)],
             inv_dir: inv_dir.to_array(),
-            inv_far,
+            inv_far: slab.inv_far.to_array(),
             near: [row(0), row(1), row(2)],
             far: [row(0) ^ 1, row(1) ^ 1, row(2) ^ 1],
             planes: FusedPlanes {
@@ -177,7 +170,7 @@ impl WideRay {
         if slab.from_min != slab.from_max {
             return None;
         }
-        let (planes, fused) = FusedPlanes::new(slab.from_min, slab.from_min, inv_dir, slab.inv_far);
+        let (planes, fused) = FusedPlanes::new(slab.from_min, inv_dir, slab.inv_far);
         if !fused {
             return None;
         }

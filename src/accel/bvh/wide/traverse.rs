@@ -228,59 +228,6 @@ impl<const N: usize> WideBvh<N> {
     }
 }
 
-impl WideBvh<8> {
-    /// [`Self::closest_from`] on the AVX2 kernel's fused form
-    /// ([`Avx2Fused`]) where `kernel` is the AVX2 one and the ray allows it
-    /// ([`WideRay::fused`]), else on `kernel`: the single-ray closest hit of
-    /// the 8-wide tree's AVX2 entry points. The same hits either way (the
-    /// fused test keeps every box the other keeps). Two loops, not a branch
-    /// per node (which spilled registers); the ray is made for the one
-    /// chosen only (making both cost short rays their gain, docs/results.md).
-    /// The packets' last rays keep the unfused kernel: with the fused one
-    /// their packets lost 1-8%.
-    #[inline(always)]
-    pub(crate) fn closest_single<K: NodeKernel<8>, T: BlockTest, C: Counter, const S: usize>(
-        &self,
-        kernel: K,
-        ray: &Ray,
-        start: u32,
-        best: Option<Hit>,
-        counter: &mut C,
-    ) -> Option<Hit> {
-        let slab = SlabRay::new(ray);
-        #[cfg(target_arch = "x86_64")]
-        if let Some(avx2) = kernel.avx2() {
-            if let Some(wray) = WideRay::fused(&slab) {
-                let fused = Avx2Fused(avx2);
-                return self.closest_walk::<_, T, C, S>(fused, ray, &wray, start, best, counter);
-            }
-        }
-        let wray = WideRay::new(&slab);
-        self.closest_walk::<K, T, C, S>(kernel, ray, &wray, start, best, counter)
-    }
-
-    /// [`Self::any_from`] on the fused kernel where it may, as
-    /// [`Self::closest_single`].
-    #[inline(always)]
-    pub(crate) fn any_single<K: NodeKernel<8>, T: BlockTest, C: Counter, const S: usize>(
-        &self,
-        kernel: K,
-        ray: &Ray,
-        start: u32,
-        counter: &mut C,
-    ) -> bool {
-        let slab = SlabRay::new(ray);
-        #[cfg(target_arch = "x86_64")]
-        if let Some(avx2) = kernel.avx2() {
-            if let Some(wray) = WideRay::fused(&slab) {
-                return self.any_walk::<_, T, C, S>(Avx2Fused(avx2), ray, &wray, start, counter);
-            }
-        }
-        let wray = WideRay::new(&slab);
-        self.any_walk::<K, T, C, S>(kernel, ray, &wray, start, counter)
-    }
-}
-
 /// Pushes `entry` onto `stack`, keeping the entries from `base` on ordered
 /// by `near` descending (farthest first, so the nearest is popped first):
 /// the insertion step of the packet traversal's closest hits and of the
@@ -704,7 +651,7 @@ fn walk_ids_avx2<F: FnMut(u32, &mut f32) -> bool>(
     nearest_first: bool,
     visit: &mut F,
 ) {
-    // The fused kernel where the ray allows it, as `closest_single`.
+    // The fused kernel where the ray allows it, as `closest_avx2` chooses.
     let slab = SlabRay::new(ray);
     match WideRay::fused(&slab) {
         Some(wray) => bvh.walk_ids_with(Avx2Fused(kernel), ray, &wray, nearest_first, visit),
@@ -761,7 +708,19 @@ fn closest_avx2<T: BlockTest, C: Counter, const S: usize>(
     if bvh.nodes.is_empty() || !ray.is_valid() {
         return None;
     }
-    bvh.closest_single::<Avx2, T, C, S>(kernel, ray, 0, None, counter)
+    // The fused kernel where the ray allows it ([`WideRay::fused`]), else
+    // the unfused one: the same hits either way (the fused test keeps every
+    // box the other keeps). Two loops, not a branch per node (which spilled
+    // registers), and the ray made for the one chosen only (making both
+    // cost short rays their gain, docs/results.md). The packets' last rays
+    // keep the unfused kernel: with the fused one their packets lost 1-8%.
+    let slab = SlabRay::new(ray);
+    match WideRay::fused(&slab) {
+        Some(wray) => {
+            bvh.closest_walk::<_, T, C, S>(Avx2Fused(kernel), ray, &wray, 0, None, counter)
+        }
+        None => bvh.closest_walk::<_, T, C, S>(kernel, ray, &WideRay::new(&slab), 0, None, counter),
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -775,5 +734,10 @@ fn any_avx2<T: BlockTest, C: Counter, const S: usize>(
     if bvh.nodes.is_empty() || !ray.is_valid() {
         return false;
     }
-    bvh.any_single::<Avx2, T, C, S>(kernel, ray, 0, counter)
+    // As `closest_avx2` chooses.
+    let slab = SlabRay::new(ray);
+    match WideRay::fused(&slab) {
+        Some(wray) => bvh.any_walk::<_, T, C, S>(Avx2Fused(kernel), ray, &wray, 0, counter),
+        None => bvh.any_walk::<_, T, C, S>(kernel, ray, &WideRay::new(&slab), 0, counter),
+    }
 }
