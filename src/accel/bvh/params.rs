@@ -395,6 +395,18 @@ pub const SLAB_SLACK: f32 = 1e-6;
 /// and a tighter cut makes the answer depend on the order boxes are visited in.
 pub const CULL_SLACK: f32 = 1e-4;
 
+/// How far from the origin, in multiples of a tree's largest extent, its
+/// boxes and a ray's origin may lie for the single-ray walk to take the
+/// fused node test (`simd::Avx2Fused`). Its distances err by about
+/// `12 * EPSILON` of the larger of the box's and the origin's coordinates
+/// (it keeps every box the unfused test keeps by growing them that much),
+/// where the unfused test errs by about `EPSILON` of the distance along the
+/// ray. At 16 extents that is at most 2.3e-5 of the scene's size. far:20000
+/// (mesh:20000 1e5 from the origin, 7e4 extents) fused was 1.5-2.4x slower
+/// in single rays than unfused: its boxes grown by 0.2 units where its
+/// triangles are 0.03 across (docs/results.md).
+pub const FUSED_ORIGIN_REACH: f32 = 16.0;
+
 /// A packet entry with fewer active rays than this finishes its subtree ray
 /// by ray with the single-ray traversal (`wide::packet`): a lone ray pays the
 /// whole packet's node tests for nothing. 3 and 4 made no consistent

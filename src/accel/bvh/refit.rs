@@ -340,6 +340,7 @@ impl<const N: usize> WideBvh<N> {
         if !refit_depth_first(&mut self.nodes, &self.blocks, depth, threads) {
             self.refit_nodes_any_layout();
         }
+        self.fit_fused_reach();
         Ok(())
     }
 
@@ -425,6 +426,64 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// The fused node test's reach (`WideBvh::fused_origin_limit`) is set
+    /// by every builder and followed by the refit: a scene near the origin
+    /// takes it, the same scene 1e5 away (where the fused test's error,
+    /// about 12 ulps of the coordinates, is 6 times the triangles' size)
+    /// does not, whether built there or refitted there.
+    #[test]
+    fn the_fused_tests_reach_follows_the_tree_through_builds_and_refits() {
+        use crate::accel::bvh::params::Quality;
+        use crate::accel::bvh::params::FUSED_ORIGIN_REACH;
+        let near: Vec<[Vec3; 3]> = random_tris(600, 5)
+            .iter()
+            .map(|t| t.map(|v| v * 0.05))
+            .collect();
+        let far: Vec<[Vec3; 3]> = near
+            .iter()
+            .map(|t| t.map(|v| v + Vec3::new(1e5, 0.0, 1e5)))
+            .collect();
+        let (lo, hi) = near
+            .iter()
+            .flatten()
+            .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), &v| {
+                (lo.min(v), hi.max(v))
+            });
+        let extent = (hi - lo).max_element();
+        let limit = |tree: &Tree| match tree {
+            Tree::Wide8(t) => t.fused_origin_limit,
+            _ => panic!("an 8-wide tree was asked for"),
+        };
+        let mut params: Vec<BuildParams> = BuilderKind::ALL
+            .iter()
+            .flat_map(|&b| [1, 2].map(|t| BuildParams::for_builder(b).with_threads(t)))
+            .collect();
+        params.extend([Quality::Low, Quality::Medium, Quality::High].map(BuildParams::for_quality));
+        for params in params.iter().map(|p| p.with_width(8)) {
+            let mut tree = build(&near, &params).unwrap();
+            let reach = limit(&tree);
+            assert!(reach > 0.0 && reach.is_finite(), "{params:?}: {reach}");
+            // The reach of the triangles' box (the node boxes' margins
+            // aside).
+            let want = extent * FUSED_ORIGIN_REACH;
+            assert!(
+                (reach - want).abs() <= want * 1e-4,
+                "{params:?}: {reach}, {want}"
+            );
+            assert_eq!(
+                limit(&build(&far, &params).unwrap()),
+                f32::NEG_INFINITY,
+                "{params:?}"
+            );
+            tree.refit(&far, params.threads).unwrap();
+            assert_eq!(limit(&tree), f32::NEG_INFINITY, "{params:?}");
+            // Back: the reach again (the spatial splits' refitted boxes
+            // may differ from the built ones by their margin's rounding).
+            tree.refit(&near, params.threads).unwrap();
+            assert!((limit(&tree) - reach).abs() <= reach * 1e-4, "{params:?}");
         }
     }
 

@@ -162,12 +162,14 @@ impl WideRay {
     /// The ray for the fused kernel alone (its rows and planes; the unfused
     /// test's fields left zero, so that none of their work is done), or
     /// `None` where the fused kernel may not take it (an axis the ray lies
-    /// in, shifts that overflow, a subnormal reciprocal).
+    /// in, an origin coordinate beyond `origin_limit`, the tree's
+    /// [`WideBvh::fused_origin_limit`](super::wide::WideBvh), shifts that
+    /// overflow, a subnormal reciprocal).
     #[inline(always)]
-    pub fn fused(slab: &SlabRay) -> Option<WideRay> {
+    pub fn fused(slab: &SlabRay, origin_limit: f32) -> Option<WideRay> {
         let inv_dir = slab.inv_dir;
         // Outside any axis plane the planes are measured from the origin.
-        if slab.from_min != slab.from_max {
+        if slab.from_min != slab.from_max || slab.from_min.abs().max_element() > origin_limit {
             return None;
         }
         let (planes, fused) = FusedPlanes::new(slab.from_min, inv_dir, slab.inv_far);
@@ -636,7 +638,7 @@ mod tests {
             let ray = Ray::new(o, d);
             let slab = SlabRay::new(&ray);
             let wray = if fused {
-                match WideRay::fused(&slab) {
+                match WideRay::fused(&slab, f32::INFINITY) {
                     Some(w) => w,
                     None => continue, // the fused kernel is not handed such rays
                 }
@@ -760,7 +762,7 @@ mod tests {
             let mut ray = Ray::new(o, d);
             ray.tmin = [0.0, 0.0, 1e-4 * scale, 0.5][k / 4 % 4];
             let slab = SlabRay::new(&ray);
-            let Some(wray) = WideRay::fused(&slab) else {
+            let Some(wray) = WideRay::fused(&slab, f32::INFINITY) else {
                 continue;
             };
             let unfused = WideRay::new(&slab);
@@ -861,7 +863,7 @@ mod tests {
                 continue;
             }
             let ray = Ray::new(origin, dir);
-            let Some(wray) = WideRay::fused(&SlabRay::new(&ray)) else {
+            let Some(wray) = WideRay::fused(&SlabRay::new(&ray), f32::INFINITY) else {
                 continue; // in an axis plane: the unfused kernel's
             };
             fused_rays += 1;
@@ -907,10 +909,10 @@ mod tests {
     fn rays_whose_shifts_overflow_are_not_fused() {
         // 1e9 times a reciprocal clamped to 1e30 overflows.
         let far_out = Ray::new(Vec3::new(1e9, 0.0, 0.0), Vec3::new(1e-32, 1.0, 0.0));
-        assert!(WideRay::fused(&SlabRay::new(&far_out)).is_none());
+        assert!(WideRay::fused(&SlabRay::new(&far_out), f32::INFINITY).is_none());
         let in_plane = Ray::new(Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.0, 1.0, 0.0));
-        assert!(WideRay::fused(&SlabRay::new(&in_plane)).is_none());
+        assert!(WideRay::fused(&SlabRay::new(&in_plane), f32::INFINITY).is_none());
         let near = Ray::new(Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.5, 1.0, 0.25));
-        assert!(WideRay::fused(&SlabRay::new(&near)).is_some());
+        assert!(WideRay::fused(&SlabRay::new(&near), f32::INFINITY).is_some());
     }
 }

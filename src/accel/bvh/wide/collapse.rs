@@ -91,6 +91,7 @@ impl<const N: usize> WideBvh<N> {
         } else {
             sources.chunks(LANES).map(block).collect()
         };
+        out.fit_fused_reach();
         Ok(out)
     }
 

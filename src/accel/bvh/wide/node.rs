@@ -8,6 +8,7 @@
 use glam::Vec3;
 
 use super::super::leaf::{Tri4, LANES};
+use super::super::params::FUSED_ORIGIN_REACH;
 use super::super::simd::Kernel;
 use crate::error::{Error, Result};
 use crate::geometry::Aabb;
@@ -255,6 +256,13 @@ pub struct WideBvh<const N: usize> {
     pub stack_need: usize,
     /// The node kernel its queries use.
     pub kernel: Kernel,
+    /// The largest origin coordinate (by magnitude) a single ray may have
+    /// for the walk to take the fused node test; minus infinity (no ray)
+    /// when the boxes themselves lie too far from the origin for their size
+    /// ([`FUSED_ORIGIN_REACH`]). Set by [`WideBvh::fit_fused_reach`] when
+    /// a tree is built or refitted; minus infinity until then, which only
+    /// costs speed.
+    pub fused_origin_limit: f32,
 }
 
 /// The 4-wide tree (portable SIMD: one SSE register per row on x86-64).
@@ -271,6 +279,24 @@ impl<const N: usize> WideBvh<N> {
             blocks: Vec::new(),
             stack_need: 1,
             kernel: if N == 8 { kernel } else { Kernel::Portable },
+            fused_origin_limit: f32::NEG_INFINITY,
+        }
+    }
+
+    /// Sets [`Self::fused_origin_limit`] from the root's box: rays from
+    /// within [`FUSED_ORIGIN_REACH`] times its largest extent of the origin,
+    /// if the box itself lies within that reach; none otherwise (an empty
+    /// tree, or a small scene far from the origin).
+    pub(crate) fn fit_fused_reach(&mut self) {
+        self.fused_origin_limit = f32::NEG_INFINITY;
+        let Some(root) = self.nodes.first() else {
+            return;
+        };
+        let b = root.used_box();
+        let reach = (b.max - b.min).max_element() * FUSED_ORIGIN_REACH;
+        let farthest = b.min.abs().max(b.max.abs()).max_element();
+        if reach.is_finite() && farthest <= reach {
+            self.fused_origin_limit = reach;
         }
     }
 

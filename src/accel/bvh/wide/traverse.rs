@@ -653,7 +653,7 @@ fn walk_ids_avx2<F: FnMut(u32, &mut f32) -> bool>(
 ) {
     // The fused kernel where the ray allows it, as `closest_avx2` chooses.
     let slab = SlabRay::new(ray);
-    match WideRay::fused(&slab) {
+    match WideRay::fused(&slab, bvh.fused_origin_limit) {
         Some(wray) => bvh.walk_ids_with(Avx2Fused(kernel), ray, &wray, nearest_first, visit),
         None => bvh.walk_ids_with(kernel, ray, &WideRay::new(&slab), nearest_first, visit),
     }
@@ -715,7 +715,7 @@ fn closest_avx2<T: BlockTest, C: Counter, const S: usize>(
     // cost short rays their gain, docs/results.md). The packets' last rays
     // keep the unfused kernel: with the fused one their packets lost 1-8%.
     let slab = SlabRay::new(ray);
-    match WideRay::fused(&slab) {
+    match WideRay::fused(&slab, bvh.fused_origin_limit) {
         Some(wray) => {
             bvh.closest_walk::<_, T, C, S>(Avx2Fused(kernel), ray, &wray, 0, None, counter)
         }
@@ -736,7 +736,7 @@ fn any_avx2<T: BlockTest, C: Counter, const S: usize>(
     }
     // As `closest_avx2` chooses.
     let slab = SlabRay::new(ray);
-    match WideRay::fused(&slab) {
+    match WideRay::fused(&slab, bvh.fused_origin_limit) {
         Some(wray) => bvh.any_walk::<_, T, C, S>(Avx2Fused(kernel), ray, &wray, 0, counter),
         None => bvh.any_walk::<_, T, C, S>(kernel, ray, &WideRay::new(&slab), 0, counter),
     }
