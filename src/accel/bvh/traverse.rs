@@ -8,7 +8,9 @@
 use super::leaf::BlockTest;
 use super::node::Bvh;
 use super::params::{CULL_SLACK, SLAB_SLACK, STACK};
-use crate::geometry::{Hit, Intersector, MollerTrumbore, Ray, SlabRay, TriangleTest, Watertight};
+use crate::geometry::{
+    Aabb, Hit, Intersector, MollerTrumbore, Ray, SlabRay, TriangleTest, Watertight,
+};
 
 /// Receives traversal events.
 pub trait Counter {
@@ -141,6 +143,12 @@ impl Bvh {
         self.occluded_counted(ray, &mut NoCount)
     }
 
+    /// The root's box (of a non-empty tree).
+    #[inline(always)]
+    fn root_box(&self) -> Aabb {
+        self.nodes[0].bounds()
+    }
+
     /// The entry distance of node `i` if its box overlaps `(tmin, tmax)`.
     #[inline(always)]
     fn enter(&self, i: u32, ray: &Ray, slab: &SlabRay, tmax: f32) -> Option<f32> {
@@ -159,7 +167,7 @@ impl Traversal for Bvh {
             return None;
         }
         let prepared = T::prepare(ray);
-        let slab = SlabRay::new(ray);
+        let slab = SlabRay::for_test::<T>(ray, &self.root_box());
         let mut best: Option<Hit> = None;
         // Triangle tests use `tmax` just above the best t so that a hit at the same
         // t with a lower index is still found; `is_closer_than` decides.
@@ -228,7 +236,7 @@ impl Traversal for Bvh {
             return false;
         }
         let prepared = T::prepare(ray);
-        let slab = SlabRay::new(ray);
+        let slab = SlabRay::for_test::<T>(ray, &self.root_box());
         if self.enter(0, ray, &slab, ray.tmax).is_none() {
             return false;
         }
