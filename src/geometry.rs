@@ -280,9 +280,7 @@ impl SlabRay {
             inv_far: inv_dir * SLAB_GROW,
         }
     }
-}
 
-impl SlabRay {
     /// The slab ray the trees test boxes with for triangle test `T`, in a
     /// tree whose vertices lie in `root` (its root's box): [`SlabRay::new`],
     /// with every box grown on every side by `T::BOX_GROWTH` times the

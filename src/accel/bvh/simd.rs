@@ -125,7 +125,7 @@ impl WideRay {
         // a zero component, so -0.0 counts as negative, as the slab test needs.
         let inv_dir = slab.inv_dir;
         let positive = |a: usize| inv_dir[a] >= 0.0;
-        let row = |a: usize| if positive(a) { 2 * a } else { 2 * a + 1 };
+        let (near, far) = Self::rows(inv_dir);
         let (near_origin, far_origin) = (
             |a: usize| {
                 if positive(a) {
@@ -147,8 +147,8 @@ impl WideRay {
             far_origin: [far_origin(0), far_origin(1), far_origin(2)],
             inv_dir: inv_dir.to_array(),
             inv_far: slab.inv_far.to_array(),
-            near: [row(0), row(1), row(2)],
-            far: [row(0) ^ 1, row(1) ^ 1, row(2) ^ 1],
+            near,
+            far,
             planes: FusedPlanes {
                 inv_near: [0.0; 3],
                 near_shift: [0.0; 3],
@@ -176,17 +176,30 @@ impl WideRay {
         if !fused {
             return None;
         }
-        let row = |a: usize| if inv_dir[a] >= 0.0 { 2 * a } else { 2 * a + 1 };
+        let (near, far) = Self::rows(inv_dir);
         Some(WideRay {
             near_origin: [0.0; 3],
             far_origin: [0.0; 3],
             inv_dir: [0.0; 3],
             inv_far: [0.0; 3],
-            near: [row(0), row(1), row(2)],
-            far: [row(0) ^ 1, row(1) ^ 1, row(2) ^ 1],
+            near,
+            far,
             planes,
             fused: true,
         })
+    }
+
+    /// The rows of `WideNode::bounds` holding each axis's near plane and far
+    /// plane for a ray with reciprocal direction `inv_dir`: the minimum is
+    /// near where the reciprocal is `>= 0` (`safe_reciprocal` keeps a
+    /// zero's sign, so `-0.0` counts as negative, as the slab test needs).
+    #[inline(always)]
+    fn rows(inv_dir: Vec3) -> ([usize; 3], [usize; 3]) {
+        let row = |a: usize| if inv_dir[a] >= 0.0 { 2 * a } else { 2 * a + 1 };
+        (
+            [row(0), row(1), row(2)],
+            [row(0) ^ 1, row(1) ^ 1, row(2) ^ 1],
+        )
     }
 }
 
