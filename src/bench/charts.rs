@@ -110,6 +110,16 @@ where
     Ok(())
 }
 
+/// Side-legend entries for series coloured by their position, as
+/// [`color`] colours them: the `i`th name in `color(i)`.
+pub(super) fn palette_entries<S: ToString>(names: &[S]) -> Vec<(String, RGBAColor)> {
+    names
+        .iter()
+        .enumerate()
+        .map(|(i, name)| (name.to_string(), color(i)))
+        .collect()
+}
+
 /// The row step and font size of a side legend of `entries` rows in a strip
 /// `height` pixels tall (starting 50 pixels down): 19 and 13 where they
 /// fit, else the rows share the height, down to 8 pixels and size 8.

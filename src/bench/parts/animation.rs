@@ -27,8 +27,8 @@ use crate::accel::bvh::BuildParams;
 use crate::accel::update::{fresh_cost, Follower, Strategy};
 use crate::accel::{build_scene_backend, BackendSpec, Query};
 use crate::bench::charts::{
-    color, distinct, legend, line_with_points, log_axis, log_label, log_range, save_chart,
-    side_legend, DrawResult, Swatch, FONT, SIDE_LEGEND,
+    color, distinct, legend, line_with_points, log_axis, log_label, log_range, palette_entries,
+    save_chart, side_legend, DrawResult, Swatch, FONT, SIDE_LEGEND,
 };
 use crate::bench::config::BenchConfig;
 use crate::bench::measure::Stat;
@@ -670,12 +670,7 @@ where
         // Every strategy, Embree's too (the left panel's legend has
         // raylab's only: Embree reports no SAH cost), beside the plot, where
         // it covers no line.
-        let entries: Vec<(String, RGBAColor)> = strategies
-            .iter()
-            .enumerate()
-            .map(|(i, st)| (st.to_string(), color(i)))
-            .collect();
-        side_legend(&side, &entries, Swatch::Dot)?;
+        side_legend(&side, &palette_entries(&strategies), Swatch::Dot)?;
     }
     root.present()?;
     Ok(())

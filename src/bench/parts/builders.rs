@@ -13,8 +13,8 @@ use super::ChartSection;
 use crate::accel::bvh::wide::TraversalCosts;
 use crate::accel::bvh::{BuildParams, BuilderKind, BvhBackend};
 use crate::bench::charts::{
-    color, lin_range, log_axis, log_label, log_range, save_chart, side_legend, DrawResult, Swatch,
-    FONT, SIDE_LEGEND,
+    color, lin_range, log_axis, log_label, log_range, palette_entries, save_chart, side_legend,
+    DrawResult, Swatch, FONT, SIDE_LEGEND,
 };
 use crate::bench::config::BenchConfig;
 use crate::bench::measure::{timed_renders, Stat};
@@ -249,12 +249,7 @@ where
             }))?;
         }
     }
-    let entries: Vec<(String, RGBAColor)> = builders
-        .iter()
-        .enumerate()
-        .map(|(i, b)| (b.to_string(), color(i)))
-        .collect();
-    side_legend(&side, &entries, Swatch::Dot)?;
+    side_legend(&side, &palette_entries(&builders), Swatch::Dot)?;
     let note = format!(
         "circles: {}   triangles: {}",
         scenes.first().copied().unwrap_or(""),
