@@ -187,6 +187,27 @@ impl Aabb {
             None
         }
     }
+
+    /// [`Self::intersect`] of this box grown on every side by [`BOX_GROWTH`]
+    /// times the farthest it lies from the ray's origin on an axis, for
+    /// [`TriangleTest::GROWS_BOXES`]. The growth is added to the planes'
+    /// distances from the origin (each rounded relative to itself, so the
+    /// growth, 32 of its half-ulps, survives), not to their coordinates.
+    #[inline]
+    pub fn intersect_grown(&self, ray: &SlabRay, tmin: f32, tmax: f32) -> Option<f32> {
+        let (d0, d1) = (self.min - ray.from_min, self.max - ray.from_max);
+        let grow = Vec3::splat(d0.abs().max(d1.abs()).max_element() * BOX_GROWTH);
+        let (d0, d1) = (d0 - grow, d1 + grow);
+        let (t0, t1) = (d0 * ray.inv_dir, d1 * ray.inv_dir);
+        let (f0, f1) = (d0 * ray.inv_far, d1 * ray.inv_far);
+        let near = t0.min(t1).max_element().max(tmin);
+        let far = f0.max(f1).min_element().min(tmax);
+        if near <= far {
+            Some(near)
+        } else {
+            None
+        }
+    }
 }
 
 /// `gamma(3) = 3u / (1 - 3u)` with `u = 2^-24`: the relative error bound of three
@@ -280,42 +301,24 @@ impl SlabRay {
             inv_far: inv_dir * SLAB_GROW,
         }
     }
-
-    /// The slab ray the trees test boxes with for triangle test `T`, in a
-    /// tree whose vertices lie in `root` (its root's box): [`SlabRay::new`],
-    /// with every box grown on every side by `T::BOX_GROWTH` times the
-    /// farthest any of them can lie from the ray's origin on an axis (both
-    /// plane origins moved that far outward). The watertight test decides
-    /// which side of an edge a ray passes on from vertices translated to the
-    /// ray's origin and sheared, each rounded relative to those distances; a
-    /// ray through a shared edge can go to a triangle it misses in exact
-    /// arithmetic by those roundings, and an exact slab test then culls that
-    /// triangle's box while the other triangle rejects the ray: a hole
-    /// (rooms:20000's edge rays, 2 in 50,000, through the corner edge of two
-    /// walls).
-    #[inline(always)]
-    pub fn for_test<T: TriangleTest>(ray: &Ray, root: &Aabb) -> SlabRay {
-        let slab = SlabRay::new(ray);
-        if T::BOX_GROWTH == 0.0 {
-            return slab;
-        }
-        let o = ray.origin;
-        let farthest = (o - root.min).abs().max((root.max - o).abs()).max_element();
-        let grow = Vec3::splat(T::BOX_GROWTH * farthest);
-        SlabRay {
-            from_min: slab.from_min + grow,
-            from_max: slab.from_max - grow,
-            ..slab
-        }
-    }
 }
 
-/// [`Watertight`]'s [`TriangleTest::BOX_GROWTH`]: 16 ulps (at 1) of the
-/// distances, against the test's roundings of a vertex's translation to
-/// the origin and its shear, a few ulps of those distances each. Not a
-/// bound for edges far shorter than their distance from the ray's origin,
-/// whose edge functions cancel.
-pub const WATERTIGHT_BOX_GROWTH: f32 = 16.0 * f32::EPSILON;
+/// How much the slab tests grow a box for a triangle test with
+/// [`TriangleTest::GROWS_BOXES`], per unit of the farthest the box lies from
+/// the ray's origin on an axis: 16 ulps (at 1), against the watertight
+/// test's roundings of a vertex's translation to the origin and its shear,
+/// a few ulps of that distance each. A ray through a shared edge can go to
+/// a triangle it misses in exact arithmetic by those roundings; an exact
+/// slab test then culls that triangle's box while the other triangle
+/// rejects the ray: a hole (rooms:20000's edge rays, 2 in 50,000, through
+/// the corner edge of two walls). Each box is grown from its own farthest
+/// corner, in the distances from the origin (a coordinate 1e5 from the
+/// origin has ulps of 0.008, which would swallow the growth of a box a
+/// unit away): growing every box by the root's farthest corner instead
+/// made short rays leaving a wall enter every neighbour's box (AO rays
+/// 5.9x slower on rooms:20000). Not a bound for edges far shorter than
+/// their distance from the ray's origin, whose edge functions cancel.
+pub const BOX_GROWTH: f32 = 16.0 * f32::EPSILON;
 
 /// The coordinate [`SlabRay`] measures minimum planes from when the ray
 /// lies in the plane at `c`: `c + max(|c| * 2^-23, IN_PLANE_REACH)`, at least
@@ -384,12 +387,12 @@ pub enum Intersector {
 /// A ray/triangle test with per-ray set-up, so traversal code is generic over
 /// the method and pays for the set-up once per ray.
 pub trait TriangleTest {
-    /// How much the trees' slab tests grow every box for this test, relative
-    /// to the distances from the ray's origin to the tree's vertices (see
-    /// [`SlabRay::for_test`]). 0 for Moller-Trumbore, which promises
+    /// Whether the trees' slab tests grow every box for this test, by
+    /// [`BOX_GROWTH`] of its farthest distance from the ray's origin
+    /// ([`Aabb::intersect_grown`]). Not for Moller-Trumbore, which promises
     /// nothing at edges (a ray through a shared edge may miss both
     /// triangles whatever the boxes do).
-    const BOX_GROWTH: f32 = 0.0;
+    const GROWS_BOXES: bool = false;
     /// Per-ray data.
     type Prepared;
     fn prepare(ray: &Ray) -> Self::Prepared;
@@ -430,7 +433,7 @@ pub struct WatertightRay {
 pub struct Watertight;
 
 impl TriangleTest for Watertight {
-    const BOX_GROWTH: f32 = WATERTIGHT_BOX_GROWTH;
+    const GROWS_BOXES: bool = true;
     type Prepared = WatertightRay;
 
     #[inline]

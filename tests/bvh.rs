@@ -615,37 +615,49 @@ fn packet_path_answers_recorded_rays_as_single_rays_do() {
 
 /// Walls meeting at a corner (the planes x = c.x and z = c.z, 3 high, one of
 /// them a thin wall's 0.1 end face, whose box margin is under an ulp of its
-/// coordinates), at coordinates up to 40 from the origin, and rays aimed at
-/// points of the shared edge: the watertight test gives each ray to one wall
-/// or the other by its rounding, and every tree and path must find what the
-/// naive scan finds. Without the growth of `SlabRay::for_test` the trees
-/// culled the box of the wall a ray went to when the exact ray passes just
-/// outside it (rooms:20000: 2 edge rays in 50,000 went on to the next room).
+/// coordinates), at coordinates up to 40 from the origin and a hundred more
+/// 3e4 from it, and rays aimed at points of the shared edge: the watertight
+/// test gives each ray to one wall or the other by its rounding, and every
+/// tree and path must find what the naive scan finds. Without the boxes'
+/// growth (`Aabb::intersect_grown`, `NodeKernel::intersect_grown`) the
+/// trees culled the box of the wall a ray went to when the exact ray passes
+/// just outside it (rooms:20000: 2 edge rays in 50,000 went on to the next
+/// room).
 #[test]
 fn watertight_trees_leave_no_hole_where_two_walls_meet() {
     use raylab::accel::Query;
     let mut rng = TestRng(77);
     let mut tris = Vec::new();
     let (mut inside, mut rays) = (Vec::new(), Vec::new());
-    for _ in 0..300 {
+    for corner in 0..400 {
         let snap = |v: f32| (v * 10.0).round() / 10.0;
-        let c = Vec3::new(
-            snap(rng.range(-40.0, 40.0)),
-            0.0,
-            snap(rng.range(-40.0, 40.0)),
-        );
+        let far = if corner < 300 {
+            Vec3::ZERO
+        } else {
+            Vec3::new(3e4, 0.0, -2e4)
+        };
+        let c = far
+            + Vec3::new(
+                snap(rng.range(-40.0, 40.0)),
+                0.0,
+                snap(rng.range(-40.0, 40.0)),
+            );
         let long = rng.range(0.5, 4.0);
         let quad = |p: Vec3, u: Vec3, v: Vec3| [[p, p + u, p + u + v], [p, p + u + v, p + v]];
         let up = Vec3::new(0.0, 3.0, 0.0);
         tris.extend(quad(c, Vec3::new(0.0, 0.0, 0.1), up)); // the end face, x = c.x
         tris.extend(quad(c, Vec3::new(-long, 0.0, 0.0), up)); // the wall z = c.z
+                                                              // Far away, aimed at least 0.05 inside the walls' ends and from at
+                                                              // least 0.05 in front of them: an origin is rounded to the
+                                                              // coordinates' ulps, 0.002 there, which moves where the ray goes.
+        let least = if far == Vec3::ZERO { 0.0 } else { 0.05 };
         for _ in 0..80 {
-            let target = c + Vec3::new(0.0, rng.range(0.0, 3.0), 0.0);
+            let target = c + Vec3::new(0.0, rng.range(least, 3.0 - least), 0.0);
             // From the corner's open side, at up to 2 units.
             let open = Vec3::new(
-                -rng.range(0.0, 2.0),
+                -rng.range(least, 2.0),
                 rng.range(-1.0, 1.0),
-                rng.range(0.0, 2.0),
+                rng.range(least, 2.0),
             );
             inside.push(Ray::new(target + open, -open));
             // From anywhere near, the thin wall's body included.

@@ -14,7 +14,7 @@
 use glam::{Vec3, Vec4};
 
 use super::wide::WideNode;
-use crate::geometry::SlabRay;
+use crate::geometry::{SlabRay, TriangleTest, BOX_GROWTH};
 
 /// A ray prepared for the node kernels: per axis the origin the near plane's
 /// distance is measured from and the far plane's (both the ray's origin
@@ -33,6 +33,10 @@ pub struct WideRay {
     /// `a` (the minimum for a positive direction, the maximum for a negative one).
     pub near: [usize; 3],
     pub far: [usize; 3],
+    /// [`BOX_GROWTH`] with the sign of the direction on each axis: what
+    /// [`NodeKernel::intersect_grown`] moves a near plane's distance down
+    /// by (a far plane's up), per unit of its box's farthest distance.
+    pub grow: [f32; 3],
     /// The fused kernel's planes ([`fused_slab_test_scalar`]), meaningful
     /// when [`Self::fused`].
     pub planes: FusedPlanes,
@@ -149,6 +153,7 @@ impl WideRay {
             inv_far: slab.inv_far.to_array(),
             near,
             far,
+            grow: [0, 1, 2].map(|a| BOX_GROWTH.copysign(inv_dir[a])),
             planes: FusedPlanes {
                 inv_near: [0.0; 3],
                 near_shift: [0.0; 3],
@@ -184,6 +189,7 @@ impl WideRay {
             inv_far: [0.0; 3],
             near,
             far,
+            grow: [0.0; 3],
             planes,
             fused: true,
         })
@@ -212,6 +218,38 @@ impl WideRay {
 /// lanes hold an inverted box, which the sign choice always rejects.
 pub trait NodeKernel<const N: usize>: Copy {
     fn intersect(self, node: &WideNode<N>, ray: &WideRay, tmin: f32, tmax: f32) -> (u32, [f32; N]);
+
+    /// [`Self::intersect`] with each lane's box grown by [`BOX_GROWTH`]
+    /// times its own farthest distance from the ray's origin: the test for
+    /// triangle tests with [`TriangleTest::GROWS_BOXES`]. Bit for bit
+    /// [`grown_slab_test_scalar`], which is the default.
+    #[inline(always)]
+    fn intersect_grown(
+        self,
+        node: &WideNode<N>,
+        ray: &WideRay,
+        tmin: f32,
+        tmax: f32,
+    ) -> (u32, [f32; N]) {
+        grown_slab_test_scalar(node, ray, tmin, tmax)
+    }
+
+    /// The node test triangle test `T` needs: grown boxes or exact ones
+    /// (decided at compile time).
+    #[inline(always)]
+    fn intersect_for<T: TriangleTest>(
+        self,
+        node: &WideNode<N>,
+        ray: &WideRay,
+        tmin: f32,
+        tmax: f32,
+    ) -> (u32, [f32; N]) {
+        if T::GROWS_BOXES {
+            self.intersect_grown(node, ray, tmin, tmax)
+        } else {
+            self.intersect(node, ray, tmin, tmax)
+        }
+    }
 
     /// The AVX2 proof when this kernel is the AVX2 one (the closest-hit
     /// walk then orders a node's hit children with its sorting network,
@@ -260,6 +298,53 @@ pub fn slab_test_scalar<const N: usize>(
         let entry =
             |a: usize| (node.bounds[ray.near[a]][lane] - ray.near_origin[a]) * ray.inv_dir[a];
         let exit = |a: usize| (node.bounds[ray.far[a]][lane] - ray.far_origin[a]) * ray.inv_far[a];
+        let n = entry(0).max(entry(1)).max(entry(2).max(tmin));
+        let f = exit(0).min(exit(1)).min(exit(2).min(tmax));
+        if n <= f {
+            mask |= 1 << lane;
+        }
+        *slot = n;
+    }
+    (mask, near)
+}
+
+/// The bits of [`f32::MAX`], the cap on a lane's farthest distance in the
+/// grown test.
+const FARTHEST_CAP: u32 = 0x7f7f_ffff;
+
+/// [`slab_test_scalar`] with every lane's box grown for the watertight
+/// test ([`BOX_GROWTH`]): the reference [`NodeKernel::intersect_grown`] is
+/// tested against bit for bit. The planes' distances from the origin are
+/// computed first, as in the unfused test; the largest of a lane's six,
+/// by magnitude, is its box's farthest distance from the origin on an axis
+/// (the near and far rows are the minimum and maximum planes), and moves
+/// each near distance down and each far one up by [`BOX_GROWTH`] of it in
+/// one fused multiply-add (its rounding a 32nd of the growth) before the
+/// multiply by the reciprocal.
+///
+/// The maxima are of the magnitudes' bits (integers, one cycle each on
+/// AVX2, against four for float maxima; the same order for non-negative
+/// floats), capped at [`f32::MAX`]: an unused lane's inverted box is
+/// infinite, and an infinite growth would make its distances NaN, which
+/// the reductions could pass over (`inf - inf`); capped, they stay
+/// infinite and reject the lane.
+pub fn grown_slab_test_scalar<const N: usize>(
+    node: &WideNode<N>,
+    ray: &WideRay,
+    tmin: f32,
+    tmax: f32,
+) -> (u32, [f32; N]) {
+    let mut mask = 0;
+    let mut near = [0f32; N];
+    for (lane, slot) in near.iter_mut().enumerate() {
+        let dn = [0, 1, 2].map(|a| node.bounds[ray.near[a]][lane] - ray.near_origin[a]);
+        let df = [0, 1, 2].map(|a| node.bounds[ray.far[a]][lane] - ray.far_origin[a]);
+        let m = (0..3).fold(0u32, |m, a| {
+            m.max(dn[a].abs().to_bits()).max(df[a].abs().to_bits())
+        });
+        let m = f32::from_bits(m.min(FARTHEST_CAP));
+        let entry = |a: usize| (-m).mul_add(ray.grow[a], dn[a]) * ray.inv_dir[a];
+        let exit = |a: usize| m.mul_add(ray.grow[a], df[a]) * ray.inv_far[a];
         let n = entry(0).max(entry(1)).max(entry(2).max(tmin));
         let f = exit(0).min(exit(1)).min(exit(2).min(tmax));
         if n <= f {
@@ -520,6 +605,68 @@ impl NodeKernel<8> for Avx2 {
         }
     }
 
+    /// [`grown_slab_test_scalar`]'s operations, eight lanes at once. The
+    /// farthest distance is a tree of integer maxima three deep beside the
+    /// unfused test's subtract and multiply: a visit's chain grows by an
+    /// `and`, four one-cycle integer steps and an FMA.
+    #[inline(always)]
+    fn intersect_grown(
+        self,
+        node: &WideNode<8>,
+        ray: &WideRay,
+        tmin: f32,
+        tmax: f32,
+    ) -> (u32, [f32; 8]) {
+        use std::arch::x86_64::*;
+        // SAFETY: as in `intersect`: `self` proves AVX2 and FMA; each row
+        // of `node.bounds` is eight aligned f32 behind a live reference;
+        // `out` is eight writable f32.
+        unsafe {
+            let b = &node.bounds;
+            let d = |row: usize, o: f32| {
+                _mm256_sub_ps(_mm256_load_ps(b[row].as_ptr()), _mm256_set1_ps(o))
+            };
+            let (on, of) = (ray.near_origin, ray.far_origin);
+            let dn = [0, 1, 2].map(|a| d(ray.near[a], on[a]));
+            let df = [0, 1, 2].map(|a| d(ray.far[a], of[a]));
+            let magnitude = _mm256_set1_epi32(0x7fff_ffff);
+            let abs = |v: __m256| _mm256_and_si256(_mm256_castps_si256(v), magnitude);
+            let m = _mm256_max_epi32(
+                _mm256_max_epi32(
+                    _mm256_max_epi32(abs(dn[0]), abs(df[0])),
+                    _mm256_max_epi32(abs(dn[1]), abs(df[1])),
+                ),
+                _mm256_max_epi32(abs(dn[2]), abs(df[2])),
+            );
+            let m =
+                _mm256_castsi256_ps(_mm256_min_epi32(m, _mm256_set1_epi32(FARTHEST_CAP as i32)));
+            let entry = |a: usize| {
+                _mm256_mul_ps(
+                    _mm256_fnmadd_ps(m, _mm256_set1_ps(ray.grow[a]), dn[a]),
+                    _mm256_set1_ps(ray.inv_dir[a]),
+                )
+            };
+            let exit = |a: usize| {
+                _mm256_mul_ps(
+                    _mm256_fmadd_ps(m, _mm256_set1_ps(ray.grow[a]), df[a]),
+                    _mm256_set1_ps(ray.inv_far[a]),
+                )
+            };
+            let near = _mm256_max_ps(
+                _mm256_max_ps(entry(0), entry(1)),
+                _mm256_max_ps(entry(2), _mm256_set1_ps(tmin)),
+            );
+            let far = _mm256_min_ps(
+                _mm256_min_ps(exit(0), exit(1)),
+                _mm256_min_ps(exit(2), _mm256_set1_ps(tmax)),
+            );
+            let mask = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(near, far)) as u32;
+            let mut out = [0f32; 8];
+            _mm256_storeu_ps(out.as_mut_ptr(), near);
+            (mask, out)
+        }
+    }
+
     #[inline(always)]
     fn avx2(self) -> Option<Avx2> {
         Some(self)
@@ -713,6 +860,93 @@ mod tests {
             let want = [0, 1, 2].map(|a| (f[a] as u32).min(15));
             assert_eq!(bin_indices(f, 15)[..3], want, "{f}");
         }
+    }
+
+    /// The grown test ([`NodeKernel::intersect_grown`]): AVX2 equals its
+    /// scalar reference bit for bit; it keeps every box the exact test
+    /// keeps and no unused lane, near the origin and 1e5 from it (where an
+    /// ulp of the coordinates is 4,000 times the growth of a box a unit
+    /// away, which growing the coordinates would lose); and it keeps a box
+    /// the ray passes beside, parallel to its face, at half the growth, a
+    /// gap the exact test sees.
+    #[test]
+    fn grown_kernels_equal_their_reference_and_keep_what_the_exact_test_keeps() {
+        let avx2 = Avx2::detect();
+        let mut rng = Rng::for_pixel(5, 3, 1);
+        let (mut kept, mut beside) = (0, 0);
+        for k in 0..20_000 {
+            let shift = if k % 2 == 0 {
+                Vec3::ZERO
+            } else {
+                Vec3::new(1e5, -3e4, 7e4)
+            };
+            let mut node = random_node::<8>(&mut rng);
+            for lane in 0..8 {
+                if node.child[lane] != super::super::wide::EMPTY {
+                    let b = node.lane_bounds(lane);
+                    let b = Aabb {
+                        min: b.min + shift,
+                        max: b.max + shift,
+                    };
+                    node.set_lane(lane, &b, 0);
+                }
+            }
+            let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 6.0 - 3.0;
+            let mut d = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
+            if k % 5 == 0 {
+                d.z = -0.0;
+            }
+            let mut o = o + shift;
+            // Every fourth ray passes beside a lane's box, parallel to its
+            // face x = max.x, at half its growth.
+            let lane = k / 4 % 8;
+            let aside = k % 4 == 0 && node.child[lane] != super::super::wide::EMPTY;
+            debug_assert!(!aside || shift == Vec3::ZERO);
+            if aside {
+                let b = node.lane_bounds(lane);
+                d.x = 0.0;
+                let c = b.center();
+                o.y = c.y - d.y * 8.0;
+                o.z = c.z - d.z * 8.0;
+                let slab = SlabRay::new(&Ray::new(Vec3::new(b.max.x, o.y, o.z), d));
+                let farthest = (b.min - slab.from_min)
+                    .abs()
+                    .max((b.max - slab.from_max).abs())
+                    .max_element();
+                o.x = b.max.x + farthest * BOX_GROWTH * 0.5;
+                if o.x == b.max.x {
+                    continue;
+                }
+            }
+            let ray = Ray::new(o, d);
+            let wray = WideRay::new(&SlabRay::new(&ray));
+            let tmax = if k % 3 == 0 {
+                f32::INFINITY
+            } else {
+                rng.next_f32() * 50.0
+            };
+            let (mask, near) = grown_slab_test_scalar(&node, &wray, 0.0, tmax);
+            let (exact, _) = slab_test_scalar(&node, &wray, 0.0, tmax);
+            let used = (0..8).filter(|&l| node.child[l] != super::super::wide::EMPTY);
+            let used = used.fold(0, |m, l| m | 1 << l);
+            assert_eq!(mask & exact, exact, "ray {k}: a box the exact test keeps");
+            assert_eq!(mask & !used, 0, "ray {k}: an unused lane");
+            kept += (mask & !exact).count_ones();
+            // (Where the gap is under the exact test's reach beside a
+            // plane the ray lies in, `SlabRay`, that test keeps it too.)
+            if aside && tmax == f32::INFINITY && exact >> lane & 1 == 0 {
+                assert_eq!(mask >> lane & 1, 1, "ray {k}: the grown test keeps it");
+                beside += 1;
+            }
+            if let Some(avx2) = avx2 {
+                let (got, got_near) = avx2.intersect_grown(&node, &wray, 0.0, tmax);
+                assert_eq!(got, mask, "ray {k}");
+                for l in (0..8).filter(|l| mask >> l & 1 == 1) {
+                    assert_eq!(got_near[l].to_bits(), near[l].to_bits(), "ray {k} lane {l}");
+                }
+            }
+        }
+        assert!(kept > 0 && beside > 500, "{kept} kept, {beside} beside");
     }
 
     #[test]

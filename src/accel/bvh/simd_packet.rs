@@ -40,7 +40,7 @@ use super::simd_lanes::Lanes;
 use super::wide::WideNode;
 #[cfg(target_arch = "x86_64")]
 use super::wide::EMPTY;
-use crate::geometry::{above_plane, below_plane, Aabb, Hit, Ray, SlabRay, IN_PLANE_REACH};
+use crate::geometry::{above_plane, below_plane, Hit, Ray, SlabRay, IN_PLANE_REACH};
 #[cfg(target_arch = "x86_64")]
 use crate::geometry::{RECIPROCAL_MAX, SLAB_GROW};
 
@@ -367,11 +367,10 @@ fn shared_near_rows(positive: [u32; 3], n: usize) -> Option<[usize; 3]> {
     ])
 }
 
-/// Each ray with the single-ray node kernel `K` and block test `T`, in a
-/// tree whose root box is `root` (for [`SlabRay::for_test`]).
+/// Each ray with the single-ray node kernel `K` (its test for `T`,
+/// [`NodeKernel::intersect_for`]) and block test `T`.
 pub struct PerRay<K, T> {
     kernel: K,
-    root: Aabb,
     _test: PhantomData<T>,
 }
 
@@ -383,10 +382,9 @@ impl<K: Copy, T> Clone for PerRay<K, T> {
 impl<K: Copy, T> Copy for PerRay<K, T> {}
 
 impl<K, T> PerRay<K, T> {
-    pub fn new(kernel: K, root: Aabb) -> Self {
+    pub fn new(kernel: K) -> Self {
         PerRay {
             kernel,
-            root,
             _test: PhantomData,
         }
     }
@@ -417,7 +415,7 @@ impl<K: NodeKernel<8>, T: BlockTest, const R: usize> PacketKernel<R> for PerRay<
                 ray: *ray,
                 prepared: T::prepare(ray),
                 ray4: Ray4::new(ray),
-                wray: WideRay::new(&SlabRay::for_test::<T>(ray, &self.root)),
+                wray: WideRay::new(&SlabRay::new(ray)),
                 tmin: ray.tmin * (1.0 - SLAB_SLACK),
             })
             .collect();
@@ -444,7 +442,9 @@ impl<K: NodeKernel<8>, T: BlockTest, const R: usize> PacketKernel<R> for PerRay<
         };
         for r in bits(active) {
             let lane = &lanes[r];
-            let (hit, entry) = self.kernel.intersect(node, &lane.wray, lane.tmin, tmax[r]);
+            let (hit, entry) = self
+                .kernel
+                .intersect_for::<T>(node, &lane.wray, lane.tmin, tmax[r]);
             out.lanes |= hit;
             for c in bits(hit) {
                 out.rays[c] |= 1 << r;
@@ -1064,7 +1064,7 @@ mod tests {
                 .filter(|&c| node.child[c] != EMPTY)
                 .fold(0, |m, c| m | 1 << c);
             let short = &rays[..rays.len().min(PACKET)];
-            let reference = PerRay::<Portable, MollerTrumbore>::new(Portable, Aabb::EMPTY);
+            let reference = PerRay::<Portable, MollerTrumbore>::new(Portable);
             let (want_p, active) = PacketKernel::<PACKET>::prepare(reference, short);
             let (got_p, got_active) = SimdPacket(avx2).prepare(short);
             assert_eq!(got_active, active, "valid rays, packet {k}");
@@ -1157,7 +1157,7 @@ mod tests {
             eprintln!("no AVX2 on this CPU: the packet kernels' tightening is not tested");
             return;
         };
-        let reference = PerRay::<Portable, MollerTrumbore>::new(Portable, Aabb::EMPTY);
+        let reference = PerRay::<Portable, MollerTrumbore>::new(Portable);
         let bits_of = |a: &[f32]| a.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         let mut rng = Rng::for_pixel(5, 1, 9);
         for k in 0..2_000 {

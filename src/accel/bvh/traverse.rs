@@ -8,9 +8,7 @@
 use super::leaf::BlockTest;
 use super::node::Bvh;
 use super::params::{CULL_SLACK, SLAB_SLACK, STACK};
-use crate::geometry::{
-    Aabb, Hit, Intersector, MollerTrumbore, Ray, SlabRay, TriangleTest, Watertight,
-};
+use crate::geometry::{Hit, Intersector, MollerTrumbore, Ray, SlabRay, TriangleTest, Watertight};
 
 /// Receives traversal events.
 pub trait Counter {
@@ -143,21 +141,17 @@ impl Bvh {
         self.occluded_counted(ray, &mut NoCount)
     }
 
-    /// The root's box (of a non-empty tree).
+    /// The entry distance of node `i` if its box overlaps `(tmin, tmax)`,
+    /// the box grown where triangle test `T` needs it.
     #[inline(always)]
-    fn root_box(&self) -> Aabb {
-        self.nodes[0].bounds()
-    }
-
-    /// The entry distance of node `i` if its box overlaps `(tmin, tmax)`.
-    #[inline(always)]
-    fn enter(&self, i: u32, ray: &Ray, slab: &SlabRay, tmax: f32) -> Option<f32> {
-        let n = &self.nodes[i as usize];
-        n.bounds().intersect(
-            slab,
-            ray.tmin * (1.0 - SLAB_SLACK),
-            tmax * (1.0 + SLAB_SLACK),
-        )
+    fn enter<T: TriangleTest>(&self, i: u32, ray: &Ray, slab: &SlabRay, tmax: f32) -> Option<f32> {
+        let b = self.nodes[i as usize].bounds();
+        let (tmin, tmax) = (ray.tmin * (1.0 - SLAB_SLACK), tmax * (1.0 + SLAB_SLACK));
+        if T::GROWS_BOXES {
+            b.intersect_grown(slab, tmin, tmax)
+        } else {
+            b.intersect(slab, tmin, tmax)
+        }
     }
 }
 
@@ -167,14 +161,14 @@ impl Traversal for Bvh {
             return None;
         }
         let prepared = T::prepare(ray);
-        let slab = SlabRay::for_test::<T>(ray, &self.root_box());
+        let slab = SlabRay::new(ray);
         let mut best: Option<Hit> = None;
         // Triangle tests use `tmax` just above the best t so that a hit at the same
         // t with a lower index is still found; `is_closer_than` decides.
         let mut test_ray = *ray;
         let mut stack = [(0u32, 0f32); STACK];
         let mut sp = 0usize;
-        let root_t = self.enter(0, ray, &slab, ray.tmax)?;
+        let root_t = self.enter::<T>(0, ray, &slab, ray.tmax)?;
         let mut current = Some((0u32, root_t));
         loop {
             let (index, near) = match current.take() {
@@ -209,8 +203,8 @@ impl Traversal for Bvh {
             }
             let (left, right) = (index + 1, node.offset);
             let cut = best_t * (1.0 + CULL_SLACK);
-            let tl = self.enter(left, ray, &slab, cut);
-            let tr = self.enter(right, ray, &slab, cut);
+            let tl = self.enter::<T>(left, ray, &slab, cut);
+            let tr = self.enter::<T>(right, ray, &slab, cut);
             match (tl, tr) {
                 (Some(a), Some(b)) => {
                     let (first, second) = if a <= b {
@@ -236,8 +230,8 @@ impl Traversal for Bvh {
             return false;
         }
         let prepared = T::prepare(ray);
-        let slab = SlabRay::for_test::<T>(ray, &self.root_box());
-        if self.enter(0, ray, &slab, ray.tmax).is_none() {
+        let slab = SlabRay::new(ray);
+        if self.enter::<T>(0, ray, &slab, ray.tmax).is_none() {
             return false;
         }
         let mut stack = [0u32; STACK];
@@ -267,8 +261,8 @@ impl Traversal for Bvh {
                 continue;
             }
             let (left, right) = (index + 1, node.offset);
-            let hit_left = self.enter(left, ray, &slab, ray.tmax).is_some();
-            let hit_right = self.enter(right, ray, &slab, ray.tmax).is_some();
+            let hit_left = self.enter::<T>(left, ray, &slab, ray.tmax).is_some();
+            let hit_right = self.enter::<T>(right, ray, &slab, ray.tmax).is_some();
             match (hit_left, hit_right) {
                 (true, true) => {
                     debug_assert!(sp < STACK);

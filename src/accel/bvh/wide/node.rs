@@ -263,10 +263,6 @@ pub struct WideBvh<const N: usize> {
     /// a tree is built or refitted; minus infinity until then, which only
     /// costs speed.
     pub fused_origin_limit: f32,
-    /// The root's box (empty until [`WideBvh::fit_to_root`] sets it),
-    /// which the watertight test's slab rays grow the boxes from
-    /// ([`SlabRay::for_test`](crate::geometry::SlabRay::for_test)).
-    pub root_box: Aabb,
 }
 
 /// The 4-wide tree (portable SIMD: one SSE register per row on x86-64).
@@ -284,23 +280,20 @@ impl<const N: usize> WideBvh<N> {
             stack_need: 1,
             kernel: if N == 8 { kernel } else { Kernel::Portable },
             fused_origin_limit: f32::NEG_INFINITY,
-            root_box: Aabb::EMPTY,
         }
     }
 
-    /// Sets [`Self::root_box`], and [`Self::fused_origin_limit`] from it:
+    /// Sets [`Self::fused_origin_limit`] from the root's box:
     /// rays from within [`FUSED_ORIGIN_REACH`] times its largest extent of
     /// the origin, if the box itself lies within that reach; none otherwise
     /// (an empty tree, or a small scene far from the origin). Called when a
     /// tree is built or refitted.
     pub(crate) fn fit_to_root(&mut self) {
         self.fused_origin_limit = f32::NEG_INFINITY;
-        self.root_box = Aabb::EMPTY;
         let Some(root) = self.nodes.first() else {
             return;
         };
         let b = root.used_box();
-        self.root_box = b;
         let reach = (b.max - b.min).max_element() * FUSED_ORIGIN_REACH;
         let farthest = b.min.abs().max(b.max.abs()).max_element();
         if reach.is_finite() && farthest <= reach {

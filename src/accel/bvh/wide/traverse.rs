@@ -63,7 +63,7 @@ impl<const N: usize> WideBvh<N> {
         best: Option<Hit>,
         counter: &mut C,
     ) -> Option<Hit> {
-        let wray = WideRay::new(&SlabRay::for_test::<T>(ray, &self.root_box));
+        let wray = WideRay::new(&SlabRay::new(ray));
         self.closest_walk::<K, T, C, S>(kernel, ray, &wray, start, best, counter)
     }
 
@@ -112,7 +112,7 @@ impl<const N: usize> WideBvh<N> {
             } else {
                 counter.node();
                 let node = &self.nodes[current as usize];
-                let (mask, near) = kernel.intersect(node, wray, tmin, cut);
+                let (mask, near) = kernel.intersect_for::<T>(node, wray, tmin, cut);
                 if mask != 0 {
                     // The nearest hit child is visited next (no prefetch: it
                     // is loaded next), the others pushed farthest first, so
@@ -175,7 +175,7 @@ impl<const N: usize> WideBvh<N> {
         start: u32,
         counter: &mut C,
     ) -> bool {
-        let wray = WideRay::new(&SlabRay::for_test::<T>(ray, &self.root_box));
+        let wray = WideRay::new(&SlabRay::new(ray));
         self.any_walk::<K, T, C, S>(kernel, ray, &wray, start, counter)
     }
 
@@ -206,7 +206,7 @@ impl<const N: usize> WideBvh<N> {
             } else {
                 counter.node();
                 let node = &self.nodes[current as usize];
-                let (mut mask, _) = kernel.intersect(node, wray, tmin, tmax);
+                let (mut mask, _) = kernel.intersect_for::<T>(node, wray, tmin, tmax);
                 if mask != 0 {
                     current = node.child[mask.trailing_zeros() as usize];
                     self.prefetch_child(current);
@@ -383,7 +383,7 @@ impl WideBvh<8> {
                 return unsafe { packet_avx512::<Q, T>(avx512, self, rays, out) };
             }
         }
-        let per_ray = PerRay::<_, T>::new(Portable, self.root_box);
+        let per_ray = PerRay::<_, T>::new(Portable);
         if width == PACKET16 {
             self.packet_stack::<Q, Portable, T, _, PACKET16>(Portable, per_ray, rays, out)
         } else {
@@ -444,12 +444,7 @@ impl WideBvh<8> {
         if T::IS_MOLLER_TRUMBORE {
             self.packet_stack::<Q, Avx2, T, _, R>(single, SimdPacket(lanes), rays, out)
         } else {
-            self.packet_stack::<Q, Avx2, T, _, R>(
-                single,
-                PerRay::<_, T>::new(single, self.root_box),
-                rays,
-                out,
-            )
+            self.packet_stack::<Q, Avx2, T, _, R>(single, PerRay::<_, T>::new(single), rays, out)
         }
     }
 }
@@ -488,7 +483,7 @@ impl WideBvh<8> {
                 return unsafe { walk_packet_avx512(avx512, self, rays, nearest_first, visit) };
             }
         }
-        let per_ray = PerRay::<_, crate::geometry::MollerTrumbore>::new(Portable, self.root_box);
+        let per_ray = PerRay::<_, crate::geometry::MollerTrumbore>::new(Portable);
         if width == PACKET16 {
             self.walk_ids_packet::<_, PACKET16>(per_ray, rays, nearest_first, visit)
         } else {
@@ -719,8 +714,13 @@ fn closest_avx2<T: BlockTest, C: Counter, const S: usize>(
     // registers), and the ray made for the one chosen only (making both
     // cost short rays their gain, docs/results.md). The packets' last rays
     // keep the unfused kernel: with the fused one their packets lost 1-8%.
-    let slab = SlabRay::for_test::<T>(ray, &bvh.root_box);
-    match WideRay::fused(&slab, bvh.fused_origin_limit) {
+    // A test that grows the boxes takes the unfused kernel's grown form.
+    let slab = SlabRay::new(ray);
+    let fused = match T::GROWS_BOXES {
+        true => None,
+        false => WideRay::fused(&slab, bvh.fused_origin_limit),
+    };
+    match fused {
         Some(wray) => {
             bvh.closest_walk::<_, T, C, S>(Avx2Fused(kernel), ray, &wray, 0, None, counter)
         }
@@ -740,8 +740,12 @@ fn any_avx2<T: BlockTest, C: Counter, const S: usize>(
         return false;
     }
     // As `closest_avx2` chooses.
-    let slab = SlabRay::for_test::<T>(ray, &bvh.root_box);
-    match WideRay::fused(&slab, bvh.fused_origin_limit) {
+    let slab = SlabRay::new(ray);
+    let fused = match T::GROWS_BOXES {
+        true => None,
+        false => WideRay::fused(&slab, bvh.fused_origin_limit),
+    };
+    match fused {
         Some(wray) => bvh.any_walk::<_, T, C, S>(Avx2Fused(kernel), ray, &wray, 0, counter),
         None => bvh.any_walk::<_, T, C, S>(kernel, ray, &WideRay::new(&slab), 0, counter),
     }
