@@ -417,12 +417,12 @@ impl TriangleTest for MollerTrumbore {
 /// dominant direction axis, and the shear that maps the ray onto +z.
 #[derive(Clone, Copy, Debug)]
 pub struct WatertightRay {
-    kx: usize,
-    ky: usize,
-    kz: usize,
-    sx: f32,
-    sy: f32,
-    sz: f32,
+    pub(crate) kx: usize,
+    pub(crate) ky: usize,
+    pub(crate) kz: usize,
+    pub(crate) sx: f32,
+    pub(crate) sy: f32,
+    pub(crate) sz: f32,
 }
 
 /// Woop, Benthin and Wald (2013), "Watertight Ray/Triangle Intersection", JCGT
@@ -515,13 +515,13 @@ impl TriangleTest for Watertight {
 /// corner with another) has t = 0 there, which f32 computes as about 1e-12
 /// and would count as a hit. Far above that rounding; far below where the
 /// renderer's offset rays meet real occluders often.
-const NEAR_ORIGIN: f32 = 1e-4;
+pub(crate) const NEAR_ORIGIN: f32 = 1e-4;
 
 /// Whether the hit of `ray`'s line with the plane of `tri` (which it crosses)
 /// lies strictly ahead of the origin: the origin's side of the plane, exactly
 /// (Shewchuk's orient3d on the f32 inputs), against the direction's side
 /// (f64; a direction that grazes the plane within its rounding keeps the hit).
-fn ahead_of_origin(ray: &Ray, tri: &[Vec3; 3]) -> bool {
+pub(crate) fn ahead_of_origin(ray: &Ray, tri: &[Vec3; 3]) -> bool {
     let c = |v: Vec3| robust::Coord3D {
         x: v.x as f64,
         y: v.y as f64,
