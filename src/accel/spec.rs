@@ -195,6 +195,19 @@ impl BackendSpec {
         }
     }
 
+    /// Whether its triangle test promises that no ray passes between two
+    /// triangles sharing an edge: raylab's watertight test, Embree's robust
+    /// mode.
+    pub fn is_robust(&self) -> bool {
+        match *self {
+            BackendSpec::Naive { intersector } | BackendSpec::Bvh { intersector, .. } => {
+                intersector == Intersector::Watertight
+            }
+            BackendSpec::Embree { robust, .. } => robust,
+            BackendSpec::Library { .. } => false,
+        }
+    }
+
     /// The name without the query path: what was built.
     pub fn structure_name(&self) -> String {
         let with_test = |base: String, intersector: &Intersector| match intersector {

@@ -647,6 +647,7 @@ mod tests {
             triangles: 1,
             backend: backend.into(),
             family,
+            robust: backend.contains("watertight") || backend.contains("robust"),
             build_ms: Stat::of(&[1.0]),
             mrays: mrays.into_iter().chain([f64::NAN, 1.0]).collect(),
             paths: vec!["packet8".into(); KINDS.len()],

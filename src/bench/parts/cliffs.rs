@@ -65,8 +65,21 @@ impl Cliff {
 /// Every scene and render ray kind (primary, shadow, AO, diffuse) with both a
 /// raylab and a peer measurement.
 pub fn cliffs(points: &[LibraryPoint]) -> Vec<Cliff> {
+    cliffs_among(points, |_| true)
+}
+
+/// [`cliffs`] of the robust paths alone ([`LibraryPoint::robust`]):
+/// raylab's watertight test against the peers' watertight tests (Embree's
+/// robust mode; the other libraries have none).
+pub fn robust_cliffs(points: &[LibraryPoint]) -> Vec<Cliff> {
+    cliffs_among(points, |p| p.robust)
+}
+
+/// [`cliffs`] over the points `among` keeps.
+fn cliffs_among(points: &[LibraryPoint], among: impl Fn(&LibraryPoint) -> bool) -> Vec<Cliff> {
+    let points: Vec<&LibraryPoint> = points.iter().filter(|p| among(p)).collect();
     let mut scenes: Vec<&str> = Vec::new();
-    for p in points {
+    for p in &points {
         if !scenes.contains(&p.scene.as_str()) {
             scenes.push(&p.scene);
         }
@@ -77,6 +90,7 @@ pub fn cliffs(points: &[LibraryPoint]) -> Vec<Cliff> {
             let best = |family: &dyn Fn(Family) -> bool| {
                 points
                     .iter()
+                    .copied()
                     .filter(|p| p.scene == scene && p.failed.is_none() && family(p.family))
                     .filter_map(|p| {
                         let m = *p.mrays.get(k)?;
@@ -119,6 +133,26 @@ pub fn markdown(points: &[LibraryPoint]) -> String {
     if cells.is_empty() {
         return String::new();
     }
+    let behind = cells.iter().filter(|c| c.behind()).count();
+    let mut out = format!(
+        "### Where raylab is behind\n\n{behind} of {} cells behind: raylab's fastest backend and path against the fastest other one (Embree on any path, tinybvh, obvhs, the bvh crate) per scene and ray kind, one thread, the same rays (the table below has every backend). Above 1.00 raylab takes longer per ray.\n\n{}\n",
+        cells.len(),
+        cells_table(&cells)
+    );
+    let robust = robust_cliffs(points);
+    if !robust.is_empty() {
+        let behind = robust.iter().filter(|c| c.behind()).count();
+        out += &format!(
+            "### Robust paths: where raylab's watertight test is behind\n\n{behind} of {} cells behind: raylab's fastest path with the watertight test against Embree's fastest in its robust mode (the only other backends that promise no ray passes between triangles sharing an edge; their wrong answers are in the accuracy table below), per scene and ray kind, one thread, the same rays.\n\n{}\n",
+            robust.len(),
+            cells_table(&robust)
+        );
+    }
+    out
+}
+
+/// The cells as a table, each one behind marked.
+fn cells_table(cells: &[Cliff]) -> String {
     let mut t = Table::new([
         ("scene", Left),
         ("class", Left),
@@ -130,7 +164,7 @@ pub fn markdown(points: &[LibraryPoint]) -> String {
         ("time / best peer's", Right),
         ("time / Embree's best", Right),
     ]);
-    for c in &cells {
+    for c in cells {
         t.row([
             c.scene.clone(),
             c.class.unwrap_or("given").to_string(),
@@ -147,12 +181,7 @@ pub fn markdown(points: &[LibraryPoint]) -> String {
             format!("{:.2}", c.over_embree),
         ]);
     }
-    let behind = cells.iter().filter(|c| c.behind()).count();
-    format!(
-        "### Where raylab is behind\n\n{behind} of {} cells behind: raylab's fastest backend and path against the fastest other one (Embree on any path, tinybvh, obvhs, the bvh crate) per scene and ray kind, one thread, the same rays (the table below has every backend). Above 1.00 raylab takes longer per ray.\n\n{}\n",
-        cells.len(),
-        t.markdown()
-    )
+    t.markdown()
 }
 
 #[cfg(test)]
@@ -166,6 +195,7 @@ mod tests {
             triangles: 1,
             backend: backend.into(),
             family,
+            robust: backend.contains("watertight") || backend.contains("robust"),
             build_ms: Stat::of(&[1.0]),
             mrays: mrays.into_iter().chain([f64::NAN, 1.0]).collect(),
             paths: vec!["single".into(); KINDS.len()],
@@ -227,5 +257,57 @@ mod tests {
         let md = markdown(&points);
         assert!(md.contains("2 of 4 cells behind"), "{md}");
         assert!(md.contains("**1.25 behind**"), "{md}");
+        // No robust peer: no robust table.
+        assert!(robust_cliffs(&points).is_empty());
+        assert!(!md.contains("Robust paths"), "{md}");
+    }
+
+    /// The robust table sets raylab's watertight paths against Embree's
+    /// robust mode alone, whatever the faster plain paths do.
+    #[test]
+    fn robust_cells_compare_the_watertight_paths_alone() {
+        let points = [
+            point(
+                "rooms",
+                "bvh8-sah",
+                Family::Raylab,
+                [90.0, 90.0, 90.0, 90.0],
+            ),
+            point(
+                "rooms",
+                "bvh8-sah-watertight",
+                Family::Raylab,
+                [5.0, 50.0, 30.0, 1.0],
+            ),
+            point(
+                "rooms",
+                "embree-medium",
+                Family::Embree,
+                [99.0, 99.0, 99.0, 99.0],
+            ),
+            point(
+                "rooms",
+                "embree-medium-robust",
+                Family::Embree,
+                [10.0, 40.0, 20.0, 2.0],
+            ),
+        ];
+        let robust = robust_cliffs(&points);
+        let behind: Vec<&str> = robust
+            .iter()
+            .filter(|c| c.behind())
+            .map(|c| c.kind)
+            .collect();
+        assert_eq!(behind, ["primary", "diffuse"]);
+        assert_eq!(robust[0].raylab, "bvh8-sah-watertight single");
+        assert_eq!(robust[0].peer, "embree-medium-robust single");
+        assert_eq!(robust[1].over_peer, 40.0 / 50.0);
+        let md = markdown(&points);
+        assert!(md.contains("### Robust paths"), "{md}");
+        assert!(
+            md.contains("2 of 4 cells behind: raylab's fastest path with the watertight test"),
+            "{md}"
+        );
+        assert!(md.contains("**2.00 behind**"), "{md}");
     }
 }

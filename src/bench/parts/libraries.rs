@@ -63,6 +63,8 @@ pub struct LibraryPoint {
     pub backend: String,
     /// Whose it is (`raylab`, `embree`, or the library's name).
     pub family: Family,
+    /// Whether its triangle test is watertight ([`BackendSpec::is_robust`]).
+    pub robust: bool,
     /// Median build ms on one thread (after an untimed build).
     pub build_ms: Stat,
     /// Mrays/s on one thread per kind, in [`KINDS`] order, on the query
@@ -254,6 +256,7 @@ fn not_built(scene: &Scene, spec: &BackendSpec, why: String) -> LibraryPoint {
         triangles: scene.triangle_count(),
         backend: spec.structure_name(),
         family: Family::of(spec),
+        robust: spec.is_robust(),
         build_ms: Stat::of(&[]),
         mrays: vec![f64::NAN; KINDS.len()],
         paths: vec![String::new(); KINDS.len()],
@@ -426,6 +429,7 @@ fn judged(
         triangles: scene.triangle_count(),
         backend: built.spec.structure_name(),
         family: Family::of(&built.spec),
+        robust: built.spec.is_robust(),
         build_ms,
         mrays,
         paths,
