@@ -15,9 +15,9 @@ use super::super::simd::{
 };
 #[cfg(target_arch = "x86_64")]
 use super::super::simd_lanes::Lanes;
-#[cfg(target_arch = "x86_64")]
-use super::super::simd_packet::SimdPacket;
 use super::super::simd_packet::{bits, PacketKernel, PerRay, PACKET, PACKET16};
+#[cfg(target_arch = "x86_64")]
+use super::super::simd_packet::{GrownPacket, SimdPacket};
 use super::super::simd_stack::{nearest_lane, push_by_distance, ChildStack};
 use super::super::traverse::{Counter, Traversal};
 use super::node::{for_leaf_blocks, leaf_slots, WideBvh, LEAF};
@@ -430,8 +430,9 @@ impl WideBvh<8> {
         }
     }
 
-    /// Query `Q` with the rays in the lanes `lanes` (Moller-Trumbore), or
-    /// each ray with the AVX2 single-ray kernels (the watertight test).
+    /// Query `Q` with the rays in the lanes `lanes`: Moller-Trumbore on
+    /// the lanes too, or the watertight test ray by ray at the leaves
+    /// (`GrownPacket`, its node tests on the lanes).
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
     fn packet_simd<Q: PacketQuery, T: BlockTest, L: Lanes<R>, const R: usize>(
@@ -444,7 +445,11 @@ impl WideBvh<8> {
         if T::IS_MOLLER_TRUMBORE {
             self.packet_stack::<Q, Avx2, T, _, R>(single, SimdPacket(lanes), rays, out)
         } else {
-            self.packet_stack::<Q, Avx2, T, _, R>(single, PerRay::<_, T>::new(single), rays, out)
+            let packet = GrownPacket {
+                lanes,
+                per_ray: PerRay::<_, T>::new(single),
+            };
+            self.packet_stack::<Q, Avx2, T, _, R>(single, packet, rays, out)
         }
     }
 }
