@@ -177,6 +177,13 @@ impl Aabb {
     #[inline]
     pub fn intersect(&self, ray: &SlabRay, tmin: f32, tmax: f32) -> Option<f32> {
         let (d0, d1) = (self.min - ray.from_min, self.max - ray.from_max);
+        Self::slab_entry(d0, d1, ray, tmin, tmax)
+    }
+
+    /// The entry distance from the minimum and maximum planes' distances
+    /// from the ray's origins (`d0`, `d1`), if it is not past the exit.
+    #[inline(always)]
+    fn slab_entry(d0: Vec3, d1: Vec3, ray: &SlabRay, tmin: f32, tmax: f32) -> Option<f32> {
         let (t0, t1) = (d0 * ray.inv_dir, d1 * ray.inv_dir);
         let (f0, f1) = (d0 * ray.inv_far, d1 * ray.inv_far);
         let near = t0.min(t1).max_element().max(tmin);
@@ -197,16 +204,7 @@ impl Aabb {
     pub fn intersect_grown(&self, ray: &SlabRay, tmin: f32, tmax: f32) -> Option<f32> {
         let (d0, d1) = (self.min - ray.from_min, self.max - ray.from_max);
         let grow = Vec3::splat(d0.abs().max(d1.abs()).max_element() * BOX_GROWTH);
-        let (d0, d1) = (d0 - grow, d1 + grow);
-        let (t0, t1) = (d0 * ray.inv_dir, d1 * ray.inv_dir);
-        let (f0, f1) = (d0 * ray.inv_far, d1 * ray.inv_far);
-        let near = t0.min(t1).max_element().max(tmin);
-        let far = f0.max(f1).min_element().min(tmax);
-        if near <= far {
-            Some(near)
-        } else {
-            None
-        }
+        Self::slab_entry(d0 - grow, d1 + grow, ray, tmin, tmax)
     }
 }
 

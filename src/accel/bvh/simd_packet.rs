@@ -532,6 +532,29 @@ pub struct SoaRays<L: Lanes<R>, const R: usize> {
 }
 
 #[cfg(target_arch = "x86_64")]
+impl<L: Lanes<R>, const R: usize> SoaRays<L, R> {
+    /// SlabRay's origins per axis, the minimum planes' and the maximum
+    /// planes': the rays' own, moved by above_plane's and below_plane's
+    /// operations in the lanes of rays lying in a plane of the axis.
+    #[inline(always)]
+    fn slab_origins(&self, l: L) -> ([L::F; 3], [L::F; 3]) {
+        let (mut from_min, mut from_max) = (self.origin, self.origin);
+        if self.in_plane {
+            let (eps, reach) = (l.splat(f32::EPSILON), l.splat(IN_PLANE_REACH));
+            let zero = l.splat(0.0);
+            for a in 0..3 {
+                let o = self.origin[a];
+                let step = l.max(l.mul(l.abs(o), eps), reach);
+                let flat = l.eq(self.dir[a], zero);
+                from_min[a] = l.blend(flat, o, l.add(o, step));
+                from_max[a] = l.blend(flat, o, l.sub(o, step));
+            }
+        }
+        (from_min, from_max)
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
 impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
     type Rays = SoaRays<L, R>;
 
@@ -704,21 +727,7 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
             // planes per axis, each measured from its own origin
             // (`SlabRay`), each ray's chosen by a blend.
             _ => {
-                // SlabRay's origins: the ray's, moved by above_plane's and
-                // below_plane's operations in the lanes of rays lying in a
-                // plane of the axis.
-                let (mut from_min, mut from_max) = (p.origin, p.origin);
-                if p.in_plane {
-                    let (eps, reach) = (l.splat(f32::EPSILON), l.splat(IN_PLANE_REACH));
-                    let zero = l.splat(0.0);
-                    for a in 0..3 {
-                        let o = p.origin[a];
-                        let step = l.max(l.mul(l.abs(o), eps), reach);
-                        let flat = l.eq(p.dir[a], zero);
-                        from_min[a] = l.blend(flat, o, l.add(o, step));
-                        from_max[a] = l.blend(flat, o, l.sub(o, step));
-                    }
-                }
+                let (from_min, from_max) = p.slab_origins(l);
                 macro_rules! blended {
                     ($a:expr, $c:expr) => {{
                         // Each plane's offset once, times the near and the
@@ -1021,19 +1030,7 @@ impl<L: Lanes<R>, K: NodeKernel<8>, T: BlockTest, const R: usize> PacketKernel<R
         let tmax = l.load(tmax);
         let live = l.mask(active);
         let b = &node.bounds;
-        // SlabRay's origins, as SimdPacket's blended test makes them.
-        let (mut from_min, mut from_max) = (s.origin, s.origin);
-        if s.in_plane {
-            let (eps, reach) = (l.splat(f32::EPSILON), l.splat(IN_PLANE_REACH));
-            let zero = l.splat(0.0);
-            for a in 0..3 {
-                let o = s.origin[a];
-                let step = l.max(l.mul(l.abs(o), eps), reach);
-                let flat = l.eq(s.dir[a], zero);
-                from_min[a] = l.blend(flat, o, l.add(o, step));
-                from_max[a] = l.blend(flat, o, l.sub(o, step));
-            }
-        }
+        let (from_min, from_max) = s.slab_origins(l);
         let (growth, cap) = (l.splat(BOX_GROWTH), l.splat(f32::MAX));
         // Macros, not closures (see `Frustum::children`).
         macro_rules! planes {
