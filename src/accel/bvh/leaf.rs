@@ -290,13 +290,13 @@ pub fn watertight4(w: &WatertightRay, ray: &Ray, block: &Tri4) -> Hits4 {
         u: e1 * inv,
         v: e2 * inv,
     };
-    for lane in bits4(near.bitmask() & mask) {
+    for lane in bits(near.bitmask() & mask) {
         if !ahead_of_origin(ray, &block.triangle(lane)) {
             mask &= !(1 << lane);
         }
     }
     hits.mask = mask;
-    for lane in bits4(exact_zero) {
+    for lane in bits(exact_zero) {
         if let Some((t, u, v)) = Watertight::test(w, ray, &block.triangle(lane)) {
             hits.mask |= 1 << lane;
             hits.t[lane] = t;
@@ -307,14 +307,15 @@ pub fn watertight4(w: &WatertightRay, ray: &Ray, block: &Tri4) -> Hits4 {
     hits
 }
 
-/// The set bits of a four-lane mask, lowest first.
+/// The set bits of a mask, lowest first: the lanes, rays or children it
+/// selects.
 #[inline(always)]
-fn bits4(mut mask: u32) -> impl Iterator<Item = usize> {
+pub fn bits(mut mask: u32) -> impl Iterator<Item = usize> {
     std::iter::from_fn(move || {
         (mask != 0).then(|| {
-            let lane = mask.trailing_zeros() as usize;
+            let bit = mask.trailing_zeros() as usize;
             mask &= mask - 1;
-            lane
+            bit
         })
     })
 }

@@ -30,7 +30,7 @@ use std::marker::PhantomData;
 
 use arrayvec::ArrayVec;
 
-use super::leaf::{BlockTest, Ray4, Tri4, EMPTY_ID};
+use super::leaf::{bits, BlockTest, Ray4, Tri4, EMPTY_ID};
 use super::params::{CULL_SLACK, SLAB_SLACK};
 #[cfg(target_arch = "x86_64")]
 use super::simd::Avx2;
@@ -55,18 +55,6 @@ pub const PACKET16: usize = 16;
 /// division: far above the division's rounding (2^-23), so a lane it stops
 /// is one the full test rejects.
 const U_MARGIN: f32 = 1.0 / (1 << 20) as f32;
-
-/// The bits of `mask`, lowest first.
-#[inline(always)]
-pub fn bits(mut mask: u32) -> impl Iterator<Item = usize> {
-    std::iter::from_fn(move || {
-        (mask != 0).then(|| {
-            let bit = mask.trailing_zeros() as usize;
-            mask &= mask - 1;
-            bit
-        })
-    })
-}
 
 /// Bounds on a packet's rays that let one 8-lane test per node skip the
 /// children no ray of the packet can enter (the frustum test of Embree's

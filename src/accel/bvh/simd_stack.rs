@@ -36,10 +36,10 @@
 
 use std::mem::MaybeUninit;
 
+use super::leaf::bits;
 #[cfg(target_arch = "x86_64")]
 use super::simd::Avx2;
 use super::simd::NodeKernel;
-use super::simd_packet::bits;
 use super::wide::WideNode;
 
 /// Pending children and their entry distances, at most `S`.

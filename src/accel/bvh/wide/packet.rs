@@ -24,12 +24,12 @@
 
 use arrayvec::ArrayVec;
 
-use super::super::leaf::BlockTest;
+use super::super::leaf::{bits, BlockTest};
 use super::super::params::{
     CULL_SLACK, DEEP_STACK, PACKET_MIN_RAYS, PACKET_MIN_RAYS_INCOHERENT, SLAB_SLACK,
 };
 use super::super::simd::NodeKernel;
-use super::super::simd_packet::{bits, PacketHits, PacketKernel};
+use super::super::simd_packet::{PacketHits, PacketKernel};
 use super::super::simd_stack::nearest_lane;
 use super::super::traverse::NoCount;
 use super::node::{for_leaf_blocks, WideBvh, LEAF};

@@ -8,16 +8,16 @@
 
 use arrayvec::ArrayVec;
 
-use super::super::leaf::{BlockTest, Ray4, LANES};
+use super::super::leaf::{bits, BlockTest, Ray4, LANES};
 use super::super::params::{CULL_SLACK, DEEP_STACK, SLAB_SLACK, STACK};
 use super::super::simd::{
     prefetch, Avx2, Avx2Fused, Avx512, Kernel, NodeKernel, Portable, WideRay,
 };
 #[cfg(target_arch = "x86_64")]
 use super::super::simd_lanes::Lanes;
-use super::super::simd_packet::{bits, PacketKernel, PerRay, PACKET, PACKET16};
 #[cfg(target_arch = "x86_64")]
 use super::super::simd_packet::{GrownPacket, SimdPacket};
+use super::super::simd_packet::{PacketKernel, PerRay, PACKET, PACKET16};
 use super::super::simd_stack::{nearest_lane, push_by_distance, ChildStack};
 use super::super::traverse::{Counter, Traversal};
 use super::node::{for_leaf_blocks, leaf_slots, WideBvh, LEAF};
