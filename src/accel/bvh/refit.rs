@@ -340,7 +340,7 @@ impl<const N: usize> WideBvh<N> {
         if !refit_depth_first(&mut self.nodes, &self.blocks, depth, threads) {
             self.refit_nodes_any_layout();
         }
-        self.fit_to_root();
+        self.fit_fused_reach();
         Ok(())
     }
 
@@ -435,7 +435,7 @@ mod tests {
     /// about 12 ulps of the coordinates, is 6 times the triangles' size)
     /// does not, whether built there or refitted there.
     #[test]
-    fn the_fused_reach_follows_the_tree_through_builds_and_refits() {
+    fn the_fused_tests_reach_follows_the_tree_through_builds_and_refits() {
         use crate::accel::bvh::params::Quality;
         use crate::accel::bvh::params::FUSED_ORIGIN_REACH;
         let near: Vec<[Vec3; 3]> = random_tris(600, 5)

@@ -747,7 +747,7 @@ pub(super) fn finish_bounding<const N: usize, T: Triangles + ?Sized>(
         };
         boxes[s] = layout.write_bounded(s, nodes, blocks, triangles, child_box);
     }
-    out.fit_to_root();
+    out.fit_fused_reach();
     Ok(out)
 }
 
@@ -762,7 +762,7 @@ pub(super) fn finish<const N: usize, T: Triangles + ?Sized>(
     let (mut out, mut layout) = laid_out(built, kernel)?;
     out.blocks = layout.blocks(triangles, parallel);
     out.nodes = layout.nodes(parallel);
-    out.fit_to_root();
+    out.fit_fused_reach();
     Ok(out)
 }
 

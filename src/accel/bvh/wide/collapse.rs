@@ -91,7 +91,7 @@ impl<const N: usize> WideBvh<N> {
         } else {
             sources.chunks(LANES).map(block).collect()
         };
-        out.fit_to_root();
+        out.fit_fused_reach();
         Ok(out)
     }
 

@@ -160,7 +160,7 @@ fn probe_tree(kernel: Kernel, nodes: usize, blocks: usize) -> WideBvh<8> {
     tree.stack_need = 2;
     // As a built tree: single rays take the fused node test where the
     // kernel has it.
-    tree.fit_to_root();
+    tree.fit_fused_reach();
     tree
 }
 

@@ -259,7 +259,7 @@ pub struct WideBvh<const N: usize> {
     /// The largest origin coordinate (by magnitude) a single ray may have
     /// for the walk to take the fused node test; minus infinity (no ray)
     /// when the boxes themselves lie too far from the origin for their size
-    /// ([`FUSED_ORIGIN_REACH`]). Set by [`WideBvh::fit_to_root`] when
+    /// ([`FUSED_ORIGIN_REACH`]). Set by [`WideBvh::fit_fused_reach`] when
     /// a tree is built or refitted; minus infinity until then, which only
     /// costs speed.
     pub fused_origin_limit: f32,
@@ -283,12 +283,11 @@ impl<const N: usize> WideBvh<N> {
         }
     }
 
-    /// Sets [`Self::fused_origin_limit`] from the root's box:
-    /// rays from within [`FUSED_ORIGIN_REACH`] times its largest extent of
-    /// the origin, if the box itself lies within that reach; none otherwise
-    /// (an empty tree, or a small scene far from the origin). Called when a
-    /// tree is built or refitted.
-    pub(crate) fn fit_to_root(&mut self) {
+    /// Sets [`Self::fused_origin_limit`] from the root's box: rays from
+    /// within [`FUSED_ORIGIN_REACH`] times its largest extent of the origin,
+    /// if the box itself lies within that reach; none otherwise (an empty
+    /// tree, or a small scene far from the origin).
+    pub(crate) fn fit_fused_reach(&mut self) {
         self.fused_origin_limit = f32::NEG_INFINITY;
         let Some(root) = self.nodes.first() else {
             return;
