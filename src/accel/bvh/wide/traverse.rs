@@ -21,7 +21,7 @@ use super::super::simd_packet::{PacketKernel, PerRay, PACKET, PACKET16};
 use super::super::simd_stack::{nearest_lane, push_by_distance, ChildStack};
 use super::super::traverse::{Counter, Traversal};
 use super::node::{for_leaf_blocks, leaf_slots, WideBvh, LEAF};
-use crate::geometry::{Hit, Ray, SlabRay};
+use crate::geometry::{Hit, Ray, SlabRay, TriangleTest};
 
 impl<const N: usize> WideBvh<N> {
     /// Starts loading what `child` refers to: a node, or a leaf's first block.
@@ -702,6 +702,19 @@ impl Avx2 {
     }
 }
 
+/// The ray for the fused kernel where the ray allows it
+/// ([`WideRay::fused`]) and test `T` does not grow the boxes (the fused
+/// kernel has no grown form: such tests take the unfused kernel's).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn fused_ray<T: TriangleTest>(bvh: &WideBvh<8>, slab: &SlabRay) -> Option<WideRay> {
+    if T::GROWS_BOXES {
+        None
+    } else {
+        WideRay::fused(slab, bvh.fused_origin_limit)
+    }
+}
+
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma,bmi1,popcnt")]
 fn closest_avx2<T: BlockTest, C: Counter, const S: usize>(
@@ -719,13 +732,8 @@ fn closest_avx2<T: BlockTest, C: Counter, const S: usize>(
     // registers), and the ray made for the one chosen only (making both
     // cost short rays their gain, docs/results.md). The packets' last rays
     // keep the unfused kernel: with the fused one their packets lost 1-8%.
-    // A test that grows the boxes takes the unfused kernel's grown form.
     let slab = SlabRay::new(ray);
-    let fused = match T::GROWS_BOXES {
-        true => None,
-        false => WideRay::fused(&slab, bvh.fused_origin_limit),
-    };
-    match fused {
+    match fused_ray::<T>(bvh, &slab) {
         Some(wray) => {
             bvh.closest_walk::<_, T, C, S>(Avx2Fused(kernel), ray, &wray, 0, None, counter)
         }
@@ -746,11 +754,7 @@ fn any_avx2<T: BlockTest, C: Counter, const S: usize>(
     }
     // As `closest_avx2` chooses.
     let slab = SlabRay::new(ray);
-    let fused = match T::GROWS_BOXES {
-        true => None,
-        false => WideRay::fused(&slab, bvh.fused_origin_limit),
-    };
-    match fused {
+    match fused_ray::<T>(bvh, &slab) {
         Some(wray) => bvh.any_walk::<_, T, C, S>(Avx2Fused(kernel), ray, &wray, 0, counter),
         None => bvh.any_walk::<_, T, C, S>(kernel, ray, &WideRay::new(&slab), 0, counter),
     }
