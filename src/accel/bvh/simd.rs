@@ -298,14 +298,26 @@ pub fn slab_test_scalar<const N: usize>(
         let entry =
             |a: usize| (node.bounds[ray.near[a]][lane] - ray.near_origin[a]) * ray.inv_dir[a];
         let exit = |a: usize| (node.bounds[ray.far[a]][lane] - ray.far_origin[a]) * ray.inv_far[a];
-        let n = entry(0).max(entry(1)).max(entry(2).max(tmin));
-        let f = exit(0).min(exit(1)).min(exit(2).min(tmax));
-        if n <= f {
-            mask |= 1 << lane;
-        }
+        let (hit, n) = overlap(
+            [entry(0), entry(1), entry(2)],
+            [exit(0), exit(1), exit(2)],
+            tmin,
+            tmax,
+        );
+        mask |= (hit as u32) << lane;
         *slot = n;
     }
     (mask, near)
+}
+
+/// Whether a lane's box overlaps `(tmin, tmax)`, from its three entry and
+/// exit distances, and its entry distance: the reduction of the scalar
+/// references, in the kernels' order.
+#[inline(always)]
+fn overlap(entry: [f32; 3], exit: [f32; 3], tmin: f32, tmax: f32) -> (bool, f32) {
+    let n = entry[0].max(entry[1]).max(entry[2].max(tmin));
+    let f = exit[0].min(exit[1]).min(exit[2].min(tmax));
+    (n <= f, n)
 }
 
 /// The bits of [`f32::MAX`], the cap on a lane's farthest distance in the
@@ -345,11 +357,13 @@ pub fn grown_slab_test_scalar<const N: usize>(
         let m = f32::from_bits(m.min(FARTHEST_CAP));
         let entry = |a: usize| (-m).mul_add(ray.grow[a], dn[a]) * ray.inv_dir[a];
         let exit = |a: usize| m.mul_add(ray.grow[a], df[a]) * ray.inv_far[a];
-        let n = entry(0).max(entry(1)).max(entry(2).max(tmin));
-        let f = exit(0).min(exit(1)).min(exit(2).min(tmax));
-        if n <= f {
-            mask |= 1 << lane;
-        }
+        let (hit, n) = overlap(
+            [entry(0), entry(1), entry(2)],
+            [exit(0), exit(1), exit(2)],
+            tmin,
+            tmax,
+        );
+        mask |= (hit as u32) << lane;
         *slot = n;
     }
     (mask, near)
