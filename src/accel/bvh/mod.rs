@@ -28,6 +28,8 @@ pub mod simd;
 pub(crate) mod simd_lanes;
 pub(crate) mod simd_packet;
 pub(crate) mod simd_stack;
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod simd_watertight;
 pub(crate) mod traverse;
 pub(crate) mod tree;
 pub(crate) mod two_level;

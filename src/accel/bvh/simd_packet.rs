@@ -37,6 +37,8 @@ use super::simd::Avx2;
 use super::simd::{NodeKernel, WideRay};
 #[cfg(target_arch = "x86_64")]
 use super::simd_lanes::Lanes;
+#[cfg(target_arch = "x86_64")]
+use super::simd_watertight::WatertightLanes;
 use super::wide::WideNode;
 #[cfg(target_arch = "x86_64")]
 use super::wide::EMPTY;
@@ -757,67 +759,12 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
         tmax: &[f32; R],
         hits: &mut PacketHits<R>,
     ) -> u32 {
-        let l = self.0;
-        // The hits and the rays' `tmax` stay in registers through the
-        // block: a lane takes a triangle's hit where it is closer by
-        // `Hit::is_closer_than` (t below, or equal with a lower index; the
-        // index compare unsigned, as `u32`'s), and its `tmax` becomes the
-        // hit's `t.next_up()`: for the positive `t` a hit has (above
-        // `tmin >= 0`), the next float up is the bits plus one.
-        let mut limit = l.load(tmax);
-        let mut best_t = l.load(&hits.t);
-        let mut best_u = l.load(&hits.u);
-        let mut best_v = l.load(&hits.v);
-        let mut best_tri = l.load_u32(&hits.tri);
-        let live = l.mask(active);
-        let mut changed = l.mask(0);
-        for i in bits(in_leaf) {
-            let id = block.ids[i];
-            if id == EMPTY_ID {
-                continue;
-            }
-            let (ok, t, u, v) = self.triangle(block, i, p, limit);
-            let found = l.and(ok, live);
-            if l.bits(found) == 0 {
-                continue;
-            }
-            let idv = l.splat_u32(id);
-            let closer = l.or(
-                l.and(found, l.lt(t, best_t)),
-                l.and(l.and(found, l.eq(t, best_t)), l.lt_u32(idv, best_tri)),
-            );
-            best_t = l.blend(closer, best_t, t);
-            best_u = l.blend(closer, best_u, u);
-            best_v = l.blend(closer, best_v, v);
-            best_tri = l.blend_u32(closer, best_tri, idv);
-            limit = l.blend(closer, limit, l.bits_plus_one(t));
-            changed = l.or(changed, closer);
-        }
-        let changed = l.bits(changed);
-        if changed != 0 {
-            hits.t = l.store(best_t);
-            hits.u = l.store(best_u);
-            hits.v = l.store(best_v);
-            l.store_u32(&mut hits.tri, best_tri);
-        }
-        changed
+        closest_in_block(self.0, p, block, in_leaf, active, tmax, hits)
     }
 
-    /// The rays of `active` that hit a lane `in_leaf` of `block` within
-    /// `(tmin, tmax)`, one triangle at a time.
     #[inline(always)]
     fn leaf_any(self, block: &Tri4, in_leaf: u32, p: &Self::Rays, active: u32) -> u32 {
-        let mut hit = 0;
-        for i in bits(in_leaf) {
-            if block.ids[i] == EMPTY_ID {
-                continue;
-            }
-            hit |= self.0.bits(self.triangle(block, i, p, p.tmax).0) & active & !hit;
-            if hit == active {
-                break;
-            }
-        }
-        hit
+        any_in_block(self.0, p, block, in_leaf, active)
     }
 
     #[inline(always)]
@@ -838,6 +785,130 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
         let l = self.0;
         l.bits(l.le(l.splat(near), l.load(cut)))
     }
+}
+
+/// A triangle test across a packet's ray lanes, for [`closest_in_block`]
+/// and [`any_in_block`]: Moller-Trumbore ([`SoaRays`]) or the watertight
+/// test ([`GrownRays`]).
+#[cfg(target_arch = "x86_64")]
+trait LaneTriangles<L: Lanes<R>, const R: usize> {
+    /// The rays of `live` (at least; other lanes may be set too) that hit
+    /// lane `i` of `block` within their `tmin` and their lane of `tmax`,
+    /// and each lane's t, u and v (meaningful where they hit).
+    fn triangle(
+        &self,
+        l: L,
+        block: &Tri4,
+        i: usize,
+        live: L::M,
+        tmax: L::F,
+    ) -> (L::M, L::F, L::F, L::F);
+    /// The rays' own `tmax`.
+    fn tmax(&self) -> L::F;
+}
+
+#[cfg(target_arch = "x86_64")]
+impl<L: Lanes<R>, const R: usize> LaneTriangles<L, R> for SoaRays<L, R> {
+    #[inline(always)]
+    fn triangle(
+        &self,
+        l: L,
+        block: &Tri4,
+        i: usize,
+        _: L::M,
+        tmax: L::F,
+    ) -> (L::M, L::F, L::F, L::F) {
+        SimdPacket(l).triangle(block, i, self, tmax)
+    }
+
+    #[inline(always)]
+    fn tmax(&self) -> L::F {
+        self.tmax
+    }
+}
+
+/// [`PacketKernel::leaf_closest`] with the lane test of `p`, one triangle
+/// at a time for every ray.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn closest_in_block<L: Lanes<R>, P: LaneTriangles<L, R>, const R: usize>(
+    l: L,
+    p: &P,
+    block: &Tri4,
+    in_leaf: u32,
+    active: u32,
+    tmax: &[f32; R],
+    hits: &mut PacketHits<R>,
+) -> u32 {
+    // The hits and the rays' `tmax` stay in registers through the
+    // block: a lane takes a triangle's hit where it is closer by
+    // `Hit::is_closer_than` (t below, or equal with a lower index; the
+    // index compare unsigned, as `u32`'s), and its `tmax` becomes the
+    // hit's `t.next_up()`: for the positive `t` a hit has (above
+    // `tmin >= 0`), the next float up is the bits plus one.
+    let mut limit = l.load(tmax);
+    let mut best_t = l.load(&hits.t);
+    let mut best_u = l.load(&hits.u);
+    let mut best_v = l.load(&hits.v);
+    let mut best_tri = l.load_u32(&hits.tri);
+    let live = l.mask(active);
+    let mut changed = l.mask(0);
+    for i in bits(in_leaf) {
+        let id = block.ids[i];
+        if id == EMPTY_ID {
+            continue;
+        }
+        let (ok, t, u, v) = p.triangle(l, block, i, live, limit);
+        let found = l.and(ok, live);
+        if l.bits(found) == 0 {
+            continue;
+        }
+        let idv = l.splat_u32(id);
+        let closer = l.or(
+            l.and(found, l.lt(t, best_t)),
+            l.and(l.and(found, l.eq(t, best_t)), l.lt_u32(idv, best_tri)),
+        );
+        best_t = l.blend(closer, best_t, t);
+        best_u = l.blend(closer, best_u, u);
+        best_v = l.blend(closer, best_v, v);
+        best_tri = l.blend_u32(closer, best_tri, idv);
+        limit = l.blend(closer, limit, l.bits_plus_one(t));
+        changed = l.or(changed, closer);
+    }
+    let changed = l.bits(changed);
+    if changed != 0 {
+        hits.t = l.store(best_t);
+        hits.u = l.store(best_u);
+        hits.v = l.store(best_v);
+        l.store_u32(&mut hits.tri, best_tri);
+    }
+    changed
+}
+
+/// [`PacketKernel::leaf_any`] with the lane test of `p`: the rays of
+/// `active` that hit a lane `in_leaf` of `block` within their segment, one
+/// triangle at a time.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn any_in_block<L: Lanes<R>, P: LaneTriangles<L, R>, const R: usize>(
+    l: L,
+    p: &P,
+    block: &Tri4,
+    in_leaf: u32,
+    active: u32,
+) -> u32 {
+    let mut hit = 0;
+    for i in bits(in_leaf) {
+        if block.ids[i] == EMPTY_ID {
+            continue;
+        }
+        let live = l.mask(active & !hit);
+        hit |= l.bits(p.triangle(l, block, i, live, p.tmax()).0) & active & !hit;
+        if hit == active {
+            break;
+        }
+    }
+    hit
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -951,46 +1022,57 @@ impl<L> SimdPacket<L> {
 /// The watertight test's packets: [`SimdPacket`]'s node test across the
 /// rays' lanes with every box grown as
 /// [`NodeKernel::intersect_grown`] grows it (by [`BOX_GROWTH`] of its
-/// farthest distance from each ray's origin), and each ray's own block test
-/// at the leaves ([`PerRay`]'s, four triangles at once). No frustum: its
+/// farthest distance from each ray's origin), and the watertight test
+/// across the lanes at the leaves ([`WatertightLanes`]). No frustum: its
 /// bounds are for the exact boxes. Before it each ray of a watertight
 /// packet walked the tree with the single-ray kernels, and the packets were
-/// slower than single rays.
+/// slower than single rays; then each ray tested the leaves on its own,
+/// four triangles at a time, and the packets spent 4-5x Moller-Trumbore
+/// packets' time on coherent rays. Only for [`Watertight`](crate::geometry::Watertight)
+/// (its leaves are that test, whatever block test the traversal's
+/// single-ray finish uses).
 #[cfg(target_arch = "x86_64")]
-pub struct GrownPacket<L, K, T> {
-    pub lanes: L,
-    pub per_ray: PerRay<K, T>,
+#[derive(Clone, Copy, Debug)]
+pub struct GrownPacket<L>(pub L);
+
+/// A packet for [`GrownPacket`]: by lanes for the node tests, and for the
+/// watertight test.
+#[cfg(target_arch = "x86_64")]
+pub struct GrownRays<L: Lanes<R>, const R: usize> {
+    soa: SoaRays<L, R>,
+    watertight: WatertightLanes<L, R>,
 }
 
 #[cfg(target_arch = "x86_64")]
-impl<L: Copy, K: Copy, T> Clone for GrownPacket<L, K, T> {
-    fn clone(&self) -> Self {
-        *self
+impl<L: Lanes<R>, const R: usize> LaneTriangles<L, R> for GrownRays<L, R> {
+    #[inline(always)]
+    fn triangle(
+        &self,
+        l: L,
+        block: &Tri4,
+        i: usize,
+        live: L::M,
+        tmax: L::F,
+    ) -> (L::M, L::F, L::F, L::F) {
+        self.watertight.triangle(l, block, i, live, tmax)
+    }
+
+    #[inline(always)]
+    fn tmax(&self) -> L::F {
+        self.soa.tmax
     }
 }
-#[cfg(target_arch = "x86_64")]
-impl<L: Copy, K: Copy, T> Copy for GrownPacket<L, K, T> {}
-
-/// A packet for [`GrownPacket`]: by lanes for the node tests, ray by ray
-/// for the leaves.
-#[cfg(target_arch = "x86_64")]
-pub struct GrownRays<L: Lanes<R>, P, const R: usize> {
-    soa: SoaRays<L, R>,
-    rays: ArrayVec<Lane<P>, R>,
-}
 
 #[cfg(target_arch = "x86_64")]
-impl<L: Lanes<R>, K: NodeKernel<8>, T: BlockTest, const R: usize> PacketKernel<R>
-    for GrownPacket<L, K, T>
-{
-    type Rays = GrownRays<L, T::Prepared, R>;
+impl<L: Lanes<R>, const R: usize> PacketKernel<R> for GrownPacket<L> {
+    type Rays = GrownRays<L, R>;
 
     #[inline(always)]
     fn prepare(self, rays: &[Ray]) -> (Self::Rays, u32) {
-        let (mut soa, valid) = SimdPacket(self.lanes).prepare(rays);
+        let (mut soa, valid) = SimdPacket(self.0).prepare(rays);
         soa.frustum = None;
-        let (each, _) = PacketKernel::<R>::prepare(self.per_ray, rays);
-        (GrownRays { soa, rays: each }, valid)
+        let watertight = WatertightLanes::new(self.0, rays);
+        (GrownRays { soa, watertight }, valid)
     }
 
     /// Whether the rays agree in sign on every axis.
@@ -1007,7 +1089,7 @@ impl<L: Lanes<R>, K: NodeKernel<8>, T: BlockTest, const R: usize> PacketKernel<R
         active: u32,
         tmax: &[f32; R],
     ) -> NodeHits {
-        let (l, s) = (self.lanes, &p.soa);
+        let (l, s) = (self.0, &p.soa);
         let mut out = NodeHits {
             rays: [0; 8],
             near: [f32::INFINITY; 8],
@@ -1080,13 +1162,12 @@ impl<L: Lanes<R>, K: NodeKernel<8>, T: BlockTest, const R: usize> PacketKernel<R
         tmax: &[f32; R],
         hits: &mut PacketHits<R>,
     ) -> u32 {
-        self.per_ray
-            .leaf_closest(block, in_leaf, &p.rays, active, tmax, hits)
+        closest_in_block(self.0, p, block, in_leaf, active, tmax, hits)
     }
 
     #[inline(always)]
     fn leaf_any(self, block: &Tri4, in_leaf: u32, p: &Self::Rays, active: u32) -> u32 {
-        self.per_ray.leaf_any(block, in_leaf, &p.rays, active)
+        any_in_block(self.0, p, block, in_leaf, active)
     }
 }
 
@@ -1299,10 +1380,7 @@ mod tests {
             macro_rules! check {
                 ($lanes:expr, $width:expr, $rays:expr) => {{
                     let rays: &[Ray] = $rays;
-                    let packet = GrownPacket {
-                        lanes: $lanes,
-                        per_ray: PerRay::<Avx2, Watertight>::new(avx2),
-                    };
+                    let packet = GrownPacket($lanes);
                     let (want_p, active) = PacketKernel::<$width>::prepare(grown, rays);
                     let (exact_p, _) = PacketKernel::<$width>::prepare(exact, rays);
                     let (got_p, got_active) = PacketKernel::<$width>::prepare(packet, rays);

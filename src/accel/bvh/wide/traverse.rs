@@ -431,8 +431,8 @@ impl WideBvh<8> {
     }
 
     /// Query `Q` with the rays in the lanes `lanes`: Moller-Trumbore on
-    /// the lanes too, or the watertight test ray by ray at the leaves
-    /// (`GrownPacket`, its node tests on the lanes).
+    /// the lanes too, or else (the one other block test) the watertight
+    /// test on the lanes, with grown boxes (`GrownPacket`).
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
     fn packet_simd<Q: PacketQuery, T: BlockTest, L: Lanes<R>, const R: usize>(
@@ -445,11 +445,7 @@ impl WideBvh<8> {
         if T::IS_MOLLER_TRUMBORE {
             self.packet_stack::<Q, Avx2, T, _, R>(single, SimdPacket(lanes), rays, out)
         } else {
-            let packet = GrownPacket {
-                lanes,
-                per_ray: PerRay::<_, T>::new(single),
-            };
-            self.packet_stack::<Q, Avx2, T, _, R>(single, packet, rays, out)
+            self.packet_stack::<Q, Avx2, T, _, R>(single, GrownPacket(lanes), rays, out)
         }
     }
 }
