@@ -140,16 +140,34 @@ impl Frustum {
     /// The children of `node` that some ray of the packet may enter, a bit
     /// per lane, and per lane the least entry distance any ray of the
     /// packet can have (at least the rays' least `tmin`): eight lanes, one
-    /// per child, whatever the packet's width.
+    /// per child, whatever the packet's width. With `GROWN`, the boxes
+    /// grown as the watertight packets' node test grows them
+    /// ([`GrownPacket`]): each plane moved out by [`Self::growth_bound`],
+    /// at least any ray's own growth, before its distance is bounded (the
+    /// rounded `(plane - o) -+ g` is monotone in `o` and `g`).
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
-    fn children(&self, l: Avx2, node: &WideNode<8>) -> (u32, [f32; 8]) {
+    fn children<const GROWN: bool>(&self, l: Avx2, node: &WideNode<8>) -> (u32, [f32; 8]) {
         let b = &node.bounds;
+        let g = if GROWN {
+            self.growth_bound(l, node)
+        } else {
+            l.splat(0.0)
+        };
         // Macros, not closures: a closure is compiled without the entry
         // point's target features, and the intrinsics would not inline.
         macro_rules! distance {
             ($row:expr, $o:expr, $pick:ident, $lo:expr, $hi:expr) => {{
-                let d = l.sub(l.load(&b[$row]), l.splat($o));
+                let row = $row;
+                let mut d = l.sub(l.load(&b[row]), l.splat($o));
+                if GROWN {
+                    // A minimum plane moves down, a maximum one up.
+                    d = if row & 1 == 0 {
+                        l.sub(d, g)
+                    } else {
+                        l.add(d, g)
+                    };
+                }
                 l.$pick(l.mul(d, l.splat($lo)), l.mul(d, l.splat($hi)))
             }};
         }
@@ -182,6 +200,31 @@ impl Frustum {
         let exit = l.min(l.min(far!(0), far!(1)), l.min(far!(2), l.splat(self.tmax)));
         // Skipped only where entry > exit for sure (a NaN keeps the child).
         (!l.bits(l.gt(entry, exit)) & 0xFF, l.store(entry))
+    }
+
+    /// Per child of `node`, a bound on the growth of its box for every ray
+    /// of the packet in the watertight packets' node test: [`BOX_GROWTH`]
+    /// of the farthest a plane of the box lies from a corner of the
+    /// origins' bounds. Each ray's growth is that of the farthest of its
+    /// own distances `plane - o` (from the moved origins of a ray in a
+    /// plane of an axis, which the bounds hold too), whose rounding is
+    /// monotone in `o`: its magnitude is greatest at a bound.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn growth_bound(&self, l: Avx2, node: &WideNode<8>) -> <Avx2 as Lanes<8>>::F {
+        let b = &node.bounds;
+        let mut farthest = l.splat(0.0);
+        for a in 0..3 {
+            let (o_a, o_b) = (l.splat(self.o_near[a]), l.splat(self.o_far[a]));
+            for row in [2 * a, 2 * a + 1] {
+                let plane = l.load(&b[row]);
+                farthest = l.max(
+                    farthest,
+                    l.max(l.abs(l.sub(plane, o_a)), l.abs(l.sub(plane, o_b))),
+                );
+            }
+        }
+        l.mul(l.min(farthest, l.splat(f32::MAX)), l.splat(BOX_GROWTH))
     }
 }
 
@@ -652,7 +695,7 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
         // children instead of a reduction per child.
         let (frustum_used, frustum_entry) = match &p.frustum {
             Some(f) => {
-                let (m, entry) = f.children(l.avx2(), node);
+                let (m, entry) = f.children::<false>(l.avx2(), node);
                 (m, Some(entry))
             }
             None => (0xFF, None),
@@ -1069,8 +1112,7 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for GrownPacket<L> {
 
     #[inline(always)]
     fn prepare(self, rays: &[Ray]) -> (Self::Rays, u32) {
-        let (mut soa, valid) = SimdPacket(self.0).prepare(rays);
-        soa.frustum = None;
+        let (soa, valid) = SimdPacket(self.0).prepare(rays);
         let watertight = WatertightLanes::new(self.0, rays);
         (GrownRays { soa, watertight }, valid)
     }
@@ -1142,7 +1184,17 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for GrownPacket<L> {
         // same values (the near plane moved out by `g` is `to_min - g` or
         // `to_max + g`, and `x + (-g)` is `x - g` exactly, zeros included).
         let shared_rows = s.rows.filter(|_| !s.in_plane);
-        for c in bits(used_lanes(l.avx2(), node)) {
+        // A packet with one sign per axis skips the children its frustum's
+        // grown boxes rule out, and orders them by the frustum's entry
+        // bound (one vector, not a reduction per child), as SimdPacket.
+        let (frustum_used, frustum_entry) = match &s.frustum {
+            Some(f) => {
+                let (m, entry) = f.children::<true>(l.avx2(), node);
+                (m, Some(entry))
+            }
+            None => (0xFF, None),
+        };
+        for c in bits(used_lanes(l.avx2(), node) & frustum_used) {
             let ((x0, x1), (y0, y1), (z0, z1)) = (planes!(0, c), planes!(1, c), planes!(2, c));
             let g = growth_of!(x0, x1, y0, y1, z0, z1);
             let ((nx, fx), (ny, fy), (nz, fz)) = match shared_rows {
@@ -1179,7 +1231,10 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for GrownPacket<L> {
                 out.lanes |= 1 << c;
                 out.rays[c] = rays;
                 if NEAR {
-                    out.near[c] = l.min_where(hit, near);
+                    out.near[c] = match &frustum_entry {
+                        Some(entry) => entry[c],
+                        None => l.min_where(hit, near),
+                    };
                 }
             }
         }
@@ -1347,7 +1402,7 @@ mod tests {
                 }
             }
             if let Some(f) = got_p.frustum {
-                let kept = f.children(avx2, &node).0 & used;
+                let kept = f.children::<false>(avx2, &node).0 & used;
                 tested += used.count_ones();
                 skipped += (used & !kept).count_ones();
             }
