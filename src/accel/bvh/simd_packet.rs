@@ -834,7 +834,7 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
 /// and [`any_in_block`]: Moller-Trumbore ([`SoaRays`]) or the watertight
 /// test ([`GrownRays`]).
 #[cfg(target_arch = "x86_64")]
-trait LaneTriangles<L: Lanes<R>, const R: usize> {
+pub(crate) trait LaneTriangles<L: Lanes<R>, const R: usize> {
     /// The rays of `live` (at least; other lanes may be set too) that hit
     /// lane `i` of `block` within their `tmin` and their lane of `tmax`,
     /// and each lane's t, u and v (meaningful where they hit).
@@ -1087,26 +1087,6 @@ pub struct GrownRays<L: Lanes<R>, const R: usize> {
 }
 
 #[cfg(target_arch = "x86_64")]
-impl<L: Lanes<R>, const R: usize> LaneTriangles<L, R> for GrownRays<L, R> {
-    #[inline(always)]
-    fn triangle(
-        &self,
-        l: L,
-        block: &Tri4,
-        i: usize,
-        live: L::M,
-        tmax: L::F,
-    ) -> (L::M, L::F, L::F, L::F) {
-        self.watertight.triangle(l, block, i, live, tmax)
-    }
-
-    #[inline(always)]
-    fn tmax(&self) -> L::F {
-        self.soa.tmax
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
 impl<L: Lanes<R>, const R: usize> PacketKernel<R> for GrownPacket<L> {
     type Rays = GrownRays<L, R>;
 
@@ -1251,12 +1231,12 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for GrownPacket<L> {
         tmax: &[f32; R],
         hits: &mut PacketHits<R>,
     ) -> u32 {
-        closest_in_block(self.0, p, block, in_leaf, active, tmax, hits)
+        closest_in_block(self.0, &p.watertight, block, in_leaf, active, tmax, hits)
     }
 
     #[inline(always)]
     fn leaf_any(self, block: &Tri4, in_leaf: u32, p: &Self::Rays, active: u32) -> u32 {
-        any_in_block(self.0, p, block, in_leaf, active)
+        any_in_block(self.0, &p.watertight, block, in_leaf, active)
     }
 }
 

@@ -17,6 +17,7 @@ use arrayvec::ArrayVec;
 
 use super::leaf::Tri4;
 use super::simd_lanes::Lanes;
+use super::simd_packet::LaneTriangles;
 use crate::geometry::{ahead_of_origin, Ray, TriangleTest, Watertight, NEAR_ORIGIN};
 
 /// Each ray's watertight set-up ([`Watertight::prepare`]) in the lanes of
@@ -39,6 +40,7 @@ pub struct WatertightLanes<L: Lanes<R>, const R: usize> {
     dir_max: L::F,
     reach: L::F,
     tmin: L::F,
+    tmax: L::F,
     /// The packet's rays (lanes past them unused).
     rays: ArrayVec<Ray, R>,
 }
@@ -52,7 +54,8 @@ impl<L: Lanes<R>, const R: usize> WatertightLanes<L, R> {
         let mut kz_seen = [false; 3];
         let mut origin = [[0f32; R]; 3];
         let mut shear = [[0f32; R]; 3];
-        let (mut dir_max, mut reach, mut tmin) = ([0f32; R], [0f32; R], [0f32; R]);
+        let (mut dir_max, mut reach) = ([0f32; R], [0f32; R]);
+        let (mut tmin, mut tmax) = ([0f32; R], [0f32; R]);
         for (r, ray) in rays.iter().enumerate() {
             let w = Watertight::prepare(ray);
             kz_x |= ((w.kz == 0) as u32) << r;
@@ -63,7 +66,7 @@ impl<L: Lanes<R>, const R: usize> WatertightLanes<L, R> {
             (shear[0][r], shear[1][r], shear[2][r]) = (w.sx, w.sy, w.sz);
             dir_max[r] = ray.dir.abs().max_element();
             reach[r] = NEAR_ORIGIN * ray.origin.abs().max_element().max(1.0);
-            tmin[r] = ray.tmin;
+            (tmin[r], tmax[r]) = (ray.tmin, ray.tmax);
         }
         let shared_kz = match kz_seen {
             [true, false, false] => Some(0),
@@ -80,15 +83,18 @@ impl<L: Lanes<R>, const R: usize> WatertightLanes<L, R> {
             dir_max: l.load(&dir_max),
             reach: l.load(&reach),
             tmin: l.load(&tmin),
+            tmax: l.load(&tmax),
             rays: rays.iter().copied().collect(),
         }
     }
+}
 
+impl<L: Lanes<R>, const R: usize> LaneTriangles<L, R> for WatertightLanes<L, R> {
     /// [`Watertight::test`] of the rays of `live` (each within its `tmin`
     /// and its lane of `tmax`) against lane `i` of `block`: the lanes that
     /// hit, and each lane's t, u and v (meaningful where they hit).
     #[inline(always)]
-    pub fn triangle(
+    fn triangle(
         &self,
         l: L,
         block: &Tri4,
@@ -204,6 +210,11 @@ impl<L: Lanes<R>, const R: usize> WatertightLanes<L, R> {
             }
         }
         (l.mask(mask), t, u, v)
+    }
+
+    #[inline(always)]
+    fn tmax(&self) -> L::F {
+        self.tmax
     }
 }
 
