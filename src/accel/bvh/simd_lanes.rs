@@ -18,8 +18,29 @@
 
 use std::arch::x86_64::*;
 
+use super::leaf::Tri4;
 use super::simd::{Avx2, Avx512};
 use crate::geometry::Ray;
+
+/// A triangle test across a packet's ray lanes, for the packets' leaf
+/// loops (`simd_packet`'s `closest_in_block` and `any_in_block`):
+/// Moller-Trumbore on `SoaRays`, or the watertight test
+/// (`simd_watertight::WatertightLanes`).
+pub(crate) trait LaneTriangles<L: Lanes<R>, const R: usize> {
+    /// The rays of `live` (at least; other lanes may be set too) that hit
+    /// lane `i` of `block` within their `tmin` and their lane of `tmax`,
+    /// and each lane's t, u and v (meaningful where they hit).
+    fn triangle(
+        &self,
+        l: L,
+        block: &Tri4,
+        i: usize,
+        live: L::M,
+        tmax: L::F,
+    ) -> (L::M, L::F, L::F, L::F);
+    /// The rays' own `tmax`.
+    fn tmax(&self) -> L::F;
+}
 
 /// `R` f32 lanes and the operations the packet kernel runs on them.
 pub trait Lanes<const R: usize>: Copy {

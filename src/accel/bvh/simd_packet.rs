@@ -36,7 +36,7 @@ use super::params::{CULL_SLACK, SLAB_SLACK};
 use super::simd::Avx2;
 use super::simd::{NodeKernel, WideRay};
 #[cfg(target_arch = "x86_64")]
-use super::simd_lanes::Lanes;
+use super::simd_lanes::{LaneTriangles, Lanes};
 #[cfg(target_arch = "x86_64")]
 use super::simd_watertight::WatertightLanes;
 use super::wide::WideNode;
@@ -828,26 +828,6 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
         let l = self.0;
         l.bits(l.le(l.splat(near), l.load(cut)))
     }
-}
-
-/// A triangle test across a packet's ray lanes, for [`closest_in_block`]
-/// and [`any_in_block`]: Moller-Trumbore ([`SoaRays`]) or the watertight
-/// test ([`GrownRays`]).
-#[cfg(target_arch = "x86_64")]
-pub(crate) trait LaneTriangles<L: Lanes<R>, const R: usize> {
-    /// The rays of `live` (at least; other lanes may be set too) that hit
-    /// lane `i` of `block` within their `tmin` and their lane of `tmax`,
-    /// and each lane's t, u and v (meaningful where they hit).
-    fn triangle(
-        &self,
-        l: L,
-        block: &Tri4,
-        i: usize,
-        live: L::M,
-        tmax: L::F,
-    ) -> (L::M, L::F, L::F, L::F);
-    /// The rays' own `tmax`.
-    fn tmax(&self) -> L::F;
 }
 
 #[cfg(target_arch = "x86_64")]

@@ -16,8 +16,7 @@
 use arrayvec::ArrayVec;
 
 use super::leaf::Tri4;
-use super::simd_lanes::Lanes;
-use super::simd_packet::LaneTriangles;
+use super::simd_lanes::{LaneTriangles, Lanes};
 use crate::geometry::{ahead_of_origin, Ray, TriangleTest, Watertight, NEAR_ORIGIN};
 
 /// Each ray's watertight set-up ([`Watertight::prepare`]) in the lanes of
