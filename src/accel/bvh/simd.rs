@@ -449,10 +449,11 @@ pub fn prefetch<T>(value: &T) {
 
 /// The first 64-byte cache line that `size` bytes at `addr` overlap, and
 /// how many they overlap (at most four). Counted from the line the value
-/// starts in, not from its first byte: a 160-byte leaf block 16-byte
-/// aligned starts 48 bytes into a line half the time and then overlaps
-/// four lines, the last (its triangle ids) left out when three lines were
-/// counted from its first byte.
+/// starts in, not from its first byte: a 160-byte leaf block, 16-byte
+/// aligned, may start 48 bytes into a line (every other block does in an
+/// array that starts 16 bytes into one, as glibc's large allocations do)
+/// and then overlaps four lines, the last (its triangle ids) left out when
+/// three lines were counted from its first byte.
 #[inline(always)]
 pub fn cache_lines(addr: usize, size: usize) -> (usize, usize) {
     let first = addr & !63;

@@ -14,6 +14,10 @@
 //!   Moller-Trumbore of [`super::leaf::intersect4`]), no fused multiply-add,
 //!   so each ray gets the single-ray results bit for bit at either width
 //!   (tested, and the two widths against each other).
+//! - [`GrownPacket`]: the watertight test's packets, the same node test with
+//!   every box grown as the single-ray grown test grows it, and at the
+//!   leaves the watertight test on the lanes
+//!   ([`super::simd_watertight`]), each lane bit for bit the scalar test.
 //!
 //! The SIMD kernel lays a packet out by lanes with in-register transposes
 //! (the rays are `repr(C)`), finds its valid rays with a few vector
@@ -1046,8 +1050,9 @@ impl<L> SimdPacket<L> {
 /// rays' lanes with every box grown as
 /// [`NodeKernel::intersect_grown`] grows it (by [`BOX_GROWTH`] of its
 /// farthest distance from each ray's origin), and the watertight test
-/// across the lanes at the leaves ([`WatertightLanes`]). No frustum: its
-/// bounds are for the exact boxes. Before it each ray of a watertight
+/// across the lanes at the leaves ([`WatertightLanes`]). Rays that agree
+/// in sign keep their [`Frustum`], its boxes grown by a bound on every
+/// ray's growth (`Frustum::children::<true>`). Before it each ray of a watertight
 /// packet walked the tree with the single-ray kernels, and the packets were
 /// slower than single rays; then each ray tested the leaves on its own,
 /// four triangles at a time, and the packets spent 4-5x Moller-Trumbore
@@ -1447,6 +1452,16 @@ mod tests {
                         );
                         if plain.rays[c] != 0 {
                             assert!(got.near[c] <= plain.near[c], "packet {k} child {c}");
+                        }
+                        // The entry the traversal orders and culls by is a
+                        // lower bound on each kept ray's own grown entry.
+                        if want.rays[c] != 0 {
+                            assert!(
+                                got.near[c] <= want.near[c],
+                                "packet {k} child {c}: {} > {}",
+                                got.near[c],
+                                want.near[c]
+                            );
                         }
                         kept += want.rays[c].count_ones();
                         grown_only += (got.rays[c] & !plain.rays[c]).count_ones();
