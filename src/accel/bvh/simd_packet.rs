@@ -251,6 +251,79 @@ pub struct NodeHits {
     pub lanes: u32,
 }
 
+/// What a packet's node test shares across a node's children: the rays
+/// tested, their `tmin` and `tmax` lanes, and, for a packet with a
+/// frustum, its entry bound per child (the children are then ordered, and
+/// culled when popped, by it: one vector for all children instead of a
+/// reduction per child).
+#[cfg(target_arch = "x86_64")]
+struct ChildTest<L: Lanes<R>, const R: usize> {
+    live: L::M,
+    tmin: L::F,
+    tmax: L::F,
+    frustum_entry: Option<[f32; 8]>,
+}
+
+#[cfg(target_arch = "x86_64")]
+impl<L: Lanes<R>, const R: usize> ChildTest<L, R> {
+    /// The test of `node`'s children for the rays of `active` of packet
+    /// `p` (within their `tmin` and `tmax`), and the children to test: the
+    /// used lanes its frustum, if any, leaves (boxes grown when `GROWN`).
+    #[inline(always)]
+    fn of<const GROWN: bool>(
+        l: L,
+        p: &SoaRays<L, R>,
+        node: &WideNode<8>,
+        active: u32,
+        tmax: &[f32; R],
+    ) -> (Self, u32) {
+        // `Frustum::children`, its boxes grown when `GROWN`; all eight
+        // children and no bound without a frustum.
+        let (frustum_used, frustum_entry) = match &p.frustum {
+            Some(f) => {
+                let (m, entry) = f.children::<GROWN>(l.avx2(), node);
+                (m, Some(entry))
+            }
+            None => (0xFF, None),
+        };
+        let test = ChildTest {
+            live: l.mask(active),
+            tmin: p.node_tmin,
+            tmax: l.load(tmax),
+            frustum_entry,
+        };
+        (test, used_lanes(l.avx2(), node) & frustum_used)
+    }
+
+    /// Child `c` into `out` from its rays' entry and exit distances per
+    /// axis: the rays whose entry is not past their exit, and (with
+    /// `NEAR`) a lower bound on their entries.
+    #[inline(always)]
+    fn record<const NEAR: bool>(
+        &self,
+        l: L,
+        out: &mut NodeHits,
+        c: usize,
+        entry: [L::F; 3],
+        exit: [L::F; 3],
+    ) {
+        let near = l.max(l.max(entry[0], entry[1]), l.max(entry[2], self.tmin));
+        let far = l.min(l.min(exit[0], exit[1]), l.min(exit[2], self.tmax));
+        let hit = l.and(l.le(near, far), self.live);
+        let rays = l.bits(hit);
+        if rays != 0 {
+            out.lanes |= 1 << c;
+            out.rays[c] = rays;
+            if NEAR {
+                out.near[c] = match &self.frustum_entry {
+                    Some(entry) => entry[c],
+                    None => l.min_where(hit, near),
+                };
+            }
+        }
+    }
+}
+
 /// A packet's closest hits so far, by lanes (so that the AVX-512 kernel
 /// keeps them in registers through a leaf): ray `r` has no hit while
 /// `tri[r]` is [`EMPTY_ID`] (no scene triangle has that index), and then
@@ -690,20 +763,10 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
             lanes: 0,
         };
         let (inv, inv_far) = (p.inv_dir, p.inv_far);
-        let tmin = p.node_tmin;
-        let tmax = l.load(tmax);
-        let live = l.mask(active);
         // A coherent packet's children are ordered (and culled when popped)
         // by the frustum's least possible entry (as Embree's coherent
-        // packets are): a bound on the rays' own entries, one vector for all
-        // children instead of a reduction per child.
-        let (frustum_used, frustum_entry) = match &p.frustum {
-            Some(f) => {
-                let (m, entry) = f.children::<false>(l.avx2(), node);
-                (m, Some(entry))
-            }
-            None => (0xFF, None),
-        };
+        // packets are): a bound on the rays' own entries.
+        let (test, used) = ChildTest::of::<false>(l, p, node, active, tmax);
         let b = &node.bounds;
         // Per axis the single-ray kernel's (plane - origin) * inv with the
         // plane the ray's sign makes near, and the far one: the same row for
@@ -715,28 +778,12 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for SimdPacket<L> {
                 l.mul(l.sub(l.splat(b[$row][$c]), $origin), $inv)
             };
         }
-        // One child: its rays' entry and exit distances from the slab
-        // distances of each axis, the box test, the least entry distance.
+        // One child: its rays' box test from the slab distances per axis.
         macro_rules! child {
-            ($c:expr, ($nx:expr, $fx:expr), ($ny:expr, $fy:expr), ($nz:expr, $fz:expr)) => {{
-                let c = $c;
-                let near = l.max(l.max($nx, $ny), l.max($nz, tmin));
-                let far = l.min(l.min($fx, $fy), l.min($fz, tmax));
-                let hit = l.and(l.le(near, far), live);
-                let rays = l.bits(hit);
-                if rays != 0 {
-                    out.lanes |= 1 << c;
-                    out.rays[c] = rays;
-                    if NEAR {
-                        out.near[c] = match &frustum_entry {
-                            Some(entry) => entry[c],
-                            None => l.min_where(hit, near),
-                        };
-                    }
-                }
-            }};
+            ($c:expr, ($nx:expr, $fx:expr), ($ny:expr, $fy:expr), ($nz:expr, $fz:expr)) => {
+                test.record::<NEAR>(l, &mut out, $c, [$nx, $ny, $nz], [$fx, $fy, $fz])
+            };
         }
-        let used = used_lanes(l.avx2(), node) & frustum_used;
         match p.rows {
             Some([rx, ry, rz]) if !p.in_plane => {
                 // The common case, every plane measured from the origin
@@ -1103,9 +1150,10 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for GrownPacket<L> {
             lanes: 0,
         };
         let (inv, inv_far) = (s.inv_dir, s.inv_far);
-        let tmin = s.node_tmin;
-        let tmax = l.load(tmax);
-        let live = l.mask(active);
+        // A packet with one sign per axis skips the children its frustum's
+        // grown boxes rule out, and orders them by the frustum's entry
+        // bound, as SimdPacket.
+        let (test, used) = ChildTest::of::<true>(l, s, node, active, tmax);
         let b = &node.bounds;
         let (from_min, from_max) = s.slab_origins(l);
         let (growth, cap) = (l.splat(BOX_GROWTH), l.splat(f32::MAX));
@@ -1149,17 +1197,7 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for GrownPacket<L> {
         // same values (the near plane moved out by `g` is `to_min - g` or
         // `to_max + g`, and `x + (-g)` is `x - g` exactly, zeros included).
         let shared_rows = s.rows.filter(|_| !s.in_plane);
-        // A packet with one sign per axis skips the children its frustum's
-        // grown boxes rule out, and orders them by the frustum's entry
-        // bound (one vector, not a reduction per child), as SimdPacket.
-        let (frustum_used, frustum_entry) = match &s.frustum {
-            Some(f) => {
-                let (m, entry) = f.children::<true>(l.avx2(), node);
-                (m, Some(entry))
-            }
-            None => (0xFF, None),
-        };
-        for c in bits(used_lanes(l.avx2(), node) & frustum_used) {
+        for c in bits(used) {
             let ((x0, x1), (y0, y1), (z0, z1)) = (planes!(0, c), planes!(1, c), planes!(2, c));
             let g = growth_of!(x0, x1, y0, y1, z0, z1);
             let ((nx, fx), (ny, fy), (nz, fz)) = match shared_rows {
@@ -1188,20 +1226,7 @@ impl<L: Lanes<R>, const R: usize> PacketKernel<R> for GrownPacket<L> {
                     slab!(z0, z1, g, 2),
                 ),
             };
-            let near = l.max(l.max(nx, ny), l.max(nz, tmin));
-            let far = l.min(l.min(fx, fy), l.min(fz, tmax));
-            let hit = l.and(l.le(near, far), live);
-            let rays = l.bits(hit);
-            if rays != 0 {
-                out.lanes |= 1 << c;
-                out.rays[c] = rays;
-                if NEAR {
-                    out.near[c] = match &frustum_entry {
-                        Some(entry) => entry[c],
-                        None => l.min_where(hit, near),
-                    };
-                }
-            }
+            test.record::<NEAR>(l, &mut out, c, [nx, ny, nz], [fx, fy, fz]);
         }
         out
     }
